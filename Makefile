@@ -1,0 +1,91 @@
+# The teaching renderer.  Targets:
+#   make            all chapters into build/
+#   make demo       render the Cornell box with every chapter and show the results
+#   make test       unit tests + grading tests, plain and under ASan/UBSan
+#   make bench      throughput and timing (a benchmark, not a test)
+#   make deps       install the Debian packages the project needs
+#   make clean
+# Options: NATIVE=1 adds -march=native; CC=clang builds with clang;
+#          SANITIZE=1 builds with AddressSanitizer + UndefinedBehaviorSanitizer.
+
+CC      ?= cc
+BUILD   ?= build
+PYTHON  := /usr/bin/python3
+
+CFLAGS_BASE := -std=c17 -g -Wall -Wextra -Wpedantic -fopenmp -D_POSIX_C_SOURCE=200809L -MMD -MP
+ifeq ($(SANITIZE),1)
+  CFLAGS_OPT := -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=undefined
+  LDFLAGS_SAN := -fsanitize=address,undefined
+else
+  CFLAGS_OPT := -O2
+endif
+ifeq ($(NATIVE),1)
+  CFLAGS_OPT += -march=native
+endif
+CFLAGS  += $(CFLAGS_BASE) $(CFLAGS_OPT)
+LDLIBS  += -lpng -lm
+LDFLAGS += -fopenmp $(LDFLAGS_SAN)
+
+COMMON_SRC := $(wildcard common/*.c)
+COMMON_OBJ := $(COMMON_SRC:%.c=$(BUILD)/%.o)
+CHAPTERS   := $(patsubst chapters/%.c,$(BUILD)/%,$(wildcard chapters/*.c))
+TESTS      := $(patsubst tests/%.c,$(BUILD)/tests/%,$(wildcard tests/test_*.c))
+
+.PHONY: all tests demo test test-plain bench deps print-deps clean
+.DEFAULT_GOAL := all
+.SECONDARY:
+
+all: $(CHAPTERS) $(BUILD)/bench/bench_rays
+tests: $(TESTS)
+
+$(BUILD)/common/%.o: common/%.c
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -c $< -o $@
+
+$(BUILD)/%: chapters/%.c $(COMMON_OBJ)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -Icommon $< $(COMMON_OBJ) -o $@ $(LDFLAGS) $(LDLIBS)
+
+$(BUILD)/bench/%: bench/%.c $(COMMON_OBJ)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -Icommon $< $(COMMON_OBJ) -o $@ $(LDFLAGS) $(LDLIBS)
+
+$(BUILD)/tests/%: tests/%.c $(COMMON_OBJ)
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -Icommon $< $(COMMON_OBJ) -o $@ $(LDFLAGS) $(LDLIBS)
+
+# --- set-up ---------------------------------------------------------------
+DEBIAN_PACKAGES := build-essential clang libpng-dev libomp-dev python3
+print-deps:
+	@echo $(DEBIAN_PACKAGES)
+
+deps:
+	@$(PYTHON) --version >/dev/null 2>&1 && dpkg -s $(DEBIAN_PACKAGES) >/dev/null 2>&1 && exit 0; \
+	if [ "$$(id -u)" = 0 ]; then \
+	  apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y $(DEBIAN_PACKAGES); \
+	else \
+	  echo "missing packages; run:  sudo apt-get install -y $(DEBIAN_PACKAGES)"; exit 1; \
+	fi
+
+# --- the two commands -------------------------------------------------------
+demo: deps all
+	@mkdir -p out
+	$(BUILD)/01_local scenes/cornell.scene --light-samples 16 --ambient 0.05 --out out/cornell-01_local.png --out out/cornell-01_local.pfm --stats out/cornell-01_local.json
+	$(BUILD)/01_local scenes/cornell-point.scene --out out/cornell-point-01_local.png --out out/cornell-point-01_local.pfm --stats out/cornell-point-01_local.json
+	@echo "demo: wrote out/cornell-01_local.png and out/cornell-point-01_local.png"
+
+test: deps
+	$(MAKE) --no-print-directory all tests
+	$(MAKE) --no-print-directory all tests BUILD=build/asan SANITIZE=1
+	$(PYTHON) tests/run.py build build/asan
+
+test-plain: all tests
+	$(PYTHON) tests/run.py build
+
+bench: deps all
+	$(PYTHON) bench/bench.py build
+
+clean:
+	rm -rf build out
+
+-include $(shell find $(BUILD) -name '*.d' 2>/dev/null)

@@ -1,0 +1,110 @@
+/* bench_rays.c — incoherent ray-casting throughput on a scene.
+ *
+ * usage: build/bench/bench_rays [scene] [--rays N]
+ * Rays start at random points on the scene's surfaces (chosen in proportion
+ * to area) and go in uniformly random directions: the rays of the second and
+ * later bounces of a path tracer, which is the hard case for a BVH.  Prints
+ * closest-hit and shadow-ray throughput in million rays per second for 1
+ * thread and for all threads.  A benchmark, not a test.
+ */
+#include <omp.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "render.h"
+#include "sampling.h"
+#include "scene.h"
+
+static double now_seconds(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+/* A random point on a random surface, by area. */
+static vec3 random_surface_point(const scene *s, rng *g, vec3 *normal)
+{
+    double total = 0;
+    for (int i = 0; i < s->surface_count; i++)
+        total += s->surfaces[i].area;
+    double pick = rng_uniform(g) * total;
+    int i = 0;
+    while (i < s->surface_count - 1 && pick > s->surfaces[i].area)
+        pick -= s->surfaces[i++].area;
+    vec3 p;
+    surface_sample_point(s, i, rng_uniform(g), rng_uniform(g), rng_uniform(g), &p, normal);
+    return p;
+}
+
+typedef struct { ray r; vec3 target; } bench_ray;
+
+static double run_closest(const scene *s, const bench_ray *rays, long n, int threads, long *hits)
+{
+    long count = 0;
+    double start = now_seconds();
+#pragma omp parallel for num_threads(threads) reduction(+ : count) schedule(static)
+    for (long i = 0; i < n; i++) {
+        hit h;
+        count += scene_intersect(s, rays[i].r, INFINITY, &h);
+    }
+    *hits = count;
+    return now_seconds() - start;
+}
+
+static double run_shadow(const scene *s, const bench_ray *rays, long n, int threads, long *blocked)
+{
+    long count = 0;
+    double start = now_seconds();
+#pragma omp parallel for num_threads(threads) reduction(+ : count) schedule(static)
+    for (long i = 0; i < n; i++)
+        count += scene_occluded(s, rays[i].r.origin, rays[i].target);
+    *blocked = count;
+    return now_seconds() - start;
+}
+
+int main(int argc, char **argv)
+{
+    const char *path = "scenes/cornell.scene";
+    long n = 4000000;
+    for (int i = 1; i < argc; i++) {
+        if (!strcmp(argv[i], "--rays") && i + 1 < argc)
+            n = atol(argv[++i]);
+        else
+            path = argv[i];
+    }
+    scene s;
+    char err[1024];
+    if (scene_load(path, &s, err, sizeof err)) {
+        fprintf(stderr, "%s\n", err);
+        return 2;
+    }
+    bench_ray *rays = malloc((size_t)n * sizeof *rays);
+    if (!rays)
+        return 2;
+    for (long i = 0; i < n; i++) {
+        rng g = rng_for(42, (uint64_t)i, 0);
+        vec3 normal, other_normal;
+        vec3 p = random_surface_point(&s, &g, &normal);
+        vec3 d = uniform_sample_sphere(rng_uniform(&g), rng_uniform(&g));
+        rays[i].r = (ray){scene_offset_origin(&s, p, normal, d), d};
+        rays[i].target = random_surface_point(&s, &g, &other_normal);
+    }
+    int max_threads = omp_get_max_threads();
+    printf("scene %s: %d triangles, %d spheres, %d BVH nodes, %ld rays\n", path, s.triangle_count, s.sphere_count,
+           s.node_count, n);
+    for (int threads = 1; threads <= max_threads; threads = threads == max_threads ? threads + 1 : max_threads) {
+        long hits, blocked;
+        double t_closest = run_closest(&s, rays, n, threads, &hits);
+        double t_shadow = run_shadow(&s, rays, n, threads, &blocked);
+        printf("threads %d: closest hit %.2f Mrays/s (%.1f%% hit), shadow %.2f Mrays/s (%.1f%% blocked)\n",
+               threads, n / t_closest * 1e-6, 100.0 * hits / n, n / t_shadow * 1e-6, 100.0 * blocked / n);
+        if (threads == max_threads)
+            break;
+    }
+    free(rays);
+    scene_free(&s);
+    return 0;
+}

@@ -1,0 +1,597 @@
+/* render.c — command line, pixel loop, progressive passes, statistics. */
+#include "render.h"
+
+#include <errno.h>
+#include <limits.h>
+#include <omp.h>
+#include <stdarg.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+enum { ERROR_SIZE = 2048 };
+
+static double now_seconds(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+void warn_once(int *flag, const char *format, ...)
+{
+    int already;
+#pragma omp atomic capture
+    already = (*flag)++;
+    if (already)
+        return;
+    va_list args;
+    va_start(args, format);
+    fputs("warning: ", stderr);
+    vfprintf(stderr, format, args);
+    fputc('\n', stderr);
+    va_end(args);
+}
+
+/* --- JSON ---------------------------------------------------------------------- */
+
+void json_string(FILE *f, const char *s)
+{
+    fputc('"', f);
+    for (; *s; s++) {
+        unsigned char c = (unsigned char)*s;
+        if (c == '"' || c == '\\')
+            fprintf(f, "\\%c", c);
+        else if (c < 0x20)
+            fprintf(f, "\\u%04x", c);
+        else
+            fputc(c, f);
+    }
+    fputc('"', f);
+}
+
+void json_number(FILE *f, double v)
+{
+    if (isfinite(v))
+        fprintf(f, "%.17g", v);
+    else
+        fputs("null", f);
+}
+
+void json_vec3(FILE *f, vec3 v)
+{
+    fputc('[', f);
+    json_number(f, v.x);
+    fputs(", ", f);
+    json_number(f, v.y);
+    fputs(", ", f);
+    json_number(f, v.z);
+    fputc(']', f);
+}
+
+/* --- command line ---------------------------------------------------------------- */
+
+static const char *value_of(int argc, char **argv, int *i, char *err, size_t err_size)
+{
+    if (*i + 1 >= argc) {
+        snprintf(err, err_size, "argv:%d: %s needs a value (see --help)", *i, argv[*i]);
+        return NULL;
+    }
+    return argv[++*i];
+}
+
+int parse_int_option(int argc, char **argv, int *i, long lo, long hi, int *out, char *err, size_t err_size)
+{
+    const char *flag = argv[*i];
+    const char *text = value_of(argc, argv, i, err, err_size);
+    if (!text)
+        return 2;
+    char *end;
+    errno = 0;
+    long v = strtol(text, &end, 10);
+    if (errno || end == text || *end || v < lo || v > hi) {
+        snprintf(err, err_size, "argv:%d: %s wants a whole number in [%ld, %ld], not '%s'", *i, flag, lo, hi, text);
+        return 2;
+    }
+    *out = (int)v;
+    return 1;
+}
+
+int parse_double_option(int argc, char **argv, int *i, double lo, double hi, double *out, char *err,
+                        size_t err_size)
+{
+    const char *flag = argv[*i];
+    const char *text = value_of(argc, argv, i, err, err_size);
+    if (!text)
+        return 2;
+    char *end;
+    errno = 0;
+    double v = strtod(text, &end);
+    if (errno || end == text || *end || !isfinite(v) || v < lo || v > hi) {
+        snprintf(err, err_size, "argv:%d: %s wants a number in [%g, %g], not '%s'", *i, flag, lo, hi, text);
+        return 2;
+    }
+    *out = v;
+    return 1;
+}
+
+static void print_help(const chapter *ch, const char *program)
+{
+    printf("%s — %s\n\n"
+           "usage: %s [scene] [--out FILE.pfm|.png ...] [--size WxH] [--spp N] [--time SECONDS]\n"
+           "          [--seed N] [--threads N] [--ref REF.pfm] [--stats FILE.json] [--bounces A:B]\n"
+           "          [--exposure STOPS] [--quiet] [--help]%s\n\n"
+           "  scene            a .scene file (default scenes/cornell.scene)\n"
+           "  --out FILE       write the image; .pfm = linear radiance, .png = tone-mapped sRGB;\n"
+           "                   may be given several times (default out/<scene>-%s.png)\n"
+           "  --size WxH       image size (default: the scene's `image` statement)\n"
+           "  --spp N          samples per pixel (default %d; a cap when --time is given)\n"
+           "  --time SECONDS   render progressive passes until the budget is spent\n"
+           "  --seed N         random seed; the image depends only on it, not on --threads\n"
+           "  --threads N      OpenMP threads (default: all cores)\n"
+           "  --ref REF.pfm    print RMSE, relative MSE, PSNR, SSIM against a reference\n"
+           "  --stats FILE     write statistics as one JSON object\n"
+           "  --bounces A:B    keep only the Neumann terms K^A E .. K^B E (R6); 'A:' = A and up\n"
+           "  --exposure S     PNG exposure in stops (default 0)\n"
+           "  --quiet          no progress bar\n",
+           ch->name, ch->description, program, ch->options_help ? "\n          [chapter options below]" : "",
+           ch->name, ch->default_spp);
+    if (ch->options_help)
+        printf("\n%s options:\n%s", ch->name, ch->options_help);
+}
+
+static int parse_bounces(const char *text, render_options *o)
+{
+    char *end;
+    long a = strtol(text, &end, 10), b = a;
+    if (end == text || a < 0)
+        return 2;
+    if (*end == ':') {
+        const char *rest = end + 1;
+        if (*rest == '\0')
+            b = RENDER_BOUNCES_UNLIMITED;
+        else {
+            b = strtol(rest, &end, 10);
+            if (end == rest || *end)
+                return 2;
+        }
+    } else if (*end)
+        return 2;
+    if (b < a || b > RENDER_BOUNCES_UNLIMITED)
+        return 2;
+    o->bounce_min = (int)a, o->bounce_max = (int)b, o->bounces_given = true;
+    return 0;
+}
+
+static int parse_command_line(int argc, char **argv, const chapter *ch, void *state, render_options *o, bool *help,
+                              char *err, size_t err_size)
+{
+    *o = (render_options){.spp = ch->default_spp, .seed = 1, .bounce_min = 0,
+                          .bounce_max = RENDER_BOUNCES_UNLIMITED};
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i];
+        const char *v;
+        int status;
+        if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
+            *help = true;
+            return 0;
+        } else if (!strcmp(a, "--quiet")) {
+            o->quiet = true;
+        } else if (!strcmp(a, "--out")) {
+            if (!(v = value_of(argc, argv, &i, err, err_size)))
+                return 2;
+            if (o->output_count == RENDER_MAX_OUTPUTS) {
+                snprintf(err, err_size, "argv:%d: at most %d --out files", i, RENDER_MAX_OUTPUTS);
+                return 2;
+            }
+            o->outputs[o->output_count++] = v;
+        } else if (!strcmp(a, "--size")) {
+            if (!(v = value_of(argc, argv, &i, err, err_size)))
+                return 2;
+            char *end;
+            long w = strtol(v, &end, 10), h = 0;
+            if (*end == 'x' || *end == 'X')
+                h = strtol(end + 1, &end, 10);
+            if (*end || w < 1 || h < 1 || w > 16384 || h > 16384) {
+                snprintf(err, err_size, "argv:%d: --size wants WxH with 1 <= W, H <= 16384, not '%s'", i, v);
+                return 2;
+            }
+            o->width = (int)w, o->height = (int)h;
+        } else if (!strcmp(a, "--spp")) {
+            if ((status = parse_int_option(argc, argv, &i, 1, 1 << 24, &o->spp, err, err_size)) != 1)
+                return status;
+            o->spp_given = true;
+        } else if (!strcmp(a, "--time")) {
+            if ((status = parse_double_option(argc, argv, &i, 1e-3, 1e6, &o->time_budget, err, err_size)) != 1)
+                return status;
+        } else if (!strcmp(a, "--seed")) {
+            int seed;
+            if ((status = parse_int_option(argc, argv, &i, 0, INT_MAX, &seed, err, err_size)) != 1)
+                return status;
+            o->seed = (uint64_t)seed;
+        } else if (!strcmp(a, "--threads")) {
+            if ((status = parse_int_option(argc, argv, &i, 1, 1024, &o->threads, err, err_size)) != 1)
+                return status;
+        } else if (!strcmp(a, "--ref")) {
+            if (!(o->reference_path = value_of(argc, argv, &i, err, err_size)))
+                return 2;
+        } else if (!strcmp(a, "--stats")) {
+            if (!(o->stats_path = value_of(argc, argv, &i, err, err_size)))
+                return 2;
+        } else if (!strcmp(a, "--exposure")) {
+            if ((status = parse_double_option(argc, argv, &i, -64, 64, &o->exposure, err, err_size)) != 1)
+                return status;
+        } else if (!strcmp(a, "--bounces")) {
+            if (!(v = value_of(argc, argv, &i, err, err_size)))
+                return 2;
+            if (parse_bounces(v, o)) {
+                snprintf(err, err_size, "argv:%d: --bounces wants A:B, A: or A with 0 <= A <= B, not '%s'", i, v);
+                return 2;
+            }
+        } else if (ch->parse_option && (status = ch->parse_option(state, argc, argv, &i, err, err_size)) != 0) {
+            if (status != 1)
+                return status;
+        } else if (a[0] == '-' && a[1] != '\0') {
+            snprintf(err, err_size, "argv:%d: unknown option '%s' (see --help)", i, a);
+            return 2;
+        } else if (o->scene_path) {
+            snprintf(err, err_size, "argv:%d: a second scene file '%s' (only one is rendered)", i, a);
+            return 2;
+        } else {
+            o->scene_path = a;
+        }
+    }
+    if (!o->scene_path)
+        o->scene_path = "scenes/cornell.scene";
+    return 0;
+}
+
+/* The driver may pick the output file name; the chapter's .ply is not an image. */
+static bool is_image_path(const char *p) { return path_has_extension(p, ".pfm") || path_has_extension(p, ".png"); }
+
+/* --- progress bar ------------------------------------------------------------------- */
+
+static void show_progress(const render_options *o, double fraction, int pass, double elapsed)
+{
+    if (o->quiet || !isatty(STDERR_FILENO))
+        return;
+    const int width = 40;
+    int filled = (int)(fraction * width + 0.5);
+    fprintf(stderr, "\r[");
+    for (int k = 0; k < width; k++)
+        fputc(k < filled ? '#' : ' ', stderr);
+    fprintf(stderr, "] %3d%%  pass %d  %.1f s", (int)(100 * fraction + 0.5), pass, elapsed);
+    fflush(stderr);
+}
+
+/* --- the pixel loop -------------------------------------------------------------------- */
+
+/* Where in the pixel sample `index` looks.  One sample looks through the
+ * pixel centre (a deterministic image for the local and Whitted chapters);
+ * a square number of samples is stratified on a grid with jitter inside each
+ * cell; anything else (0 = unknown in advance) is uniformly jittered. */
+static void pixel_offset(int index, int spp, rng *g, double *dx, double *dy)
+{
+    if (spp == 1) {
+        *dx = *dy = 0.5;
+        return;
+    }
+    double u1 = rng_uniform(g), u2 = rng_uniform(g);
+    int side = (int)lround(sqrt((double)spp));
+    if (spp > 1 && side * side == spp) {
+        int cell = index % spp;
+        *dx = ((cell % side) + u1) / side;
+        *dy = ((cell / side) + u2) / side;
+    } else {
+        *dx = u1, *dy = u2;
+    }
+}
+
+typedef struct {
+    double *sum;   /* running sum of samples, 3 per pixel */
+    long samples;  /* per pixel so far */
+    uint64_t nonfinite;
+    render_counters counters;
+} accumulation;
+
+static void render_pass(const chapter *ch, const void *state, const scene *s, const render_options *o, int width,
+                        int height, int first_sample, int pass_samples, int spp_total, accumulation *acc)
+{
+#pragma omp parallel
+    {
+        render_counters local = {{0}};
+        uint64_t nonfinite = 0;
+#pragma omp for schedule(dynamic, 1)
+        for (int y = 0; y < height; y++)
+            for (int x = 0; x < width; x++) {
+                uint64_t pixel = (uint64_t)y * (uint64_t)width + (uint64_t)x;
+                vec3 total = v3_splat(0.0);
+                for (int k = first_sample; k < first_sample + pass_samples; k++) {
+                    rng g = rng_for(o->seed, pixel, (uint64_t)k);
+                    double dx, dy;
+                    pixel_offset(k, spp_total, &g, &dx, &dy);
+                    ray r = camera_ray(&s->camera, width, height, x + dx, y + dy);
+                    vec3 L = ch->radiance(state, s, r, &g, &local);
+                    if (v3_is_finite(L))
+                        total = v3_add(total, L);
+                    else
+                        nonfinite++; /* rejected: counts as a zero sample, reported in stats */
+                }
+                double *p = acc->sum + 3 * pixel;
+                p[0] += total.x, p[1] += total.y, p[2] += total.z;
+            }
+#pragma omp critical
+        {
+            for (int c = 0; c < RENDER_MAX_COUNTERS; c++)
+                acc->counters.value[c] += local.value[c];
+            acc->nonfinite += nonfinite;
+        }
+    }
+    acc->samples += pass_samples;
+}
+
+static void accumulation_to_image(const accumulation *acc, image *img)
+{
+    size_t n = 3 * (size_t)img->width * (size_t)img->height;
+    for (size_t i = 0; i < n; i++)
+        img->pixels[i] = (float)(acc->sum[i] / (double)acc->samples);
+}
+
+static int write_outputs(const chapter *ch, const void *state, const scene *s, const render_options *o,
+                         const image *img, char *err, size_t err_size)
+{
+    for (int k = 0; k < o->output_count; k++) {
+        const char *path = o->outputs[k];
+        if (ch->write_output) {
+            int status = ch->write_output(state, s, path, err, err_size);
+            if (status == 1)
+                continue;
+            if (status != 0)
+                return 2;
+        }
+        if (image_write(img, path, o->exposure, err, err_size))
+            return 2;
+    }
+    return 0;
+}
+
+/* --- stats ----------------------------------------------------------------------------- */
+
+typedef struct {
+    double time_total, time_prepare, time_render;
+    long samples_per_pixel;
+    int passes;
+    bool have_metrics;
+    image_metrics metrics;
+} run_summary;
+
+static int write_stats(const chapter *ch, const void *state, const scene *s, const render_options *o, int width,
+                       int height, const accumulation *acc, const probe_result *probes, const run_summary *run,
+                       char *err, size_t err_size)
+{
+    char temporary[4096];
+    snprintf(temporary, sizeof temporary, "%s.tmp.%ld", o->stats_path, (long)getpid());
+    FILE *f = fopen(temporary, "w");
+    if (!f) {
+        snprintf(err, err_size, "%s:0: cannot write: %s", o->stats_path, strerror(errno));
+        return 2;
+    }
+    fprintf(f, "{\n  \"chapter\": ");
+    json_string(f, ch->name);
+    fprintf(f, ",\n  \"scene\": ");
+    json_string(f, o->scene_path);
+    fprintf(f, ",\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %ld,\n  \"passes\": %d,\n  \"seed\": %llu", width,
+            height, run->samples_per_pixel, run->passes, (unsigned long long)o->seed);
+    fprintf(f, ",\n  \"threads\": %d", omp_get_max_threads());
+    fprintf(f, ",\n  \"time_s\": ");
+    json_number(f, run->time_total);
+    fprintf(f, ",\n  \"prepare_s\": ");
+    json_number(f, run->time_prepare);
+    fprintf(f, ",\n  \"render_s\": ");
+    json_number(f, run->time_render);
+    fprintf(f, ",\n  \"bounces\": [%d, %d]", o->bounce_min, o->bounce_max);
+    fprintf(f, ",\n  \"counters\": {\"camera_rays\": %llu",
+            (unsigned long long)((uint64_t)run->samples_per_pixel * (uint64_t)width * (uint64_t)height));
+    for (int c = 0; c < RENDER_MAX_COUNTERS && ch->counter_names[c]; c++) {
+        fputs(", ", f);
+        json_string(f, ch->counter_names[c]);
+        fprintf(f, ": %llu", (unsigned long long)acc->counters.value[c]);
+    }
+    fprintf(f, "},\n  \"nonfinite_samples\": %llu", (unsigned long long)acc->nonfinite);
+    fprintf(f, ",\n  \"probes\": [");
+    for (int p = 0; probes && p < s->probe_count; p++) {
+        fprintf(f, "%s\n    {\"name\": ", p ? "," : "");
+        json_string(f, s->probes[p].name);
+        fprintf(f, ", \"irradiance\": ");
+        json_vec3(f, probes[p].irradiance);
+        fprintf(f, ", \"standard_error\": ");
+        json_vec3(f, probes[p].standard_error);
+        fputc('}', f);
+    }
+    fprintf(f, "%s]", probes && s->probe_count ? "\n  " : "");
+    if (run->have_metrics) {
+        fprintf(f, ",\n  \"metrics\": {\"reference\": ");
+        json_string(f, o->reference_path);
+        fprintf(f, ", \"rmse\": ");
+        json_number(f, run->metrics.rmse);
+        fprintf(f, ", \"relmse\": ");
+        json_number(f, run->metrics.relmse);
+        fprintf(f, ", \"psnr\": ");
+        json_number(f, run->metrics.psnr);
+        fprintf(f, ", \"ssim\": ");
+        json_number(f, run->metrics.ssim);
+        fputc('}', f);
+    }
+    if (ch->write_stats)
+        ch->write_stats(state, f);
+    fprintf(f, "\n}\n");
+    int failed = ferror(f) != 0;
+    failed |= fclose(f) != 0;
+    if (failed || rename(temporary, o->stats_path) != 0) {
+        remove(temporary);
+        snprintf(err, err_size, "%s:0: write failed", o->stats_path);
+        return 2;
+    }
+    return 0;
+}
+
+/* --- main ----------------------------------------------------------------------------- */
+
+/* Checks that need no rendering come first, so a typo fails in
+ * milliseconds rather than after a long render. */
+static int check_outputs(const chapter *ch, const render_options *o, char *err, size_t err_size)
+{
+    for (int k = 0; k < o->output_count; k++) {
+        const char *p = o->outputs[k];
+        if (!is_image_path(p) && !(ch->write_output && path_has_extension(p, ".ply"))) {
+            snprintf(err, err_size, "argv:0: --out '%s': unknown format (use .pfm or .png%s)", p,
+                     ch->write_output ? " or .ply" : "");
+            return 2;
+        }
+    }
+    return 0;
+}
+
+static int run(int argc, char **argv, const chapter *ch, void *state, char *err, size_t err_size)
+{
+    double start = now_seconds();
+    render_options o;
+    bool help = false;
+    if (parse_command_line(argc, argv, ch, state, &o, &help, err, err_size))
+        return 2;
+    if (help) {
+        print_help(ch, argv[0]);
+        return 0;
+    }
+    if (check_outputs(ch, &o, err, err_size))
+        return 2;
+    if (o.threads > 0)
+        omp_set_num_threads(o.threads);
+
+    scene s;
+    if (scene_load(o.scene_path, &s, err, err_size))
+        return 2;
+    int width = o.width ? o.width : s.width, height = o.height ? o.height : s.height;
+    o.width = width, o.height = height;
+
+    char default_output[1200];
+    if (o.output_count == 0) {
+        const char *base = strrchr(o.scene_path, '/');
+        base = base ? base + 1 : o.scene_path;
+        snprintf(default_output, sizeof default_output, "out/%.*s-%s.png", (int)strcspn(base, "."), base, ch->name);
+        o.outputs[o.output_count++] = default_output;
+        mkdir("out", 0777); /* may exist already; a failure shows when writing */
+    }
+
+    image reference = {0};
+    int status = 2;
+    accumulation acc = {0};
+    image img = {0};
+    probe_result *probes = NULL;
+    if (o.reference_path) {
+        if (image_read_pfm(o.reference_path, &reference, err, err_size))
+            goto done;
+        if (reference.width != width || reference.height != height) {
+            snprintf(err, err_size, "%s:0: reference is %dx%d but the image is %dx%d", o.reference_path,
+                     reference.width, reference.height, width, height);
+            goto done;
+        }
+    }
+
+    double prepare_start = now_seconds();
+    if (ch->prepare && ch->prepare(state, &s, &o, err, err_size))
+        goto done;
+    double render_start = now_seconds();
+
+    img = image_new(width, height);
+    acc.sum = calloc(3 * (size_t)width * (size_t)height, sizeof(double));
+    if (!img.pixels || !acc.sum) {
+        snprintf(err, err_size, "argv:0: out of memory for a %dx%d image", width, height);
+        goto done;
+    }
+
+    /* Progressive passes.  Without --time: the --spp samples in passes of
+     * growing size (the bar moves, the overhead stays small).  With --time:
+     * passes of 1 spp until the budget is spent (at least one pass), capped
+     * by --spp when given; the result so far is written after each pass so
+     * a viewer can show it while the render goes on. */
+    bool timed = o.time_budget > 0.0;
+    int spp_cap = timed ? (o.spp_given ? o.spp : INT_MAX) : o.spp;
+    /* Strata need the final count in advance; a timed render jitters. */
+    int spp_for_offsets = timed ? (spp_cap == 1 ? 1 : 0) : o.spp;
+    int passes = 0;
+    double last_write = render_start;
+    while (acc.samples < spp_cap) {
+        int pass_samples = timed ? 1 : (int)fmin((double)(spp_cap - acc.samples), fmax(1.0, acc.samples / 2.0));
+        render_pass(ch, state, &s, &o, width, height, (int)acc.samples, pass_samples,
+                    spp_for_offsets, &acc);
+        passes++;
+        double elapsed = now_seconds() - render_start;
+        double fraction = timed ? fmin(1.0, elapsed / o.time_budget) : (double)acc.samples / spp_cap;
+        show_progress(&o, fraction, passes, elapsed);
+        if (timed && now_seconds() - start >= o.time_budget)
+            break;
+        if (timed && now_seconds() - last_write > 0.5) {
+            accumulation_to_image(&acc, &img);
+            if (write_outputs(ch, state, &s, &o, &img, err, err_size))
+                goto done;
+            last_write = now_seconds();
+        }
+    }
+    if (!o.quiet && isatty(STDERR_FILENO))
+        fputc('\n', stderr);
+    accumulation_to_image(&acc, &img);
+    double render_end = now_seconds();
+
+    if (ch->probe && s.probe_count) {
+        probes = calloc((size_t)s.probe_count, sizeof *probes);
+        if (!probes) {
+            snprintf(err, err_size, "argv:0: out of memory");
+            goto done;
+        }
+        for (int p = 0; p < s.probe_count; p++)
+            probes[p] = ch->probe(state, &s, &s.probes[p], o.seed, &acc.counters);
+    }
+
+    run_summary summary = {.time_prepare = render_start - prepare_start,
+                           .time_render = render_end - render_start,
+                           .samples_per_pixel = acc.samples,
+                           .passes = passes};
+    if (o.reference_path) {
+        summary.metrics = image_compare(&img, &reference);
+        summary.have_metrics = true;
+        fprintf(stderr, "%s: rmse %.6g  relmse %.6g  psnr %.2f dB  ssim %.4f\n", ch->name, summary.metrics.rmse,
+                summary.metrics.relmse, summary.metrics.psnr, summary.metrics.ssim);
+    }
+    if (write_outputs(ch, state, &s, &o, &img, err, err_size))
+        goto done;
+    summary.time_total = now_seconds() - start;
+    if (o.stats_path &&
+        write_stats(ch, state, &s, &o, width, height, &acc, probes, &summary, err, err_size))
+        goto done;
+    if (acc.nonfinite)
+        fprintf(stderr, "warning: %llu non-finite samples were rejected (counted in stats)\n",
+                (unsigned long long)acc.nonfinite);
+    status = 0;
+
+done:
+    free(probes);
+    free(acc.sum);
+    image_free(&img);
+    image_free(&reference);
+    if (ch->finish)
+        ch->finish(state);
+    scene_free(&s);
+    return status;
+}
+
+int render_main(int argc, char **argv, const chapter *ch, void *state)
+{
+    char err[ERROR_SIZE] = "";
+    int status = run(argc, argv, ch, state, err, sizeof err);
+    if (status == 2)
+        fprintf(stderr, "%s\n", err);
+    return status;
+}

@@ -1,0 +1,102 @@
+/* render.h — the driver every chapter calls.
+ *
+ * A chapter fills in a `chapter` struct (its name, its own command-line
+ * options, an optional prepare step, and the radiance along one camera ray)
+ * and hands control to render_main().  The driver does everything that is
+ * not the point of any chapter: the command line (DESIGN.md contract),
+ * loading the scene, camera rays, the OpenMP pixel loop, progressive passes
+ * under a --time budget, the progress bar, statistics JSON, error metrics
+ * against a --ref image, and atomic output files.
+ */
+#ifndef COMMON_RENDER_H
+#define COMMON_RENDER_H
+
+#include <stdbool.h>
+#include <stdint.h>
+#include <stdio.h>
+
+#include "image.h"
+#include "rng.h"
+#include "scene.h"
+#include "vec.h"
+
+enum { RENDER_MAX_OUTPUTS = 16, RENDER_MAX_COUNTERS = 16 };
+/* --bounces A: (no upper end) */
+#define RENDER_BOUNCES_UNLIMITED 1000000
+
+typedef struct {
+    const char *scene_path;
+    const char *outputs[RENDER_MAX_OUTPUTS];
+    int output_count;
+    int width, height;  /* --size, or the scene's `image` */
+    int spp;            /* samples per pixel (a cap when --time is given) */
+    bool spp_given;
+    double time_budget; /* seconds; 0 = no budget */
+    uint64_t seed;
+    int threads;        /* 0 = OpenMP default */
+    const char *reference_path;
+    const char *stats_path;
+    int bounce_min, bounce_max; /* --bounces A:B: keep Neumann terms K^A E .. K^B E (R6) */
+    bool bounces_given;
+    double exposure;    /* PNG exposure in stops (--exposure) */
+    bool quiet;
+} render_options;
+
+/* Per-thread event counts (rays of each kind ...), named by the chapter. */
+typedef struct { uint64_t value[RENDER_MAX_COUNTERS]; } render_counters;
+
+/* A probe's irradiance estimate and its standard error (0 when exact). */
+typedef struct { vec3 irradiance, standard_error; } probe_result;
+
+typedef struct chapter {
+    const char *name;         /* "01_local": the executable and the stats' "chapter" */
+    const char *description;  /* one line for --help */
+    const char *options_help; /* the chapter's own options, for --help (may be NULL) */
+    int default_spp;
+    /* Names of the counters the chapter increments, NULL-terminated. */
+    const char *counter_names[RENDER_MAX_COUNTERS + 1];
+
+    /* The chapter's own option at argv[*i].  Return 1 if consumed (advance *i
+     * past its values), 0 if not the chapter's, 2 on a bad value (write the
+     * message into err).  May be NULL. */
+    int (*parse_option)(void *state, int argc, char **argv, int *i, char *err, size_t err_size);
+    /* After the scene is loaded, before any pixel: precomputation (the
+     * radiosity solve).  Return 0, or 2 with a message.  May be NULL. */
+    int (*prepare)(void *state, const scene *s, const render_options *o, char *err, size_t err_size);
+    /* Radiance arriving along camera ray r.  Called from many threads at
+     * once: treat state and scene as read-only, use only g and counters. */
+    vec3 (*radiance)(const void *state, const scene *s, ray r, rng *g, render_counters *counters);
+    /* Irradiance at a probe (may be NULL: no probes reported). */
+    probe_result (*probe)(const void *state, const scene *s, const probe *p, uint64_t seed,
+                          render_counters *counters);
+    /* Extra members of the stats object, written as `"key": value` pairs each
+     * preceded by ",\n  " (may be NULL). */
+    void (*write_stats)(const void *state, FILE *json);
+    /* Extra outputs a chapter owns (radiosity's .ply); return 1 if it handled
+     * this path, 0 if it is not its format, 2 on error.  May be NULL. */
+    int (*write_output)(const void *state, const scene *s, const char *path, char *err, size_t err_size);
+    void (*finish)(void *state); /* free the chapter's memory (may be NULL) */
+} chapter;
+
+/* Parse the command line, render, write outputs.  Returns the process exit
+ * status: 0, or 2 after printing one "file:line: message" line to stderr. */
+int render_main(int argc, char **argv, const chapter *ch, void *state);
+
+/* Is bounce count k inside the --bounces window (R6)? */
+static inline bool bounces_keep(const render_options *o, int k) { return k >= o->bounce_min && k <= o->bounce_max; }
+
+/* Print a warning once per process (chapters use it for "cannot model X"). */
+void warn_once(int *flag, const char *format, ...);
+
+/* JSON helpers for write_stats. */
+void json_string(FILE *f, const char *s);
+void json_number(FILE *f, double v); /* null for non-finite */
+void json_vec3(FILE *f, vec3 v);
+
+/* Parse helpers for chapter options: a whole number / a finite double in
+ * [lo, hi]; on failure write "argv:N: message" into err and return 2. */
+int parse_int_option(int argc, char **argv, int *i, long lo, long hi, int *out, char *err, size_t err_size);
+int parse_double_option(int argc, char **argv, int *i, double lo, double hi, double *out, char *err,
+                        size_t err_size);
+
+#endif

@@ -1,0 +1,79 @@
+/* sampling.h — turning uniform random numbers into directions and points.
+ *
+ * Each routine maps (u1, u2) in [0,1)^2 to a sample and has a matching pdf
+ * function.  Directions are in the local frame of onb (z = normal); pdfs of
+ * directions are per steradian, pdfs of points per unit area.  A Monte Carlo
+ * estimator divides by exactly these pdfs, so the tests check each one by a
+ * chi-square test against its pdf.
+ */
+#ifndef COMMON_SAMPLING_H
+#define COMMON_SAMPLING_H
+
+#include "vec.h"
+
+/* Uniform over the hemisphere z >= 0: pdf = 1 / (2 pi).  The angular form
+ * (R2) "as written": every direction equally likely. */
+static inline vec3 uniform_sample_hemisphere(double u1, double u2)
+{
+    double z = u1;
+    double r = sqrt(fmax(0.0, 1.0 - z * z));
+    double phi = 2.0 * M_PI * u2;
+    return v3(r * cos(phi), r * sin(phi), z);
+}
+static inline double uniform_hemisphere_pdf(void) { return 1.0 / (2.0 * M_PI); }
+
+/* Cosine-weighted hemisphere (Malley's method: uniform disk, projected up):
+ * pdf = cos(theta) / pi, which cancels the cosine of (R2). */
+static inline vec3 cosine_sample_hemisphere(double u1, double u2)
+{
+    double r = sqrt(u1);
+    double phi = 2.0 * M_PI * u2;
+    double x = r * cos(phi), y = r * sin(phi);
+    return v3(x, y, sqrt(fmax(0.0, 1.0 - x * x - y * y)));
+}
+static inline double cosine_hemisphere_pdf(double cos_theta) { return cos_theta > 0.0 ? cos_theta / M_PI : 0.0; }
+
+/* Uniform over the whole sphere: pdf = 1 / (4 pi). */
+static inline vec3 uniform_sample_sphere(double u1, double u2)
+{
+    double z = 1.0 - 2.0 * u1;
+    double r = sqrt(fmax(0.0, 1.0 - z * z));
+    double phi = 2.0 * M_PI * u2;
+    return v3(r * cos(phi), r * sin(phi), z);
+}
+static inline double uniform_sphere_pdf(void) { return 1.0 / (4.0 * M_PI); }
+
+/* Uniform over the cone of directions within angle theta_max of +z
+ * (cos_theta_max given): pdf = 1 / (2 pi (1 - cos_theta_max)).  A sphere seen
+ * from outside subtends such a cone. */
+static inline vec3 uniform_sample_cone(double u1, double u2, double cos_theta_max)
+{
+    double z = 1.0 - u1 * (1.0 - cos_theta_max);
+    double r = sqrt(fmax(0.0, 1.0 - z * z));
+    double phi = 2.0 * M_PI * u2;
+    return v3(r * cos(phi), r * sin(phi), z);
+}
+static inline double uniform_cone_pdf(double cos_theta_max) { return 1.0 / (2.0 * M_PI * (1.0 - cos_theta_max)); }
+
+/* Uniform point on triangle (a, b, c): pdf = 1 / area.  The square-root
+ * warp keeps the density constant (a naive (u1, u2) with u1 + u2 <= 1
+ * rejection would waste half the samples). */
+static inline vec3 uniform_sample_triangle(vec3 a, vec3 b, vec3 c, double u1, double u2)
+{
+    double s = sqrt(u1);
+    double wb = s * (1.0 - u2), wc = s * u2;
+    return v3_add(a, v3_add(v3_scale(v3_sub(b, a), wb), v3_scale(v3_sub(c, a), wc)));
+}
+static inline double triangle_area(vec3 a, vec3 b, vec3 c)
+{
+    return 0.5 * v3_length(v3_cross(v3_sub(b, a), v3_sub(c, a)));
+}
+
+/* Multiple importance sampling, power heuristic with beta = 2 (Veach 1997). */
+static inline double power_heuristic(double pdf_this, double pdf_other)
+{
+    double a = pdf_this * pdf_this, b = pdf_other * pdf_other;
+    return a + b > 0.0 ? a / (a + b) : 0.0;
+}
+
+#endif

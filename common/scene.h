@@ -1,0 +1,186 @@
+/* scene.h — the scene model, the .scene parser, and ray intersection.
+ *
+ * A scene is a list of named surfaces (quads, triangles, spheres, OBJ meshes),
+ * each with a material, plus point lights, probes and a camera.  For ray
+ * casting every planar surface is stored as triangles (a quad is two) and
+ * every sphere as itself; a BVH over those primitives answers
+ * scene_intersect() and scene_occluded().
+ *
+ * The file format is the contract in DESIGN.md ("Scene format").
+ */
+#ifndef COMMON_SCENE_H
+#define COMMON_SCENE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "vec.h"
+
+enum { SCENE_NAME_MAX = 64 };
+
+typedef enum {
+    MATERIAL_DIFFUSE, /* Lambertian: albedo */
+    MATERIAL_PHONG,   /* local model: albedo = kd, specular = ks, exponent */
+    MATERIAL_MIRROR,  /* perfect mirror: specular = reflectance */
+    MATERIAL_GLASS,   /* dielectric: ior, specular = tint (1,1,1 if not given) */
+    MATERIAL_EMITTER, /* Lambertian emitter: emission = radiance, albedo = optional diffuse reflectance */
+} material_kind;
+
+typedef struct {
+    char name[SCENE_NAME_MAX];
+    material_kind kind;
+    vec3 albedo;     /* diffuse reflectance rho (kd for phong) */
+    vec3 specular;   /* phong ks, mirror reflectance, glass tint */
+    double exponent; /* phong exponent */
+    double ior;      /* glass index of refraction */
+    vec3 emission;   /* emitted radiance (emitter only), on the front side */
+} material;
+
+typedef enum { SURFACE_QUAD, SURFACE_TRIANGLE, SURFACE_SPHERE, SURFACE_MESH } surface_kind;
+
+typedef struct {
+    char name[SCENE_NAME_MAX];
+    surface_kind kind;
+    int material;        /* index into scene.materials */
+    vec3 vertex[4];      /* quad (4) or triangle (3) as written in the file */
+    int vertex_count;    /* 4, 3, or 0 for spheres and meshes */
+    vec3 center;         /* sphere */
+    double radius;       /* sphere */
+    int first_triangle;  /* this surface's triangles in scene.triangles */
+    int triangle_count;  /* 0 for spheres */
+    double area;         /* total surface area */
+    int line;            /* line of the statement in the scene file */
+} surface;
+
+/* A triangle ready for intersection: p0, edges e1 = p1 - p0, e2 = p2 - p0,
+ * unit geometric normal n = normalize(e1 x e2) (right-hand rule). */
+typedef struct {
+    vec3 p0, e1, e2, normal;
+    double area;
+    int surface;
+} triangle;
+
+typedef struct {
+    char name[SCENE_NAME_MAX];
+    vec3 position;
+    vec3 intensity; /* W/sr per channel, isotropic */
+} point_light;
+
+typedef struct {
+    char name[SCENE_NAME_MAX];
+    vec3 position;
+    vec3 normal; /* unit */
+} probe;
+
+typedef struct {
+    vec3 eye, look, up;
+    double fov_degrees; /* vertical field of view */
+} camera;
+
+typedef struct {
+    vec3 lo, hi;
+} aabb;
+
+/* BVH node: a leaf when count > 0 (primitives first .. first+count-1 of
+ * scene.primitive_order), otherwise an inner node whose children are
+ * node index + 1 and `second_child`. */
+typedef struct {
+    aabb bounds;
+    int first, count, second_child, axis;
+} bvh_node;
+
+typedef struct scene {
+    char path[1024];
+    camera camera;
+    int width, height;    /* `image` statement; 512 x 512 if absent */
+    vec3 background;      /* radiance of rays that escape */
+
+    material *materials;
+    int material_count;
+    surface *surfaces;
+    int surface_count;
+    triangle *triangles;
+    int triangle_count;
+    point_light *lights;
+    int light_count;
+    probe *probes;
+    int probe_count;
+
+    /* Emitting surfaces (material kind MATERIAL_EMITTER), for light sampling. */
+    int *emitters;        /* surface indices */
+    int emitter_count;
+    double emitter_area;  /* total area of all emitting surfaces */
+
+    /* Primitives: index i < triangle_count is triangle i; i >= triangle_count
+     * is the sphere surface sphere_surfaces[i - triangle_count]. */
+    int *sphere_surfaces;
+    int sphere_count;
+    int *primitive_order; /* BVH leaf order */
+    bvh_node *nodes;
+    int node_count;
+
+    aabb bounds;    /* of all geometry */
+    /* Scene-relative self-intersection offset.  A hit point computed in
+     * double precision is off its surface by a few ulps of the coordinates'
+     * magnitude (about 1e-16 relative); a ray leaving it must not re-hit
+     * the same surface.  We move secondary ray origins by
+     *   epsilon = 1e-9 * (largest absolute coordinate of the bounds)
+     * along the surface normal: seven orders of magnitude above the rounding
+     * error, and far below anything visible (5.6e-7 mm in the Cornell box).
+     * Scaling the scene scales epsilon with it, so a scene in metres or in
+     * millimetres renders the same (a fixed 1e-4 as in smallpt does not). */
+    double epsilon;
+} scene;
+
+typedef struct {
+    vec3 origin, direction; /* direction need not be unit for occlusion; unit for shading */
+} ray;
+
+typedef struct {
+    double t;        /* ray parameter of the hit */
+    vec3 point;      /* origin + t * direction */
+    vec3 normal;     /* unit geometric normal as the file orients it (not flipped toward the ray) */
+    int surface;     /* index into scene.surfaces */
+    int primitive;   /* triangle index, or triangle_count + sphere number */
+} hit;
+
+/* Parse a .scene file.  Returns 0 on success.  On any error returns 2,
+ * frees what it allocated and writes one line "file:line: message" (no
+ * trailing newline) into err.  Errors in an OBJ file name the OBJ file and
+ * its line. */
+int scene_load(const char *path, scene *out, char *err, size_t err_size);
+void scene_free(scene *s);
+
+/* Closest hit with epsilon-free t in (0, t_max); returns 1 if found. */
+int scene_intersect(const scene *s, ray r, double t_max, hit *out);
+/* Brute force over all primitives: the BVH's reference in the tests. */
+int scene_intersect_brute_force(const scene *s, ray r, double t_max, hit *out);
+/* Is anything between a and b?  Both ends are moved off their surfaces by
+ * scene.epsilon toward each other, so a and b may lie on surfaces. */
+int scene_occluded(const scene *s, vec3 a, vec3 b);
+
+/* A ray origin for leaving surface point p (geometric normal n) in
+ * direction d: p moved by scene.epsilon to the side of n that d points to. */
+vec3 scene_offset_origin(const scene *s, vec3 p, vec3 n, vec3 d);
+
+/* Low-level intersection routines (exposed for the unit tests). */
+/* Moller-Trumbore; returns t > 0 or INFINITY. */
+double intersect_triangle(const triangle *tri, ray r);
+/* Numerically robust ray-sphere (Haines et al., Ray Tracing Gems ch. 7):
+ * accurate for radius 1e5 walls; returns the smallest t > 0 or INFINITY. */
+double intersect_sphere(vec3 center, double radius, ray r);
+
+/* Uniform point on an emitting or any triangulated surface, chosen in
+ * proportion to area: returns point and unit normal; pdf = 1 / surface.area.
+ * For spheres, uniform on the sphere. */
+void surface_sample_point(const scene *s, int surface_index, double u1, double u2, double u3, vec3 *point,
+                          vec3 *normal);
+
+/* Index of a named surface or material, -1 if none. */
+int scene_find_surface(const scene *s, const char *name);
+
+/* Camera ray through image position (px, py) in pixels, (0,0) = top-left
+ * corner of the image, y down.  Direction is unit. */
+ray camera_ray(const camera *c, int width, int height, double px, double py);
+
+#endif

@@ -1,0 +1,231 @@
+"""Grading chapter 1 (local illumination) against closed forms.
+
+Each test builds a tiny scene whose answer is known from outside the
+renderer: the inverse-square cosine law (R1), Lambert's polygon formula for
+the irradiance from a rectangular emitter, and the BRDF formulas written
+out again here in Python.
+"""
+import glob
+import math
+import os
+
+from lib import ROOT, finite_image, lambert_polygon_irradiance, probe, read_pfm
+
+CHAPTER = "01_local"
+
+# A floor (normal +y) seen from straight above, for pixel-exact checks.
+FLOOR_SCENE = """\
+camera eye 0 10 0  look 0 0 0  up 0 0 1  fov 30
+image 9 9
+material floor {floor_material}
+quad floor floor  -50 0 -50  -50 0 50  50 0 50  50 0 -50
+{extra}
+"""
+
+
+def test_point_light_probe_inverse_square_cosine(ctx):
+    """(R1): E = I cos(theta) / r^2 at probes of several orientations, to rounding."""
+    light, intensity = (0.3, 2.0, -0.4), (5.0, 6.0, 7.0)
+    probes = {"up": ((0, 0, 0), (0, 1, 0)), "tilted": ((1, 0, 1), (0.6, 0.8, 0)),
+              "far": ((3, 0, -2), (0, 1, 0))}
+    extra = "light lamp point %g %g %g  %g %g %g\n" % (*light, *intensity)
+    for name, (p, n) in probes.items():
+        extra += "probe %s  %g %g %g  %g %g %g\n" % (name, *p, *n)
+    scene = ctx.write("point.scene", FLOOR_SCENE.format(floor_material="diffuse 0.5 0.5 0.5", extra=extra))
+    _, stats = ctx.render(CHAPTER, scene)
+    for name, (p, n) in probes.items():
+        d = [light[k] - p[k] for k in range(3)]
+        r2 = sum(c * c for c in d)
+        cos_theta = sum(d[k] * n[k] for k in range(3)) / math.sqrt(r2)
+        got = probe(stats, name)
+        for c in range(3):
+            expected = intensity[c] * max(cos_theta, 0.0) / r2
+            assert abs(got["irradiance"][c] - expected) <= 1e-12 * expected, \
+                f"probe {name} channel {c}: {got['irradiance'][c]} vs I cos/r^2 = {expected}"
+            assert got["standard_error"][c] == 0.0, "a point light alone is exact"
+
+
+def test_point_light_pixel_is_R1(ctx):
+    """The pixel looking straight down at the floor: L = rho/pi * I cos / r^2 (float rounding)."""
+    rho, intensity, light = 0.5, 40.0, (1.0, 3.0, 0.5)
+    scene = ctx.write("pixel.scene", FLOOR_SCENE.format(
+        floor_material=f"diffuse {rho} {rho} {rho}",
+        extra="light lamp point %g %g %g  %g %g %g" % (*light, intensity, intensity, intensity)))
+    img, _ = ctx.render(CHAPTER, scene)
+    # The centre pixel of a 9x9 image looks exactly along the view axis, at (0, 0, 0).
+    r2 = sum(c * c for c in light)
+    expected = rho / math.pi * intensity * light[1] / math.sqrt(r2) / r2
+    got = img.at(4, 4)[0]
+    assert abs(got - expected) <= 1e-6 * expected, f"centre pixel {got} vs rho/pi I cos/r^2 = {expected}"
+
+
+def test_shadow_ray_blocks_point_light(ctx):
+    """A probe under an opaque square sees nothing of the light; --no-shadows restores I cos/r^2."""
+    extra = ("quad blocker floor  -1 1 -1  1 1 -1  1 1 1  -1 1 1\n"
+             "light lamp point 0 2 0  8 8 8\nprobe under 0 0 0  0 1 0\n")
+    scene = ctx.write("shadow.scene", FLOOR_SCENE.format(floor_material="diffuse 0.5 0.5 0.5", extra=extra))
+    _, stats = ctx.render(CHAPTER, scene)
+    assert probe(stats, "under")["irradiance"] == [0.0, 0.0, 0.0], "shadowed probe must get no direct light"
+    _, stats = ctx.render(CHAPTER, scene, "--no-shadows", name="noshadow")
+    assert abs(probe(stats, "under")["irradiance"][0] - 8.0 / 4.0) < 1e-12
+
+
+def area_light_scene(ctx, radiance, probes):
+    text = ("camera eye 0 -5 0  look 0 0 0  up 0 0 1  fov 30\nimage 4 4\n"
+            "material lamp emitter %g %g %g\n" % radiance +
+            "material ground diffuse 0.5 0.5 0.5\n"
+            # unit square at height 1, vertex order so the normal points down (-y)
+            "quad light lamp  -0.5 1 -0.5  0.5 1 -0.5  0.5 1 0.5  -0.5 1 0.5\n"
+            "quad ground ground  -9 -0.01 -9  -9 -0.01 9  9 -0.01 9  9 -0.01 -9\n")
+    for name, (p, n) in probes.items():
+        text += "probe %s  %g %g %g  %g %g %g\n" % (name, *p, *n)
+    return ctx.write("area.scene", text)
+
+
+def test_area_light_probe_converges_to_lambert_formula(ctx):
+    """A unit square of radiance L at height 1: E = 0.7522747 L under its centre
+    (Lambert's polygon formula), and the formula again for an off-centre,
+    tilted probe.  Tolerance: 4 standard errors as estimated by the chapter from
+    32 independent batches (a false alarm about once in 16,000 runs); the
+    standard error itself must be below 0.5 % so the tolerance stays tight."""
+    radiance = (1.0, 2.0, 3.0)
+    square = [(-0.5, 1, -0.5), (0.5, 1, -0.5), (0.5, 1, 0.5), (-0.5, 1, 0.5)]
+    probes = {"centre": ((0, 0, 0), (0, 1, 0)),
+              "offset": ((0.7, 0.2, -0.3), (-0.28, 0.96, 0.0))}
+    scene = area_light_scene(ctx, radiance, probes)
+    _, stats = ctx.render(CHAPTER, scene, "--probe-samples", 262144)
+    assert abs(lambert_polygon_irradiance(1.0, square, (0, 0, 0), (0, 1, 0)) - 0.7522747) < 1e-7
+    for name, (p, n) in probes.items():
+        length = math.sqrt(sum(c * c for c in n))
+        n = tuple(c / length for c in n)
+        got = probe(stats, name)
+        for c in range(3):
+            expected = lambert_polygon_irradiance(radiance[c], square, p, n)
+            se = got["standard_error"][c]
+            assert 0 < se < 0.005 * expected, f"probe {name}: standard error {se} not in (0, 0.5% of {expected})"
+            assert abs(got["irradiance"][c] - expected) <= 4 * se, \
+                f"probe {name} channel {c}: {got['irradiance'][c]:.6f} vs Lambert {expected:.6f} " \
+                f"(4 standard errors = {4 * se:.2g})"
+
+
+def test_area_light_error_shrinks_with_samples(ctx):
+    """Standard error falls like N^-1/2: 16x the samples, 1/4 the error (within 30 %)."""
+    scene = area_light_scene(ctx, (1.0, 1.0, 1.0), {"centre": ((0, 0, 0), (0, 1, 0))})
+    errors = []
+    for n in (4096, 65536):
+        _, stats = ctx.render(CHAPTER, scene, "--probe-samples", n, name=f"n{n}")
+        errors.append(probe(stats, "centre")["standard_error"][0])
+    ratio = errors[0] / errors[1]
+    assert 4 / 1.3 < ratio < 4 * 1.3, f"standard error ratio {ratio:.2f} for 16x samples (expected about 4)"
+
+
+def blinn_phong_expected(normalised, kd, ks, exponent, n, w_i, w_o, irradiance_perp):
+    def dot(a, b): return sum(a[k] * b[k] for k in range(3))
+    cos_i = dot(n, w_i)
+    h = [w_i[k] + w_o[k] for k in range(3)]
+    length = math.sqrt(dot(h, h))
+    lobe = (dot(n, h) / length) ** exponent
+    specular = ks * (exponent + 8) / (8 * math.pi) * lobe * cos_i if normalised else ks * lobe
+    return (kd / math.pi * cos_i + specular) * irradiance_perp
+
+
+def test_blinn_phong_pixel_classic_and_normalised(ctx):
+    """The centre pixel of a glossy floor, light off to the side: both Blinn-Phong
+    forms as written out in the chapter's comment, recomputed here."""
+    kd, ks, exponent, light, intensity = 0.4, 0.5, 20.0, (3.0, 6.0, 0.0), 100.0
+    scene = ctx.write("glossy.scene", FLOOR_SCENE.format(
+        floor_material=f"phong kd {kd} {kd} {kd} ks {ks} {ks} {ks} exp {exponent}",
+        extra="light lamp point %g %g %g  %g %g %g" % (*light, intensity, intensity, intensity)))
+    r2 = sum(c * c for c in light)
+    w_i = [c / math.sqrt(r2) for c in light]
+    for normalised in (False, True):
+        args = ["--model", "blinn"] + (["--normalised"] if normalised else [])
+        img, _ = ctx.render(CHAPTER, scene, *args, name=f"n{normalised}")
+        expected = blinn_phong_expected(normalised, kd, ks, exponent, (0, 1, 0), w_i, (0, 1, 0), intensity / r2)
+        got = img.at(4, 4)[0]
+        assert abs(got - expected) <= 1e-6 * expected, f"normalised={normalised}: {got} vs {expected}"
+
+
+def test_ambient_term_is_albedo_times_ambient(ctx):
+    """No lights: a Lambertian surface under uniform ambient radiance La reflects rho * La."""
+    scene = ctx.write("ambient.scene", FLOOR_SCENE.format(floor_material="diffuse 0.25 0.5 0.75", extra=""))
+    img, _ = ctx.render(CHAPTER, scene, "--ambient", 2.0)
+    got = img.at(4, 4)
+    for c, rho in enumerate((0.25, 0.5, 0.75)):
+        assert abs(got[c] - 2.0 * rho) < 1e-6, f"channel {c}: {got[c]} vs rho La = {2 * rho}"
+
+
+def test_cornell_image_finite_and_light_exact(ctx):
+    """The Cornell box: every pixel finite, none rejected, and the pixel that sees
+    the light shows its radiance (17, 12, 4) exactly (with ambient 0 nothing else
+    reaches the eye from a downward-facing emitter)."""
+    img, stats = ctx.render(CHAPTER, "scenes/cornell.scene", "--size", "64x64", "--light-samples", 4)
+    assert finite_image(img), "non-finite pixels in the Cornell image"
+    assert stats["nonfinite_samples"] == 0
+    # The light's centre (278, 548.7, 279.5) projects to the top middle of the image.
+    top = [img.at(x, y) for y in range(0, 10) for x in range(28, 36)]
+    assert (17.0, 12.0, 4.0) in [tuple(round(c, 5) for c in px) for px in top], "no pixel sees the light's radiance"
+    # Direct light reaches the floor: the probe under the light is lit, and the
+    # floor is brighter than the (unlit) ceiling.
+    assert probe(stats, "floor_left_front")["irradiance"][0] > 0.0, "a probe in view of the light gets no light"
+
+
+def test_threads_give_identical_bytes(ctx):
+    """The per-pixel generator makes the image independent of the thread count."""
+    outputs = []
+    for threads in (1, 2):
+        pfm = ctx.path(f"t{threads}.pfm")
+        r = ctx.run(CHAPTER, "scenes/cornell.scene", "--quiet", "--size", "48x48", "--spp", 4, "--threads",
+                    threads, "--out", pfm)
+        assert r.returncode == 0, r.stderr
+        with open(pfm, "rb") as f:
+            outputs.append(f.read())
+    assert outputs[0] == outputs[1], "1 and 2 threads gave different images"
+
+
+def check_bad_input(ctx, args, expected_prefix):
+    out = ctx.path("should-not-exist.png")
+    r = ctx.run(CHAPTER, *args, "--out", out)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2, f"{args}: exit {r.returncode}, expected 2 ({r.stderr.strip()})"
+    assert len(lines) == 1 and lines[0].startswith(expected_prefix), \
+        f"{args}: stderr should be one line starting '{expected_prefix}', got {r.stderr!r}"
+    assert not os.path.exists(out), f"{args}: an output file was created"
+
+
+def test_bad_scenes_exit_2_with_file_line(ctx):
+    """Every malformed scene in tests/bad/: exit 2, one 'file:line: message', no output."""
+    files = sorted(glob.glob(os.path.join(ROOT, "tests", "bad", "*.scene")))
+    assert len(files) >= 20, "the bad-input corpus is missing"
+    for path in files:
+        rel = os.path.relpath(path, ROOT)
+        with open(path, "rb") as f:
+            first = f.readline().decode("latin-1")
+        if first.startswith("# expect: "):
+            prefix = first[len("# expect: "):].strip() + ":"
+        elif first.startswith("# expect-line: "):
+            prefix = f"{rel}:{int(first.split(':')[1])}:"
+        else:
+            prefix = f"{rel}:"
+        check_bad_input(ctx, [rel], prefix)
+
+
+def test_bad_command_lines_exit_2(ctx):
+    check_bad_input(ctx, ["scenes/cornell.scene", "--frobnicate"], "argv:")
+    check_bad_input(ctx, ["scenes/cornell.scene", "--spp", "0"], "argv:")
+    check_bad_input(ctx, ["scenes/cornell.scene", "--size", "12"], "argv:")
+    check_bad_input(ctx, ["scenes/cornell.scene", "--bounces", "3:1"], "argv:")
+    check_bad_input(ctx, ["scenes/cornell.scene", "--model", "torrance"], "argv:")
+    check_bad_input(ctx, ["scenes/does-not-exist.scene"], "scenes/does-not-exist.scene:")
+
+
+def test_failed_render_keeps_existing_output(ctx):
+    """A bad scene must not overwrite what is already under the output name."""
+    out = ctx.write("keep.pfm", "previous contents")
+    r = ctx.run(CHAPTER, "tests/bad/" + os.path.basename(sorted(glob.glob(os.path.join(ROOT, "tests/bad/*.scene")))[0]),
+                "--out", out)
+    assert r.returncode == 2
+    with open(out) as f:
+        assert f.read() == "previous contents"
+    r = ctx.run(CHAPTER, "scenes/cornell.scene", "--size", "8x8", "--out", "/nonexistent-dir/x.pfm")
+    assert r.returncode == 2 and r.stderr.startswith("/nonexistent-dir/x.pfm:"), r.stderr
