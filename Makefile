@@ -56,6 +56,8 @@ $(BUILD)/tests/%: tests/%.c $(COMMON_OBJ)
 
 # --- set-up ---------------------------------------------------------------
 DEBIAN_PACKAGES := build-essential clang libpng-dev libomp-dev python3
+# Parts of the build that own their rules (the viewer) add packages and targets here.
+-include viewer/viewer.mk
 print-deps:
 	@echo $(DEBIAN_PACKAGES)
 

@@ -135,6 +135,8 @@ static void print_help(const chapter *ch, const char *program)
            "  --stats FILE     write statistics as one JSON object\n"
            "  --bounces A:B    keep only the Neumann terms K^A E .. K^B E (R6); 'A:' = A and up\n"
            "  --exposure S     PNG exposure in stops (default 0)\n"
+           "  --eye X,Y,Z  --look X,Y,Z  --up X,Y,Z  --fov DEG\n"
+           "                   override the scene's camera (the viewer's live mode uses these)\n"
            "  --quiet          no progress bar\n",
            ch->name, ch->description, program, ch->options_help ? "\n          [chapter options below]" : "",
            ch->name, ch->default_spp);
@@ -223,6 +225,21 @@ static int parse_command_line(int argc, char **argv, const chapter *ch, void *st
         } else if (!strcmp(a, "--exposure")) {
             if ((status = parse_double_option(argc, argv, &i, -64, 64, &o->exposure, err, err_size)) != 1)
                 return status;
+        } else if (!strcmp(a, "--eye") || !strcmp(a, "--look") || !strcmp(a, "--up")) {
+            if (!(v = value_of(argc, argv, &i, err, err_size)))
+                return 2;
+            vec3 p;
+            char tail;
+            if (sscanf(v, "%lf,%lf,%lf%c", &p.x, &p.y, &p.z, &tail) != 3 || !v3_is_finite(p)) {
+                snprintf(err, err_size, "argv:%d: %s wants X,Y,Z (three numbers, commas, no spaces), not '%s'", i, a, v);
+                return 2;
+            }
+            *(a[2] == 'e' ? &o->camera_eye : a[2] == 'l' ? &o->camera_look : &o->camera_up) = p;
+            o->camera_override |= a[2] == 'e' ? 1 : a[2] == 'l' ? 2 : 4;
+        } else if (!strcmp(a, "--fov")) {
+            if ((status = parse_double_option(argc, argv, &i, 1e-3, 179.0, &o->camera_fov, err, err_size)) != 1)
+                return status;
+            o->camera_override |= 8;
         } else if (!strcmp(a, "--bounces")) {
             if (!(v = value_of(argc, argv, &i, err, err_size)))
                 return 2;
@@ -473,6 +490,20 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
     scene s;
     if (scene_load(o.scene_path, &s, err, err_size))
         return 2;
+    if (o.camera_override) {
+        camera c = s.camera;
+        if (o.camera_override & 1) c.eye = o.camera_eye;
+        if (o.camera_override & 2) c.look = o.camera_look;
+        if (o.camera_override & 4) c.up = o.camera_up;
+        if (o.camera_override & 8) c.fov_degrees = o.camera_fov;
+        vec3 view = v3_sub(c.look, c.eye);
+        if (v3_length(view) == 0.0 || v3_length(v3_cross(view, c.up)) <= 1e-9 * v3_length(view) * v3_length(c.up)) {
+            snprintf(err, err_size, "argv:0: the camera given by --eye/--look/--up is degenerate");
+            scene_free(&s);
+            return 2;
+        }
+        s.camera = c;
+    }
     int width = o.width ? o.width : s.width, height = o.height ? o.height : s.height;
     o.width = width, o.height = height;
 

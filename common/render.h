@@ -39,6 +39,9 @@ typedef struct {
     int bounce_min, bounce_max; /* --bounces A:B: keep Neumann terms K^A E .. K^B E (R6) */
     bool bounces_given;
     double exposure;    /* PNG exposure in stops (--exposure) */
+    vec3 camera_eye, camera_look, camera_up; /* --eye --look --up --fov override the scene's camera */
+    double camera_fov;
+    int camera_override; /* bits: 1 eye, 2 look, 4 up, 8 fov */
     bool quiet;
 } render_options;
 

@@ -698,9 +698,10 @@ static int finish_scene(scene *s)
     for (int i = 0; i < s->triangle_count + s->sphere_count; i++) s->bounds = aabb_union(s->bounds, primitive_bounds(s, i));
     /* The offset described in scene.h: 1e-9 of the largest coordinate. */
     double largest = fmax(v3_max_component(v3_max(v3_neg(s->bounds.lo), s->bounds.hi)), 0.0);
-    double extent = v3_max_component(v3_sub(s->bounds.hi, s->bounds.lo));
-    s->epsilon = 1e-9 * fmax(largest, extent);
-    if (!(s->epsilon > 0.0)) s->epsilon = 1e-9;
+    s->epsilon = 1e-9 * largest;
+    /* Cannot happen for valid geometry (it has a nonzero size), but a zero
+     * epsilon would silently bring self-intersection back. */
+    if (!(s->epsilon > 0.0)) s->epsilon = 1e-9 * fmax(v3_max_component(v3_sub(s->bounds.hi, s->bounds.lo)), 1.0);
     return 0;
 }
 

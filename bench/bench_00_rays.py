@@ -1,0 +1,7 @@
+"""Incoherent ray casting on the Cornell box (bench/bench_rays.c)."""
+import os
+
+from common import BUILD, run
+
+print("== incoherent ray casting (bench/bench_rays.c) ==")
+print(run(os.path.join(BUILD, "bench", "bench_rays"), "scenes/cornell.scene").rstrip())
