@@ -20,8 +20,9 @@
 /* Lines longer than this are rejected (a scene line is far shorter; a
  * longer one is almost certainly not a scene file). */
 enum { LINE_CAPACITY = 4096 };
-/* More fields than any statement has; beyond this we only count them. */
-enum { MAX_FIELDS = 32 };
+/* A line of LINE_CAPACITY characters has at most half as many fields
+ * (an OBJ polygon may have many corners). */
+enum { MAX_FIELDS = LINE_CAPACITY / 2 + 1 };
 enum { PATH_CAPACITY = 4096 };
 /* BVH: at most this many primitives in a leaf, this many SAH bins. */
 enum { BVH_LEAF_SIZE = 4, BVH_BINS = 16 };
@@ -114,34 +115,33 @@ static int fail_line(const error_context *ctx, line_status status)
 
 typedef struct {
     char *field[MAX_FIELDS];
-    int count; /* may exceed MAX_FIELDS: then only the first are stored */
+    int count;
 } fields;
 
 static int is_blank(char c) { return c == ' ' || c == '\t' || c == '\r' || c == '\f' || c == '\v'; }
 
 /* Cut a line at '#' and split it at blanks, in place. */
-static fields split_fields(char *line)
+static void split_fields(char *line, fields *f)
 {
-    fields f = {.count = 0};
+    f->count = 0;
     char *comment = strchr(line, '#');
     if (comment) *comment = '\0';
     char *c = line;
     for (;;) {
         while (is_blank(*c)) c++;
         if (*c == '\0') break;
-        if (f.count < MAX_FIELDS) f.field[f.count] = c;
-        f.count++;
+        f->field[f->count++] = c; /* cannot overflow: fields are separated by blanks */
         while (*c && !is_blank(*c)) c++;
         if (*c == '\0') break;
         *c++ = '\0';
     }
-    return f;
 }
 
 /* A finite double filling the whole field ("1e400", "nan", "inf", "3x" fail). */
 static int parse_number(const error_context *ctx, const char *text, const char *what, double *out)
 {
     char *end;
+    *out = 0.0; /* defined even on error */
     errno = 0;
     double value = strtod(text, &end);
     if (end == text || *end != '\0') return fail(ctx, "%s: '%s' is not a number", what, text);
@@ -188,8 +188,8 @@ static int expect_keyword(const error_context *ctx, const char *text, const char
 static int expect_field_count(const error_context *ctx, const fields *f, int expected, const char *usage)
 {
     if (f->count != expected)
-        return fail(ctx, "%s field%s where %d expected; usage: %s", f->count < expected ? "missing" : "extra",
-                    abs(f->count - expected) == 1 ? "" : "s", expected, usage);
+        return fail(ctx, "%s field%s (%d after '%s', expected %d); usage: %s", f->count < expected ? "missing" : "extra",
+                    abs(f->count - expected) == 1 ? "" : "s", f->count - 1, f->field[0], expected - 1, usage);
     return 0;
 }
 
@@ -470,14 +470,11 @@ static int parse_mesh(parser *p, fields *f)
     int n = file[0] == '/' ? snprintf(obj_path, sizeof obj_path, "%s", file)
                            : snprintf(obj_path, sizeof obj_path, "%s%s", p->directory, file);
     if (n < 0 || (size_t)n >= sizeof obj_path) return fail(ctx, "mesh path too long");
-    surface *surf;
-    if (begin_surface(p, f, SURFACE_MESH, &surf)) return 2;
-    int surface_index = p->s->surface_count;
-    (void)surf;
-    /* Count the surface now so that scene_free sees consistent data. */
-    p->s->surface_count++;
+    surface *mesh;
+    if (begin_surface(p, f, SURFACE_MESH, &mesh)) return 2;
+    int surface_index = p->s->surface_count++;
+    /* The OBJ reader appends triangles (not surfaces), so `mesh` stays valid. */
     if (load_obj(p, obj_path, surface_index)) return 2;
-    surface *mesh = &p->s->surfaces[surface_index];
     mesh->triangle_count = p->s->triangle_count - mesh->first_triangle;
     return 0;
 }
@@ -572,19 +569,18 @@ static int parse_face_vertex(const error_context *ctx, const char *text, int ver
 typedef struct {
     vec3 *vertices;
     int vertex_count, vertex_capacity;
-    int *corners; /* vertex indices of one face */
-    int corner_capacity;
 } obj_state;
 
 static int read_obj_lines(parser *p, FILE *file, error_context *ctx, obj_state *obj, int surface_index,
                           int *face_count)
 {
     char line[LINE_CAPACITY];
+    fields f;
     line_status status;
     while ((status = read_line(file, line, sizeof line)) != LINE_END) {
         ctx->line++;
         if (status != LINE_OK) return fail_line(ctx, status);
-        fields f = split_fields(line);
+        split_fields(line, &f);
         if (f.count == 0) continue;
         if (strcmp(f.field[0], "v") == 0) {
             /* x y z, optionally followed by w or a vertex colour */
@@ -601,13 +597,14 @@ static int read_obj_lines(parser *p, FILE *file, error_context *ctx, obj_state *
         } else if (strcmp(f.field[0], "f") == 0) {
             int corner_count = f.count - 1;
             if (corner_count < 3) return fail(ctx, "face needs at least 3 vertices, has %d", corner_count);
-            if (corner_count > MAX_FIELDS - 1) return fail(ctx, "face with more than %d vertices", MAX_FIELDS - 1);
-            int corners[MAX_FIELDS];
-            for (int i = 0; i < corner_count; i++)
-                if (parse_face_vertex(ctx, f.field[1 + i], obj->vertex_count, &corners[i])) return 2;
-            /* Fan triangulation; triangles of zero area are dropped. */
-            for (int i = 1; i + 1 < corner_count; i++) {
-                vec3 a = obj->vertices[corners[0]], b = obj->vertices[corners[i]], c = obj->vertices[corners[i + 1]];
+            /* Fan triangulation (corner 0, i - 1, i); zero-area triangles are dropped. */
+            int first, previous, current;
+            if (parse_face_vertex(ctx, f.field[1], obj->vertex_count, &first) ||
+                parse_face_vertex(ctx, f.field[2], obj->vertex_count, &previous))
+                return 2;
+            for (int i = 3; i <= corner_count; i++, previous = current) {
+                if (parse_face_vertex(ctx, f.field[i], obj->vertex_count, &current)) return 2;
+                vec3 a = obj->vertices[first], b = obj->vertices[previous], c = obj->vertices[current];
                 if (is_degenerate_triangle(a, b, c)) continue;
                 if (add_triangle(p, a, b, c, surface_index)) return fail(ctx, "out of memory");
             }
@@ -839,11 +836,12 @@ static void bvh_build_node(bvh_builder *b, int first, int count, int depth)
 static int parse_file(parser *p, FILE *file)
 {
     char line[LINE_CAPACITY];
+    fields f;
     line_status status;
     while ((status = read_line(file, line, sizeof line)) != LINE_END) {
         p->ctx.line++;
         if (status != LINE_OK) return fail_line(&p->ctx, status);
-        fields f = split_fields(line);
+        split_fields(line, &f);
         if (f.count == 0) continue;
         if (parse_statement(p, &f)) return 2;
     }
@@ -900,26 +898,30 @@ void scene_free(scene *s)
 /* ------------------------------------------------------------------------ */
 /* Intersection                                                              */
 
-/* Moller & Trumbore (1997): solve o + t d = p0 + u e1 + v e2 by Cramer's rule.
- * Written so that NaN (from a ray in the triangle's plane) fails every
- * test and counts as a miss. */
-static inline double triangle_hit(const triangle *tri, vec3 origin, vec3 direction)
+/* Moller & Trumbore (1997): solve o + t d = p0 + u e1 + v e2 by Cramer's
+ * rule, u = U / det, v = V / det, t = T / det.  For speed the tests are done
+ * on U, V, T against det (made positive), all combined into one branch, and
+ * the one division happens only for a hit: incoherent rays make every
+ * early-out branch a coin flip.  det == 0 (a ray parallel to the plane)
+ * fails the test, so there is no NaN. */
+static inline double triangle_hit(const triangle *tri, vec3 origin, vec3 direction, double t_max)
 {
     vec3 pvec = v3_cross(direction, tri->e2);
     double det = v3_dot(tri->e1, pvec);
-    if (det == 0.0) return INFINITY; /* ray parallel to the plane */
-    double inv_det = 1.0 / det;
     vec3 tvec = v3_sub(origin, tri->p0);
-    double u = v3_dot(tvec, pvec) * inv_det;
-    if (!(u >= 0.0 && u <= 1.0)) return INFINITY;
     vec3 qvec = v3_cross(tvec, tri->e1);
-    double v = v3_dot(direction, qvec) * inv_det;
-    if (!(v >= 0.0 && u + v <= 1.0)) return INFINITY;
-    double t = v3_dot(tri->e2, qvec) * inv_det;
-    return t > 0.0 && t < INFINITY ? t : INFINITY;
+    double sign = det < 0.0 ? -1.0 : 1.0;
+    double abs_det = det * sign;
+    double u = v3_dot(tvec, pvec) * sign;
+    double v = v3_dot(direction, qvec) * sign;
+    double t = v3_dot(tri->e2, qvec) * sign;
+    int inside = (abs_det > 0.0) & (u >= 0.0) & (v >= 0.0) & (u + v <= abs_det) & (t > 0.0);
+    if (!inside) return INFINITY;
+    t /= abs_det;
+    return t < t_max ? t : INFINITY;
 }
 
-double intersect_triangle(const triangle *tri, ray r) { return triangle_hit(tri, r.origin, r.direction); }
+double intersect_triangle(const triangle *tri, ray r) { return triangle_hit(tri, r.origin, r.direction, INFINITY); }
 
 /* Haines, Guenther & Akenine-Moller, "Precision Improvements for Ray/Sphere
  * Intersection" (Ray Tracing Gems, ch. 7).  With f = o - c, solve
@@ -952,9 +954,10 @@ static inline double sphere_hit(vec3 center, double radius, vec3 origin, vec3 di
 
 double intersect_sphere(vec3 center, double radius, ray r) { return sphere_hit(center, radius, r.origin, r.direction); }
 
-static inline double primitive_hit(const scene *s, int primitive, vec3 origin, vec3 direction)
+/* Hit distance of primitive `primitive` if it is below t_max, else INFINITY. */
+static inline double primitive_hit(const scene *s, int primitive, vec3 origin, vec3 direction, double t_max)
 {
-    if (primitive < s->triangle_count) return triangle_hit(&s->triangles[primitive], origin, direction);
+    if (primitive < s->triangle_count) return triangle_hit(&s->triangles[primitive], origin, direction, t_max);
     const surface *sphere = &s->surfaces[s->sphere_surfaces[primitive - s->triangle_count]];
     return sphere_hit(sphere->center, sphere->radius, origin, direction);
 }
@@ -975,29 +978,41 @@ static void fill_hit(const scene *s, ray r, double t, int primitive, hit *out)
     }
 }
 
-/* Slab test against a node's box; returns the entry distance or INFINITY.
- * Comparisons are written so that NaN (0 * inf for a ray in a slab plane)
- * never shrinks the interval.  t_far is enlarged by a few ulps (Ize 2013,
- * "Robust BVH Ray Traversal") so rounding never culls a box the primitive
- * test would hit. */
-static inline double box_entry(const aabb *box, vec3 origin, vec3 inv_dir, double t_max)
+/* What the slab test needs of a ray, computed once per ray: the division
+ * is done here, and each axis knows which box face the ray meets first. */
+typedef struct {
+    vec3 origin, inv_dir;
+    int negative_x, negative_y, negative_z;
+} ray_setup;
+
+static inline ray_setup setup_ray(vec3 origin, vec3 direction)
 {
-    double t_near = 0.0, t_far = t_max;
-    double lo, hi;
-#define SLAB(axis)                                                                                   \
-    lo = (box->lo.axis - origin.axis) * inv_dir.axis;                                                \
-    hi = (box->hi.axis - origin.axis) * inv_dir.axis;                                                \
-    if (lo > hi) {                                                                                   \
-        double tmp = lo;                                                                             \
-        lo = hi;                                                                                     \
-        hi = tmp;                                                                                    \
-    }                                                                                                \
-    t_near = lo > t_near ? lo : t_near;                                                              \
-    t_far = hi < t_far ? hi : t_far;
-    SLAB(x)
-    SLAB(y)
-    SLAB(z)
-#undef SLAB
+    /* 1/0 = inf is what the slab test wants for an axis-parallel ray. */
+    vec3 inv_dir = v3(1.0 / direction.x, 1.0 / direction.y, 1.0 / direction.z);
+    return (ray_setup){origin, inv_dir, inv_dir.x < 0.0, inv_dir.y < 0.0, inv_dir.z < 0.0};
+}
+
+/* Slab test (Kay & Kajiya) against a node's box; returns the distance where
+ * the ray enters it, or INFINITY if it misses or enters beyond t_max.  No
+ * branch per axis (they would be mispredicted for incoherent rays); the
+ * comparisons are written so that a NaN (0 * inf, a ray lying in a slab
+ * plane) never shrinks the interval.  t_far is enlarged by a few ulps (Ize
+ * 2013, "Robust BVH Ray Traversal") so rounding never culls a box whose
+ * primitive the exact test would hit. */
+static inline double box_entry(const aabb *box, const ray_setup *r, double t_max)
+{
+    double near_x = ((r->negative_x ? box->hi.x : box->lo.x) - r->origin.x) * r->inv_dir.x;
+    double far_x = ((r->negative_x ? box->lo.x : box->hi.x) - r->origin.x) * r->inv_dir.x;
+    double near_y = ((r->negative_y ? box->hi.y : box->lo.y) - r->origin.y) * r->inv_dir.y;
+    double far_y = ((r->negative_y ? box->lo.y : box->hi.y) - r->origin.y) * r->inv_dir.y;
+    double near_z = ((r->negative_z ? box->hi.z : box->lo.z) - r->origin.z) * r->inv_dir.z;
+    double far_z = ((r->negative_z ? box->lo.z : box->hi.z) - r->origin.z) * r->inv_dir.z;
+    double t_near = near_x > 0.0 ? near_x : 0.0;
+    t_near = near_y > t_near ? near_y : t_near;
+    t_near = near_z > t_near ? near_z : t_near;
+    double t_far = far_x < t_max ? far_x : t_max;
+    t_far = far_y < t_far ? far_y : t_far;
+    t_far = far_z < t_far ? far_z : t_far;
     return t_near <= t_far * (1.0 + 4.0 * DBL_EPSILON) ? t_near : INFINITY;
 }
 
@@ -1007,21 +1022,20 @@ static int traverse(const scene *s, vec3 origin, vec3 direction, double t_max, i
                     int *primitive_out)
 {
     if (s->node_count == 0) return 0;
-    /* Division once per ray; inf for a zero component is what the slabs want. */
-    vec3 inv_dir = v3(1.0 / direction.x, 1.0 / direction.y, 1.0 / direction.z);
+    ray_setup r = setup_ray(origin, direction);
     int stack_node[BVH_STACK_SIZE];
     double stack_entry[BVH_STACK_SIZE]; /* where the ray enters that node's box */
     int top = 0;
     int found = -1;
     double nearest = t_max;
-    if (box_entry(&s->nodes[0].bounds, origin, inv_dir, nearest) == INFINITY) return 0;
+    if (box_entry(&s->nodes[0].bounds, &r, nearest) == INFINITY) return 0;
     int node_index = 0;
     for (;;) {
         const bvh_node *node = &s->nodes[node_index];
         if (node->count > 0) {
             for (int i = node->first; i < node->first + node->count; i++) {
                 int primitive = s->primitive_order[i];
-                double t = primitive_hit(s, primitive, origin, direction);
+                double t = primitive_hit(s, primitive, origin, direction, nearest);
                 if (t < nearest) {
                     nearest = t;
                     found = primitive;
@@ -1031,16 +1045,15 @@ static int traverse(const scene *s, vec3 origin, vec3 direction, double t_max, i
         } else {
             /* Visit the nearer child first; the farther one waits on the stack. */
             int near_child = node_index + 1, far_child = node->second_child;
-            double t_near = box_entry(&s->nodes[near_child].bounds, origin, inv_dir, nearest);
-            double t_far = box_entry(&s->nodes[far_child].bounds, origin, inv_dir, nearest);
-            if (t_far < t_near) {
-                int swap_node = near_child;
-                near_child = far_child;
-                far_child = swap_node;
-                double swap_t = t_near;
-                t_near = t_far;
-                t_far = swap_t;
-            }
+            double t_near = box_entry(&s->nodes[near_child].bounds, &r, nearest);
+            double t_far = box_entry(&s->nodes[far_child].bounds, &r, nearest);
+            int swap = t_far < t_near; /* as data, not a branch: it is a coin flip */
+            int first_child = swap ? far_child : near_child, second = swap ? near_child : far_child;
+            double first_t = swap ? t_far : t_near, second_t = swap ? t_near : t_far;
+            near_child = first_child;
+            far_child = second;
+            t_near = first_t;
+            t_far = second_t;
             if (t_near != INFINITY) {
                 if (t_far != INFINITY) {
                     stack_node[top] = far_child;
@@ -1083,7 +1096,7 @@ int scene_intersect_brute_force(const scene *s, ray r, double t_max, hit *out)
     double nearest = t_max;
     int found = -1;
     for (int i = 0; i < s->triangle_count + s->sphere_count; i++) {
-        double t = primitive_hit(s, i, r.origin, r.direction);
+        double t = primitive_hit(s, i, r.origin, r.direction, nearest);
         if (t < nearest) {
             nearest = t;
             found = i;

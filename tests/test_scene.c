@@ -175,7 +175,7 @@ static void test_parse_cornell(void)
     scene s;
     char err[512] = "";
     int status = load_text("cornell.scene", CORNELL, &s, err, sizeof err);
-    CHECK(status == 0, "load failed: %s", err);
+    CHECK(status == 0, "load failed: %.300s", err);
     if (status) return;
     CHECK(s.material_count == 4, "materials %d", s.material_count);
     CHECK(s.surface_count == 17, "surfaces %d", s.surface_count);
@@ -250,7 +250,7 @@ static void test_parse_syntax_variants(void)
     scene s;
     char err[512] = "";
     int status = load_text("variants.scene", text, &s, err, sizeof err);
-    CHECK(status == 0, "load failed: %s", err);
+    CHECK(status == 0, "load failed: %.300s", err);
     if (status) return;
     CHECK(s.width == 320 && s.height == 240, "image %dx%d", s.width, s.height);
     CHECK_NEAR(s.background.z, 0.3, 0, "background");
@@ -292,8 +292,19 @@ static void test_obj_meshes(void)
              "material white diffuse 0.5 0.5 0.5\n"
              "material lamp emitter 1 1 1\n"
              "mesh cube white %s/tests/data/cube.obj\n"
-             "mesh pentagon lamp pentagon.obj\n",
+             "mesh pentagon lamp pentagon.obj\n"
+             "mesh circle white circle.obj\n",
              cwd);
+    /* A 64-gon: one face of many corners, area (n/2) sin(2 pi / n). */
+    char circle[8192];
+    size_t used = 0;
+    for (int i = 0; i < 64; i++)
+        used += (size_t)snprintf(circle + used, sizeof circle - used, "v %.17g %.17g 5\n", cos(2 * M_PI * i / 64),
+                                 sin(2 * M_PI * i / 64));
+    used += (size_t)snprintf(circle + used, sizeof circle - used, "f");
+    for (int i = 1; i <= 64; i++) used += (size_t)snprintf(circle + used, sizeof circle - used, " %d", i);
+    snprintf(circle + used, sizeof circle - used, "\n");
+    write_temp("circle.obj", circle);
     FILE *src = fopen("tests/data/pentagon.obj", "rb");
     CHECK(src != NULL, "tests/data/pentagon.obj missing (run from the repository root)");
     if (src == NULL) return;
@@ -309,7 +320,9 @@ static void test_obj_meshes(void)
     char pentagon_path[512];
     snprintf(pentagon_path, sizeof pentagon_path, "%s/pentagon.obj", temp_dir);
     unlink(pentagon_path);
-    CHECK(status == 0, "load failed: %s", err);
+    snprintf(pentagon_path, sizeof pentagon_path, "%s/circle.obj", temp_dir);
+    unlink(pentagon_path);
+    CHECK(status == 0, "load failed: %.300s", err);
     if (status) return;
     int cube = scene_find_surface(&s, "cube"), pentagon = scene_find_surface(&s, "pentagon");
     CHECK(s.surfaces[cube].kind == SURFACE_MESH, "mesh kind");
@@ -324,6 +337,9 @@ static void test_obj_meshes(void)
     CHECK(s.surfaces[pentagon].triangle_count == 3, "pentagon triangles %d", s.surfaces[pentagon].triangle_count);
     CHECK_NEAR(s.surfaces[pentagon].area, 2.5 * sin(72.0 * M_PI / 180.0), 1e-12, "pentagon area");
     CHECK(s.emitter_count == 1 && s.emitters[0] == pentagon, "mesh emitter");
+    int circle_index = scene_find_surface(&s, "circle");
+    CHECK(s.surfaces[circle_index].triangle_count == 62, "64-gon triangles %d", s.surfaces[circle_index].triangle_count);
+    CHECK_NEAR(s.surfaces[circle_index].area, 32 * sin(2 * M_PI / 64), 1e-12, "64-gon area");
     CHECK_NEAR(s.triangles[s.surfaces[pentagon].first_triangle].normal.z, 1, 1e-15, "pentagon normal");
     scene_free(&s);
 }
@@ -439,7 +455,7 @@ static void test_bvh_matches_brute_force(void)
     char err[512] = "";
     int status = load_text("random.scene", text, &s, err, sizeof err);
     free(text);
-    CHECK(status == 0, "load failed: %s", err);
+    CHECK(status == 0, "load failed: %.300s", err);
     if (status) return;
     CHECK(s.triangle_count >= 590 && s.sphere_count == 40, "primitives %d + %d", s.triangle_count, s.sphere_count);
 
@@ -489,7 +505,7 @@ static void test_occlusion_between_surfaces(void)
     scene s;
     char err[512] = "";
     int status = load_text("cornell.scene", CORNELL, &s, err, sizeof err);
-    CHECK(status == 0, "load failed: %s", err);
+    CHECK(status == 0, "load failed: %.300s", err);
     if (status) return;
     vec3 light_center = v3(278, 548.7, 279.5);
     /* Both ends on surfaces: the back corner of the floor by the green wall
@@ -510,8 +526,8 @@ static void test_occlusion_between_surfaces(void)
     CHECK(p.y == -s.epsilon, "offset down: y = %g", p.y);
     /* A ray leaving the floor from the offset origin does not hit the floor. */
     hit h;
-    vec3 up = v3_normalize(v3(0.1, 1, 0.2));
-    CHECK(scene_intersect(&s, (ray){scene_offset_origin(&s, v3(100, 0, 100), v3(0, 1, 0), up), up}, INFINITY, &h),
+    vec3 up = v3_normalize(v3(0.01, 1, 0.02));
+    CHECK(scene_intersect(&s, (ray){scene_offset_origin(&s, v3(500, 0, 100), v3(0, 1, 0), up), up}, INFINITY, &h),
           "ray up from the floor escapes");
     CHECK(h.surface == scene_find_surface(&s, "ceiling"), "ray up from the floor hits surface %d", h.surface);
     scene_free(&s);
@@ -528,7 +544,7 @@ static void test_surface_sampling(void)
     scene s;
     char err[512] = "";
     int status = load_text("sampling.scene", text, &s, err, sizeof err);
-    CHECK(status == 0, "load failed: %s", err);
+    CHECK(status == 0, "load failed: %.300s", err);
     if (status) return;
     /* Triangles (v0 v1 v2) of area 1.5 and (v0 v2 v3) of area 3. */
     int quad = scene_find_surface(&s, "q"), ball = scene_find_surface(&s, "ball");
