@@ -3,6 +3,7 @@
 
 #include <errno.h>
 #include <limits.h>
+#include <signal.h>
 #include <omp.h>
 #include <stdarg.h>
 #include <stdlib.h>
@@ -306,8 +307,18 @@ static void pixel_offset(int index, int spp, rng *g, double *dx, double *dy)
     }
 }
 
+/* Set by SIGINT: the pixel loop abandons the pass it is in, and the
+ * driver writes the result of the passes completed so far. */
+static volatile sig_atomic_t interrupted;
+static void on_interrupt(int signal_number)
+{
+    (void)signal_number;
+    interrupted = 1;
+}
+
 typedef struct {
-    double *sum;   /* running sum of samples, 3 per pixel */
+    double *sum;   /* running sum of samples of completed passes, 3 per pixel */
+    double *pass;  /* this pass's samples, added to sum only if the pass completes */
     long samples;  /* per pixel so far */
     uint64_t nonfinite;
     render_counters counters;
@@ -322,7 +333,7 @@ static void render_pass(const chapter *ch, const void *state, const scene *s, co
         uint64_t nonfinite = 0;
 #pragma omp for schedule(dynamic, 1)
         for (int y = 0; y < height; y++)
-            for (int x = 0; x < width; x++) {
+            for (int x = 0; x < width && !interrupted; x++) {
                 uint64_t pixel = (uint64_t)y * (uint64_t)width + (uint64_t)x;
                 vec3 total = v3_splat(0.0);
                 for (int k = first_sample; k < first_sample + pass_samples; k++) {
@@ -336,8 +347,8 @@ static void render_pass(const chapter *ch, const void *state, const scene *s, co
                     else
                         nonfinite++; /* rejected: counts as a zero sample, reported in stats */
                 }
-                double *p = acc->sum + 3 * pixel;
-                p[0] += total.x, p[1] += total.y, p[2] += total.z;
+                double *p = acc->pass + 3 * pixel;
+                p[0] = total.x, p[1] = total.y, p[2] = total.z;
             }
 #pragma omp critical
         {
@@ -346,6 +357,11 @@ static void render_pass(const chapter *ch, const void *state, const scene *s, co
             acc->nonfinite += nonfinite;
         }
     }
+    if (interrupted)
+        return; /* an incomplete pass would leave some pixels with fewer samples */
+    size_t n = 3 * (size_t)width * (size_t)height;
+    for (size_t i = 0; i < n; i++)
+        acc->sum[i] += acc->pass[i];
     acc->samples += pass_samples;
 }
 
@@ -409,6 +425,7 @@ static int write_stats(const chapter *ch, const void *state, const scene *s, con
     fprintf(f, ",\n  \"render_s\": ");
     json_number(f, run->time_render);
     fprintf(f, ",\n  \"bounces\": [%d, %d]", o->bounce_min, o->bounce_max);
+    fprintf(f, ",\n  \"interrupted\": %s", interrupted ? "true" : "false");
     fprintf(f, ",\n  \"counters\": {\"camera_rays\": %llu",
             (unsigned long long)((uint64_t)run->samples_per_pixel * (uint64_t)width * (uint64_t)height));
     for (int c = 0; c < RENDER_MAX_COUNTERS && ch->counter_names[c]; c++) {
@@ -486,6 +503,11 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
         return 2;
     if (o.threads > 0)
         omp_set_num_threads(o.threads);
+    /* Ctrl-C finishes with what is done; a second Ctrl-C kills at once
+     * (SA_RESETHAND restores the default action). */
+    struct sigaction on_sigint = {.sa_handler = on_interrupt, .sa_flags = SA_RESETHAND};
+    sigemptyset(&on_sigint.sa_mask);
+    sigaction(SIGINT, &on_sigint, NULL);
 
     scene s;
     if (scene_load(o.scene_path, &s, err, err_size))
@@ -538,7 +560,8 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
 
     img = image_new(width, height);
     acc.sum = calloc(3 * (size_t)width * (size_t)height, sizeof(double));
-    if (!img.pixels || !acc.sum) {
+    acc.pass = calloc(3 * (size_t)width * (size_t)height, sizeof(double));
+    if (!img.pixels || !acc.sum || !acc.pass) {
         snprintf(err, err_size, "argv:0: out of memory for a %dx%d image", width, height);
         goto done;
     }
@@ -558,6 +581,8 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
         int pass_samples = timed ? 1 : (int)fmin((double)(spp_cap - acc.samples), fmax(1.0, acc.samples / 2.0));
         render_pass(ch, state, &s, &o, width, height, (int)acc.samples, pass_samples,
                     spp_for_offsets, &acc);
+        if (interrupted)
+            break;
         passes++;
         double elapsed = now_seconds() - render_start;
         double fraction = timed ? fmin(1.0, elapsed / o.time_budget) : (double)acc.samples / spp_cap;
@@ -573,10 +598,15 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
     }
     if (!o.quiet && isatty(STDERR_FILENO))
         fputc('\n', stderr);
+    if (interrupted && acc.samples == 0) {
+        fprintf(stderr, "%s: interrupted before the first pass was complete; no output written\n", ch->name);
+        status = 130;
+        goto done;
+    }
     accumulation_to_image(&acc, &img);
     double render_end = now_seconds();
 
-    if (ch->probe && s.probe_count) {
+    if (ch->probe && s.probe_count && !interrupted) {
         probes = calloc((size_t)s.probe_count, sizeof *probes);
         if (!probes) {
             snprintf(err, err_size, "argv:0: out of memory");
@@ -606,10 +636,17 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
         fprintf(stderr, "warning: %llu non-finite samples were rejected (counted in stats)\n",
                 (unsigned long long)acc.nonfinite);
     status = 0;
+    if (interrupted) {
+        /* The conventional status of a program ended by SIGINT (128 + 2). */
+        fprintf(stderr, "%s: interrupted; wrote the %ld samples per pixel completed so far\n", ch->name,
+                acc.samples);
+        status = 130;
+    }
 
 done:
     free(probes);
     free(acc.sum);
+    free(acc.pass);
     image_free(&img);
     image_free(&reference);
     if (ch->finish)
