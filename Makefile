@@ -3,6 +3,7 @@
 #   make demo       render the Cornell box with every chapter and show the results
 #   make test       unit tests + grading tests, plain and under ASan/UBSan
 #   make bench      throughput and timing (a benchmark, not a test)
+#   make fuzz       libFuzzer on the scene parser (FUZZ_SECONDS=60)
 #   make deps       install the Debian packages the project needs
 #   make clean
 # Options: NATIVE=1 adds -march=native; CC=clang builds with clang;
@@ -31,7 +32,7 @@ COMMON_OBJ := $(COMMON_SRC:%.c=$(BUILD)/%.o)
 CHAPTERS   := $(patsubst chapters/%.c,$(BUILD)/%,$(wildcard chapters/*.c))
 TESTS      := $(patsubst tests/%.c,$(BUILD)/tests/%,$(wildcard tests/test_*.c))
 
-.PHONY: all tests demo test test-plain bench deps print-deps clean
+.PHONY: all tests demo test test-plain bench deps print-deps fuzz clean
 .DEFAULT_GOAL := all
 .SECONDARY:
 
@@ -86,6 +87,17 @@ test-plain: all tests
 
 bench: deps all
 	$(PYTHON) bench/bench.py build
+
+# libFuzzer on the scene parser (clang), time-boxed; crashing inputs land in
+# tests/fuzz/findings/ (commit them: make test replays them through every chapter).
+FUZZ_SECONDS ?= 60
+fuzz: deps
+	@mkdir -p build/fuzz/corpus tests/fuzz/findings
+	clang -std=c17 -g -O1 -fsanitize=fuzzer,address,undefined -D_POSIX_C_SOURCE=200809L -Icommon \
+	  tests/fuzz/fuzz_scene.c common/scene.c -lm -o build/fuzz/fuzz_scene
+	cp -n scenes/*.scene tests/bad/*.scene build/fuzz/corpus/ 2>/dev/null || true
+	cd tests/bad && ../../build/fuzz/fuzz_scene -max_total_time=$(FUZZ_SECONDS) -max_len=4096 \
+	  -artifact_prefix=../fuzz/findings/ ../../build/fuzz/corpus
 
 clean:
 	rm -rf build out

@@ -193,23 +193,6 @@ def check_bad_input(ctx, args, expected_prefix):
     assert not os.path.exists(out), f"{args}: an output file was created"
 
 
-def test_bad_scenes_exit_2_with_file_line(ctx):
-    """Every malformed scene in tests/bad/: exit 2, one 'file:line: message', no output."""
-    files = sorted(glob.glob(os.path.join(ROOT, "tests", "bad", "*.scene")))
-    assert len(files) >= 20, "the bad-input corpus is missing"
-    for path in files:
-        rel = os.path.relpath(path, ROOT)
-        with open(path, "rb") as f:
-            first = f.readline().decode("latin-1")
-        if first.startswith("# expect: "):
-            prefix = first[len("# expect: "):].strip() + ":"
-        elif first.startswith("# expect-line: "):
-            prefix = f"{rel}:{int(first.split(':')[1])}:"
-        else:
-            prefix = f"{rel}:"
-        check_bad_input(ctx, [rel], prefix)
-
-
 def test_bad_command_lines_exit_2(ctx):
     check_bad_input(ctx, ["scenes/cornell.scene", "--frobnicate"], "argv:")
     check_bad_input(ctx, ["scenes/cornell.scene", "--spp", "0"], "argv:")
