@@ -18,7 +18,7 @@ ifeq ($(SANITIZE),1)
   CFLAGS_OPT := -O1 -fno-omit-frame-pointer -fsanitize=address,undefined -fno-sanitize-recover=undefined
   LDFLAGS_SAN := -fsanitize=address,undefined
 else
-  CFLAGS_OPT := -O2
+  CFLAGS_OPT := -O3
 endif
 ifeq ($(NATIVE),1)
   CFLAGS_OPT += -march=native
@@ -71,11 +71,10 @@ deps:
 	fi
 
 # --- the two commands -------------------------------------------------------
+# Renders the Cornell box with every chapter into out/demo/, then opens the
+# viewer side by side (or, with no display, writes out/demo/cornell-side-by-side.png).
 demo: deps all
-	@mkdir -p out
-	$(BUILD)/01_local scenes/cornell.scene --light-samples 16 --ambient 0.05 --out out/cornell-01_local.png --out out/cornell-01_local.pfm --stats out/cornell-01_local.json
-	$(BUILD)/01_local scenes/cornell-point.scene --out out/cornell-point-01_local.png --out out/cornell-point-01_local.pfm --stats out/cornell-point-01_local.json
-	@echo "demo: wrote out/cornell-01_local.png and out/cornell-point-01_local.png"
+	viewer/demo.sh $(BUILD)
 
 test: deps
 	$(MAKE) --no-print-directory all tests

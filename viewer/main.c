@@ -1,0 +1,1221 @@
+/* main.c — build/viewer: every method side by side, interactive and headless.
+ *
+ *   build/viewer A.pfm B.pfm ...            compare mode (also --scene NAME [--dir out])
+ *   build/viewer --live scenes/cornell.scene  every chapter as a child process, progressive
+ *   build/viewer --raster scenes/cornell-point.scene  GLSL Blinn-Phong beside chapter 1
+ *   build/viewer --ply out/cornell-03_radiosity.ply  radiosity's mesh, orbitable
+ *   --headless --out FILE.png --size WxH     what the window would show, without one
+ *
+ * Sections: options · layout · drawing a frame · input · the main loop.
+ * `build/viewer --help` lists every option; key H in the window the keys.
+ */
+#include <ctype.h>
+#include <dirent.h>
+#include <errno.h>
+#include <glob.h>
+#include <limits.h>
+#include <math.h>
+#include <png.h>
+#include <signal.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "backend.h"
+#include "viewer.h"
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
+
+/* ---- options ------------------------------------------------------------------------------------- */
+
+typedef enum { MODE_COMPARE, MODE_LIVE, MODE_RASTER, MODE_PLY } viewer_mode;
+
+enum { LABEL_BAND = 34 }; /* pixels of label at the top of every panel: 3 lines of 8x8 text */
+
+static struct {
+    /* options */
+    viewer_mode mode;
+    backend_kind backend;
+    bool backend_given, headless;
+    int width, height;               /* framebuffer (window) size */
+    int render_width, render_height; /* 3D panels and children; 0: fit the panel */
+    const char *out_path, *screenshot_path, *panel_out_path, *raster_shader;
+    const char *scene_path, *ply_path, *chapters_dir;
+    const char *chapter_filter[PANEL_MAX];
+    int chapter_filter_count;
+    double live_time;
+    int exit_after_updates, frames;
+    bool no_shadows, verbose;
+    double ambient;
+    camera cam, scene_cam, cam_option;
+    int camera_given; /* bits: 1 eye, 2 look, 4 up, 8 fov */
+
+    /* view state */
+    double exposure, zoom, cx, cy; /* zoom 1 = fit; (cx, cy): image point at the panel centre, 0..1 */
+    bool diff, split, help;
+    int reference, split_b;        /* panel indices */
+    double split_position;         /* 0..1 of the width */
+    double mouse_x, mouse_y;
+    bool cursor_given, mouse_inside;
+    bool dragging, panning;
+    double drag_x, drag_y;
+    bool redraw, camera_moved;
+    double restart_at;             /* when to restart the children after the camera moved; 0 none */
+    int screenshot_counter;
+
+    /* content */
+    panel panels[PANEL_MAX];
+    int panel_count;
+    scene scene;
+    bool scene_loaded;
+    mesh_uniforms uniforms;
+    vec3 bounds_lo, bounds_hi;
+    char temp_dir[PATH_LEN];
+    child_spec spec;
+    target screen;                 /* headless framebuffer */
+} V;
+
+static volatile sig_atomic_t quit_requested;
+static void on_signal(int sig) { (void)sig; quit_requested = 1; }
+
+static void usage(void)
+{
+    printf("usage: build/viewer [A.pfm B.pfm ...] [--scene NAME [--dir DIR]]\n"
+           "                    [--live SCENE | --raster SCENE | --ply FILE.ply] [options]\n"
+           "modes:\n"
+           "  A.pfm B.pfm ...      compare: the images in a grid, with the stats JSON beside each (same name .json)\n"
+           "  --scene NAME         compare DIR/NAME-NN_*.pfm (DIR: --dir, default out)\n"
+           "  --live SCENE         run every chapter (build/0*_*) as a child with the viewer's camera and show\n"
+           "                       its progressive images; orbiting restarts them.  A GLSL raster is panel 1.\n"
+           "  --raster SCENE       the scene rasterised by a GLSL Blinn-Phong shader (chapter 1's local model,\n"
+           "                       no shadows) beside chapter 1's ray-cast image of the same camera\n"
+           "  --ply FILE.ply       radiosity's mesh with smooth per-vertex radiance, orbitable\n"
+           "display:\n"
+           "  --backend glfw|egl|osmesa  context (default glfw with a display, else egl, else osmesa)\n"
+           "  --headless           no window (egl or osmesa); needs --out or --frames\n"
+           "  --size WxH           window / framebuffer size (default 1280x720)\n"
+           "  --render-size WxH    size of 3D panels and children's images (default: fit the panel)\n"
+           "  --out FILE.png|.ppm  write what the window shows (headless: the first complete frame)\n"
+           "  --screenshot FILE    in a window: save the first complete frame there and exit\n"
+           "  --panel-out FILE.pfm write panel 1's linear radiance (the GLSL raster, the PLY view ...)\n"
+           "  --exposure STOPS     shared exposure (as the chapters' --exposure)\n"
+           "  --diff N             error heat map of every panel against panel N\n"
+           "  --split A,B[,POS]    A/B split slider between panels A and B at POS (0..1, default 0.5)\n"
+           "  --zoom Z --center U,V  shared zoom (1 = fit) and image point (0..1) at the panel centres\n"
+           "  --cursor X,Y         cursor position in pixels (shows the radiance under it in every panel)\n"
+           "  --help-overlay       show the key help\n"
+           "  --frames N           render N frames, print frames per second and exit\n"
+           "3D and live:\n"
+           "  --eye X,Y,Z --look X,Y,Z --up X,Y,Z --fov DEG   camera (default: the scene's)\n"
+           "  --chapter NAME       only this chapter (repeatable); --chapters DIR where they are\n"
+           "  --live-time S        the children's --time budget (default 10)\n"
+           "  --exit-after-updates N  headless live: stop after N image updates from every chapter\n"
+           "  --no-shadows --ambient LA  chapter 1's options, for the raster and passed to 01_local\n"
+           "  --raster-shader FILE.frag  replace the built-in Blinn-Phong fragment shader\n"
+           "  --verbose            print the layout and every update\n"
+           "Layout: ceil(sqrt(n)) columns; each panel's top %d pixels are its label, the image is scaled\n"
+           "to fit the rest (zoom 1), centred, its corner on a whole pixel, nearest-neighbour sampled.\n"
+           "Exit status: 0, 2 bad input or shader error (file:line: message), 3 no such backend here.\n",
+           LABEL_BAND);
+}
+
+static int bad(char *err, size_t err_size, int i, const char *what, const char *value)
+{
+    snprintf(err, err_size, "argv:%d: %s%s%s%s", i, what, value ? " '" : "", value ? value : "", value ? "'" : "");
+    return 2;
+}
+
+static bool parse_size(const char *s, int *w, int *h)
+{
+    char tail;
+    return s && sscanf(s, "%dx%d%c", w, h, &tail) == 2 && *w > 0 && *h > 0 && *w <= 16384 && *h <= 16384;
+}
+
+static bool parse_vec(const char *s, vec3 *v)
+{
+    char tail;
+    return s && sscanf(s, "%lf,%lf,%lf%c", &v->x, &v->y, &v->z, &tail) == 3 && v3_is_finite(*v);
+}
+
+static bool parse_number(const char *s, double lo, double hi, double *out)
+{
+    if (!s)
+        return false;
+    char *end;
+    double v = strtod(s, &end);
+    if (end == s || *end || !(v >= lo && v <= hi))
+        return false;
+    *out = v;
+    return true;
+}
+
+static int add_file_panel(const char *path, char *err, size_t err_size)
+{
+    if (V.panel_count >= PANEL_MAX) {
+        snprintf(err, err_size, "argv:0: at most %d panels", PANEL_MAX);
+        return 2;
+    }
+    panel *p = &V.panels[V.panel_count];
+    memset(p, 0, sizeof *p);
+    p->kind = SOURCE_FILE;
+    snprintf(p->path, sizeof p->path, "%s", path);
+    V.panel_count++;
+    return 0;
+}
+
+/* DIR/NAME-NN_*.pfm, sorted: the chapters' outputs for one scene. */
+static int add_scene_panels(const char *name, const char *dir, int arg, char *err, size_t err_size)
+{
+    char pattern[PATH_LEN];
+    snprintf(pattern, sizeof pattern, "%s/%s-[0-9]*.pfm", dir, name);
+    glob_t g;
+    int found = glob(pattern, 0, NULL, &g);
+    if (found != 0) {
+        snprintf(err, err_size, "argv:%d: no %.900s (render the scene with the chapters first, e.g. make demo)", arg,
+                 pattern);
+        return 2;
+    }
+    int status = 0;
+    for (size_t i = 0; i < g.gl_pathc && !status; i++)
+        status = add_file_panel(g.gl_pathv[i], err, err_size);
+    globfree(&g);
+    return status;
+}
+
+static int parse_options(int argc, char **argv, char *err, size_t err_size)
+{
+    V.width = 1280, V.height = 720;
+    V.zoom = 1.0, V.cx = V.cy = 0.5;
+    V.live_time = 10.0;
+    V.split_position = 0.5;
+    V.reference = 0, V.split_b = 1;
+    const char *scene_name = NULL, *dir = "out";
+    int scene_arg = 0;
+    for (int i = 1; i < argc; i++) {
+        const char *a = argv[i], *value = i + 1 < argc ? argv[i + 1] : NULL;
+#define NEED_VALUE                                                                                                     \
+    do {                                                                                                               \
+        if (!value)                                                                                                    \
+            return bad(err, err_size, i, "missing value after", a);                                                    \
+        i++;                                                                                                           \
+    } while (0)
+        if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
+            usage();
+            exit(0);
+        } else if (!strcmp(a, "--backend")) {
+            NEED_VALUE;
+            if (!backend_parse(value, &V.backend))
+                return bad(err, err_size, i, "--backend wants glfw, egl or osmesa, not", value);
+            V.backend_given = true;
+        } else if (!strcmp(a, "--headless")) {
+            V.headless = true;
+        } else if (!strcmp(a, "--size")) {
+            NEED_VALUE;
+            if (!parse_size(value, &V.width, &V.height))
+                return bad(err, err_size, i, "--size wants WxH, not", value);
+        } else if (!strcmp(a, "--render-size")) {
+            NEED_VALUE;
+            if (!parse_size(value, &V.render_width, &V.render_height))
+                return bad(err, err_size, i, "--render-size wants WxH, not", value);
+        } else if (!strcmp(a, "--out")) {
+            NEED_VALUE;
+            V.out_path = value;
+        } else if (!strcmp(a, "--screenshot")) {
+            NEED_VALUE;
+            V.screenshot_path = value;
+        } else if (!strcmp(a, "--panel-out")) {
+            NEED_VALUE;
+            V.panel_out_path = value;
+        } else if (!strcmp(a, "--raster-shader")) {
+            NEED_VALUE;
+            V.raster_shader = value;
+        } else if (!strcmp(a, "--scene")) {
+            NEED_VALUE;
+            scene_name = value, scene_arg = i;
+        } else if (!strcmp(a, "--dir")) {
+            NEED_VALUE;
+            dir = value;
+        } else if (!strcmp(a, "--live") || !strcmp(a, "--raster") || !strcmp(a, "--ply")) {
+            NEED_VALUE;
+            V.mode = a[2] == 'l' ? MODE_LIVE : a[2] == 'r' ? MODE_RASTER : MODE_PLY;
+            if (V.mode == MODE_PLY)
+                V.ply_path = value;
+            else
+                V.scene_path = value;
+        } else if (!strcmp(a, "--exposure")) {
+            NEED_VALUE;
+            if (!parse_number(value, -64, 64, &V.exposure))
+                return bad(err, err_size, i, "--exposure wants stops in [-64, 64], not", value);
+        } else if (!strcmp(a, "--diff")) {
+            double n;
+            NEED_VALUE;
+            if (!parse_number(value, 1, PANEL_MAX, &n) || n != floor(n))
+                return bad(err, err_size, i, "--diff wants a panel number, not", value);
+            V.diff = true, V.reference = (int)n - 1;
+        } else if (!strcmp(a, "--split")) {
+            int pa, pb;
+            double pos = 0.5;
+            char tail;
+            NEED_VALUE;
+            int n = sscanf(value, "%d,%d,%lf%c", &pa, &pb, &pos, &tail);
+            if ((n != 2 && n != 3) || pa < 1 || pb < 1 || pa > PANEL_MAX || pb > PANEL_MAX || !(pos >= 0 && pos <= 1))
+                return bad(err, err_size, i, "--split wants A,B[,POS] (panel numbers, 0 <= POS <= 1), not", value);
+            V.split = true, V.reference = pa - 1, V.split_b = pb - 1, V.split_position = pos;
+        } else if (!strcmp(a, "--zoom")) {
+            NEED_VALUE;
+            if (!parse_number(value, 1e-3, 1e4, &V.zoom))
+                return bad(err, err_size, i, "--zoom wants a factor in [0.001, 10000], not", value);
+        } else if (!strcmp(a, "--center")) {
+            char tail;
+            NEED_VALUE;
+            if (sscanf(value, "%lf,%lf%c", &V.cx, &V.cy, &tail) != 2 || !isfinite(V.cx) || !isfinite(V.cy))
+                return bad(err, err_size, i, "--center wants U,V, not", value);
+        } else if (!strcmp(a, "--cursor")) {
+            char tail;
+            NEED_VALUE;
+            if (sscanf(value, "%lf,%lf%c", &V.mouse_x, &V.mouse_y, &tail) != 2)
+                return bad(err, err_size, i, "--cursor wants X,Y in pixels, not", value);
+            V.cursor_given = V.mouse_inside = true;
+        } else if (!strcmp(a, "--help-overlay")) {
+            V.help = true;
+        } else if (!strcmp(a, "--frames")) {
+            double n;
+            NEED_VALUE;
+            if (!parse_number(value, 1, 1e6, &n))
+                return bad(err, err_size, i, "--frames wants a count, not", value);
+            V.frames = (int)n;
+        } else if (!strcmp(a, "--eye") || !strcmp(a, "--look") || !strcmp(a, "--up")) {
+            vec3 v;
+            NEED_VALUE;
+            if (!parse_vec(value, &v))
+                return bad(err, err_size, i, "wants X,Y,Z, not", value);
+            if (a[2] == 'e')
+                V.cam_option.eye = v, V.camera_given |= 1;
+            else if (a[2] == 'l')
+                V.cam_option.look = v, V.camera_given |= 2;
+            else
+                V.cam_option.up = v, V.camera_given |= 4;
+        } else if (!strcmp(a, "--fov")) {
+            NEED_VALUE;
+            if (!parse_number(value, 1e-3, 179, &V.cam_option.fov_degrees))
+                return bad(err, err_size, i, "--fov wants degrees in (0, 179], not", value);
+            V.camera_given |= 8;
+        } else if (!strcmp(a, "--chapter")) {
+            NEED_VALUE;
+            if (V.chapter_filter_count < PANEL_MAX)
+                V.chapter_filter[V.chapter_filter_count++] = value;
+        } else if (!strcmp(a, "--chapters")) {
+            NEED_VALUE;
+            V.chapters_dir = value;
+        } else if (!strcmp(a, "--live-time")) {
+            NEED_VALUE;
+            if (!parse_number(value, 0.01, 1e6, &V.live_time))
+                return bad(err, err_size, i, "--live-time wants seconds, not", value);
+        } else if (!strcmp(a, "--exit-after-updates")) {
+            double n;
+            NEED_VALUE;
+            if (!parse_number(value, 1, 1e6, &n))
+                return bad(err, err_size, i, "--exit-after-updates wants a count, not", value);
+            V.exit_after_updates = (int)n;
+        } else if (!strcmp(a, "--no-shadows")) {
+            V.no_shadows = true;
+        } else if (!strcmp(a, "--ambient")) {
+            NEED_VALUE;
+            if (!parse_number(value, 0, 1e6, &V.ambient))
+                return bad(err, err_size, i, "--ambient wants a radiance >= 0, not", value);
+        } else if (!strcmp(a, "--verbose")) {
+            V.verbose = true;
+        } else if (a[0] == '-' && a[1]) {
+            return bad(err, err_size, i, "unknown option", a);
+        } else {
+            if (add_file_panel(a, err, err_size))
+                return 2;
+        }
+#undef NEED_VALUE
+    }
+    if (scene_name && add_scene_panels(scene_name, dir, scene_arg, err, err_size))
+        return 2;
+    if (V.mode != MODE_COMPARE && V.panel_count)
+        return bad(err, err_size, 0, "image files and --live/--raster/--ply do not mix", NULL);
+    if (V.mode == MODE_COMPARE && !V.panel_count) {
+        usage();
+        return bad(err, err_size, 0, "nothing to show: give PFM files, --scene, --live, --raster or --ply", NULL);
+    }
+    if (V.headless && V.backend_given && V.backend == BACKEND_GLFW)
+        return bad(err, err_size, 0, "--headless needs --backend egl or osmesa", NULL);
+    if (V.headless && !V.out_path && !V.frames && !V.panel_out_path && !V.exit_after_updates)
+        return bad(err, err_size, 0, "--headless needs --out FILE.png (or --frames N)", NULL);
+    if (V.out_path && !path_has_extension(V.out_path, ".png") && !path_has_extension(V.out_path, ".ppm"))
+        return bad(err, err_size, 0, "--out wants a .png or .ppm file, not", V.out_path);
+    if (V.panel_out_path && !path_has_extension(V.panel_out_path, ".pfm"))
+        return bad(err, err_size, 0, "--panel-out wants a .pfm file, not", V.panel_out_path);
+    return 0;
+}
+
+/* ---- writing the screen ---------------------------------------------------------------------- */
+
+static int write_rgb8(const char *path, int w, int h, const unsigned char *rgb, char *err, size_t err_size)
+{
+    char temporary[PATH_LEN + 32];
+    snprintf(temporary, sizeof temporary, "%s.tmp.%ld", path, (long)getpid());
+    FILE *f = fopen(temporary, "wb");
+    if (!f) {
+        snprintf(err, err_size, "%s:0: cannot write: %s", path, strerror(errno));
+        return 2;
+    }
+    int failed = 0;
+    if (path_has_extension(path, ".ppm")) {
+        fprintf(f, "P6\n%d %d\n255\n", w, h);
+        failed = fwrite(rgb, 3, (size_t)w * (size_t)h, f) != (size_t)w * (size_t)h;
+    } else {
+        png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
+        png_infop info = png ? png_create_info_struct(png) : NULL;
+        if (!png || !info || setjmp(png_jmpbuf(png))) {
+            failed = 1;
+        } else {
+            png_init_io(png, f);
+            png_set_IHDR(png, info, (png_uint_32)w, (png_uint_32)h, 8, PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE,
+                         PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+            png_set_sRGB(png, info, PNG_sRGB_INTENT_PERCEPTUAL);
+            png_write_info(png, info);
+            for (int y = 0; y < h; y++)
+                png_write_row(png, (png_const_bytep)(rgb + (size_t)y * (size_t)w * 3));
+            png_write_end(png, NULL);
+        }
+        png_destroy_write_struct(&png, &info);
+    }
+    failed |= fflush(f) != 0;
+    failed |= fclose(f) != 0;
+    if (failed || rename(temporary, path) != 0) {
+        remove(temporary);
+        snprintf(err, err_size, "%s:0: write failed", path);
+        return 2;
+    }
+    return 0;
+}
+
+/* ---- layout ------------------------------------------------------------------------------------ */
+
+static void panel_rects(int i, int n, int width, int height, rect *whole, rect *area)
+{
+    int cols = (int)ceil(sqrt((double)n)), rows = (n + cols - 1) / cols;
+    int c = i % cols, r = i / cols;
+    whole->x = c * width / cols, whole->w = (c + 1) * width / cols - whole->x;
+    whole->y = r * height / rows, whole->h = (r + 1) * height / rows - whole->y;
+    *area = (rect){whole->x, whole->y + LABEL_BAND, whole->w, whole->h - LABEL_BAND};
+    if (area->h < 1)
+        area->h = 1;
+}
+
+static int shown_panels(void) { return V.split ? 1 : V.panel_count; }
+
+/* Where panel p's image sits in area: framebuffer pixel = origin + scale * image pixel. */
+static void placement(const panel *p, rect area, double *ox, double *oy, double *scale)
+{
+    int iw = p->img.width > 0 ? p->img.width : area.w, ih = p->img.height > 0 ? p->img.height : area.h;
+    *scale = fmin((double)area.w / iw, (double)area.h / ih) * V.zoom;
+    *ox = floor(area.x + area.w / 2.0 - V.cx * iw * *scale + 0.5);
+    *oy = floor(area.y + area.h / 2.0 - V.cy * ih * *scale + 0.5);
+}
+
+/* The panel under framebuffer point (x, y) and the image point there (0..1); -1 if none. */
+static int panel_at(double x, double y, double *u, double *v)
+{
+    int W = V.width, H = V.height, n = shown_panels();
+    for (int i = 0; i < n; i++) {
+        rect whole, area;
+        panel_rects(i, n, W, H, &whole, &area);
+        if (x < area.x || y < area.y || x >= area.x + area.w || y >= area.y + area.h)
+            continue;
+        int index = V.split ? (x < W * V.split_position ? V.reference : V.split_b) : i;
+        const panel *p = &V.panels[index];
+        if (!p->img.pixels)
+            return -1;
+        double ox, oy, s;
+        placement(p, area, &ox, &oy, &s);
+        *u = (x - ox) / s / p->img.width, *v = (y - oy) / s / p->img.height;
+        return index;
+    }
+    return -1;
+}
+
+/* ---- drawing a frame ------------------------------------------------------------------------- */
+
+static const float WHITE[4] = {0.95f, 0.95f, 0.95f, 1.0f}, GREY[4] = {0.7f, 0.7f, 0.7f, 1.0f},
+                   YELLOW[4] = {1.0f, 0.85f, 0.3f, 1.0f}, BAND[4] = {0.08f, 0.08f, 0.1f, 1.0f};
+
+static double rmse_against(const panel *a, const panel *b)
+{
+    if (!a->img.pixels || !b->img.pixels || a->img.width != b->img.width || a->img.height != b->img.height)
+        return NAN;
+    size_t n = (size_t)a->img.width * (size_t)a->img.height * 3;
+    double sum = 0.0;
+    for (size_t k = 0; k < n; k++) {
+        double d = (double)a->img.pixels[k] - b->img.pixels[k];
+        sum += d * d;
+    }
+    return sqrt(sum / (double)n);
+}
+
+static void draw_label(int index, rect whole, const char *title_suffix)
+{
+    const panel *p = &V.panels[index];
+    gfx_fill((rect){whole.x, whole.y, whole.w, LABEL_BAND}, BAND);
+    char line[256];
+    snprintf(line, sizeof line, "[%d] %s%s", index + 1, p->method, title_suffix);
+    gfx_text(whole.x + 4, whole.y + 3, 1, line, WHITE, whole);
+    if (p->kind == SOURCE_CHILD)
+        snprintf(line, sizeof line, "%s%s  updates %d", p->detail, p->pid > 0 ? "" : "", p->updates);
+    else
+        snprintf(line, sizeof line, "%s", p->detail);
+    gfx_text(whole.x + 4, whole.y + 13, 1, line, GREY, whole);
+
+    double u, v;
+    line[0] = '\0';
+    int under = V.mouse_inside ? panel_at(V.mouse_x, V.mouse_y, &u, &v) : -1;
+    if (under >= 0 && p->img.pixels && u >= 0 && v >= 0 && u < 1 && v < 1) {
+        int x = (int)floor(u * p->img.width), y = (int)floor(v * p->img.height);
+        vec3 c = image_get(&p->img, x, y);
+        snprintf(line, sizeof line, "(%d,%d) %.4g %.4g %.4g", x, y, c.x, c.y, c.z);
+    } else if (V.diff && !V.split && index != V.reference && V.reference < V.panel_count) {
+        snprintf(line, sizeof line, "heat: rel.err 1e-3..1 vs [%d]  rmse %.4g", V.reference + 1,
+                 rmse_against(p, &V.panels[V.reference]));
+    } else if (index == 0) {
+        snprintf(line, sizeof line, "exposure %+.1f  zoom %.2fx  H: help", V.exposure, V.zoom);
+    }
+    gfx_text(whole.x + 4, whole.y + 23, 1, line, YELLOW, whole);
+}
+
+static const char *HELP[] = {
+    "H / F1      this help",
+    "+ / -  0    exposure +-1/2 stop, reset",
+    "wheel       zoom at the cursor (3D: dolly)",
+    "left drag   pan (3D: orbit; split: slider)",
+    "Z / X  F    zoom in / out, fit",
+    "arrows      pan (3D: orbit)  PgUp/PgDn dolly",
+    "D           error heat map vs reference",
+    "1..9        reference panel (right click too)",
+    "S  Tab      A/B split: reference | B, next B",
+    ", .         move the split slider",
+    "C           camera back to the scene's",
+    "P           screenshot viewer-N.png",
+    "Q / Esc     quit",
+};
+
+static void draw_frame(GLuint fbo, int width, int height)
+{
+    V.width = width, V.height = height;
+    gfx_begin(fbo, width, height);
+    int n = shown_panels();
+    for (int i = 0; i < n; i++) {
+        rect whole, area;
+        panel_rects(i, n, width, height, &whole, &area);
+        if (V.split) {
+            panel *a = &V.panels[V.reference], *b = &V.panels[V.split_b];
+            int split_x = (int)lround(width * V.split_position);
+            rect left = {area.x, area.y, split_x - area.x, area.h}, right = {split_x, area.y, area.x + area.w - split_x, area.h};
+            double ox, oy, s;
+            placement(a, area, &ox, &oy, &s);
+            gfx_image(left, a->texture, ox, oy, s, V.exposure, PANEL_RADIANCE, 0);
+            placement(b, area, &ox, &oy, &s);
+            gfx_image(right, b->texture, ox, oy, s, V.exposure, PANEL_RADIANCE, 0);
+            gfx_fill((rect){split_x, area.y, 1, area.h}, WHITE);
+            char suffix[160];
+            snprintf(suffix, sizeof suffix, "  |  [%d] %s", V.split_b + 1, b->method);
+            draw_label(V.reference, whole, suffix);
+            continue;
+        }
+        panel *p = &V.panels[i];
+        double ox, oy, s;
+        placement(p, area, &ox, &oy, &s);
+        bool heat = V.diff && i != V.reference && V.reference < V.panel_count;
+        if (p->img.pixels || p->kind == SOURCE_RASTER || p->kind == SOURCE_PLY)
+            gfx_image(area, p->texture, ox, oy, s, V.exposure, heat ? PANEL_HEAT : PANEL_RADIANCE,
+                      heat ? V.panels[V.reference].texture : 0);
+        else
+            gfx_text(area.x + 8, area.y + 8, 1, p->pid > 0 ? "waiting for the first image ..." : "no image", GREY, area);
+        draw_label(i, whole, V.diff && i == V.reference ? "  (reference)" : "");
+    }
+    if (V.help) {
+        int lines = (int)(sizeof HELP / sizeof *HELP), w = 48 * 8 + 16, h = lines * 12 + 16;
+        rect box = {(width - w) / 2, (height - h) / 2, w, h};
+        const float shade[4] = {0.0f, 0.0f, 0.0f, 0.8f};
+        gfx_fill(box, shade);
+        for (int k = 0; k < lines; k++)
+            gfx_text(box.x + 8, box.y + 8 + 12 * k, 1, HELP[k], WHITE, box);
+    }
+}
+
+/* ---- 3D panels and children ---------------------------------------------------------------------- */
+
+static void render_3d_panels(void)
+{
+    for (int i = 0; i < V.panel_count; i++) {
+        panel *p = &V.panels[i];
+        if (p->kind != SOURCE_RASTER && p->kind != SOURCE_PLY)
+            continue;
+        camera_matrix(&V.cam, p->target.width, p->target.height, V.bounds_lo, V.bounds_hi,
+                      V.uniforms.view_projection);
+        V.uniforms.eye[0] = (float)V.cam.eye.x, V.uniforms.eye[1] = (float)V.cam.eye.y;
+        V.uniforms.eye[2] = (float)V.cam.eye.z;
+        V.uniforms.unlit = p->kind == SOURCE_PLY;
+        float background[3] = {0, 0, 0};
+        if (V.scene_loaded)
+            background[0] = (float)V.scene.background.x, background[1] = (float)V.scene.background.y,
+            background[2] = (float)V.scene.background.z;
+        panel_render_3d(p, &V.uniforms, background);
+    }
+}
+
+static int start_children(char *err, size_t err_size)
+{
+    V.spec.cam = V.cam;
+    for (int i = 0; i < V.panel_count; i++)
+        if (V.panels[i].kind == SOURCE_CHILD) {
+            child_stop(&V.panels[i]);
+            if (child_start(&V.panels[i], &V.spec, err, err_size))
+                return 2;
+            if (V.verbose)
+                printf("spawn %s pid %ld\n", V.panels[i].method, (long)V.panels[i].pid);
+        }
+    fflush(stdout);
+    return 0;
+}
+
+static bool children_running(void)
+{
+    for (int i = 0; i < V.panel_count; i++)
+        if (V.panels[i].kind == SOURCE_CHILD && V.panels[i].pid > 0)
+            return true;
+    return false;
+}
+
+/* Poll the files and children; returns true if anything changed. */
+static bool poll_sources(void)
+{
+    bool changed = false;
+    for (int i = 0; i < V.panel_count; i++) {
+        panel *p = &V.panels[i];
+        if (p->kind == SOURCE_FILE && panel_poll(p)) /* compare mode follows a file being re-rendered */
+            changed = true;
+        if (p->kind != SOURCE_CHILD)
+            continue;
+        if (panel_poll(p)) {
+            changed = true;
+            printf("update %s %d %dx%d\n", p->method, p->updates, p->img.width, p->img.height);
+        }
+        if (child_reap(p)) {
+            changed = true;
+            if (V.verbose)
+                printf("exit %s %d\n", p->method, p->exit_status);
+        }
+    }
+    fflush(stdout);
+    return changed;
+}
+
+/* Is the frame the final one for a screenshot?  Children finished (or
+ * --exit-after-updates reached by every one). */
+static bool complete(void)
+{
+    for (int i = 0; i < V.panel_count; i++) {
+        const panel *p = &V.panels[i];
+        if (p->kind != SOURCE_CHILD || p->pid <= 0)
+            continue;
+        if (!(V.exit_after_updates > 0 && p->updates >= V.exit_after_updates))
+            return false;
+    }
+    return true;
+}
+
+static void remove_temp_dir(void)
+{
+    if (!V.temp_dir[0])
+        return;
+    DIR *d = opendir(V.temp_dir);
+    struct dirent *e;
+    while (d && (e = readdir(d))) {
+        if (e->d_name[0] == '.')
+            continue;
+        char path[PATH_LEN + 256];
+        snprintf(path, sizeof path, "%s/%s", V.temp_dir, e->d_name);
+        unlink(path);
+    }
+    if (d)
+        closedir(d);
+    rmdir(V.temp_dir);
+    V.temp_dir[0] = '\0';
+}
+
+/* build/0*_* beside the viewer (or in --chapters DIR), sorted. */
+static int find_chapters(const char *only_chapter, char *err, size_t err_size)
+{
+    char dir[PATH_LEN];
+    if (V.chapters_dir) {
+        snprintf(dir, sizeof dir, "%s", V.chapters_dir);
+    } else {
+        ssize_t n = readlink("/proc/self/exe", dir, sizeof dir - 1);
+        dir[n > 0 ? n : 0] = '\0';
+        char *slash = strrchr(dir, '/');
+        if (slash)
+            *slash = '\0';
+        else
+            snprintf(dir, sizeof dir, "build");
+    }
+    char pattern[PATH_LEN + 16];
+    snprintf(pattern, sizeof pattern, "%s/[0-9][0-9]_*", dir);
+    glob_t g;
+    if (glob(pattern, 0, NULL, &g) != 0)
+        g.gl_pathc = 0;
+    int found = 0;
+    for (size_t i = 0; i < g.gl_pathc; i++) {
+        const char *path = g.gl_pathv[i], *name = strrchr(path, '/') + 1;
+        struct stat st;
+        if (strchr(name, '.') || stat(path, &st) || !S_ISREG(st.st_mode) || access(path, X_OK))
+            continue;
+        bool wanted = only_chapter ? !strcmp(name, only_chapter) : V.chapter_filter_count == 0;
+        for (int k = 0; k < V.chapter_filter_count && !only_chapter; k++)
+            wanted |= !strcmp(name, V.chapter_filter[k]);
+        if (!wanted || V.panel_count >= PANEL_MAX)
+            continue;
+        panel *p = &V.panels[V.panel_count++];
+        memset(p, 0, sizeof *p);
+        p->kind = SOURCE_CHILD;
+        p->exit_status = -1;
+        snprintf(p->exe, sizeof p->exe, "%s", path);
+        found++;
+    }
+    globfree(&g);
+    if (!found) {
+        snprintf(err, err_size, "argv:0: no chapter executable %s in %.900s (run make first)",
+                 only_chapter ? only_chapter : "[0-9][0-9]_*", dir);
+        return 2;
+    }
+    return 0;
+}
+
+static void apply_camera_options(void);
+
+/* Set up the panels of each mode (the GL context exists). */
+static int set_up(char *err, size_t err_size)
+{
+    if (V.mode == MODE_COMPARE) {
+        for (int i = 0; i < V.panel_count; i++) {
+            panel *p = &V.panels[i];
+            char path[PATH_LEN];
+            snprintf(path, sizeof path, "%s", p->path);
+            if (panel_load_pfm(p, path, err, err_size))
+                return 2;
+        }
+        if (V.verbose)
+            for (int i = 0; i < V.panel_count; i++)
+                printf("panel %d %s %dx%d\n", i + 1, V.panels[i].path, V.panels[i].img.width, V.panels[i].img.height);
+        return 0;
+    }
+
+    /* 3D modes: the scene (or the PLY) and the camera. */
+    int aspect_w = 1, aspect_h = 1;
+    if (V.mode == MODE_PLY) {
+        panel *p = &V.panels[V.panel_count++];
+        memset(p, 0, sizeof *p);
+        p->kind = SOURCE_PLY;
+        const char *base = strrchr(V.ply_path, '/');
+        snprintf(p->method, sizeof p->method, "%s", base ? base + 1 : V.ply_path);
+        snprintf(p->detail, sizeof p->detail, "PLY, per-vertex radiance, smooth");
+        if (ply_mesh(V.ply_path, &p->mesh, &V.bounds_lo, &V.bounds_hi, err, err_size))
+            return 2;
+        vec3 centre = v3_scale(v3_add(V.bounds_lo, V.bounds_hi), 0.5);
+        double radius = 0.5 * v3_length(v3_sub(V.bounds_hi, V.bounds_lo));
+        V.scene_cam = (camera){.eye = v3_add(centre, v3(0, 0, -2.6 * radius)), .look = centre, .up = v3(0, 1, 0),
+                               .fov_degrees = 40.0};
+        aspect_w = V.width, aspect_h = V.height - LABEL_BAND;
+    } else {
+        if (scene_load(V.scene_path, &V.scene, err, err_size))
+            return 2;
+        V.scene_loaded = true;
+        V.scene_cam = V.scene.camera;
+        V.bounds_lo = V.scene.bounds.lo, V.bounds_hi = V.scene.bounds.hi;
+        aspect_w = V.scene.width, aspect_h = V.scene.height;
+        panel *p = &V.panels[V.panel_count++];
+        memset(p, 0, sizeof *p);
+        p->kind = SOURCE_RASTER;
+        snprintf(p->method, sizeof p->method, "GLSL Blinn-Phong raster");
+        snprintf(p->detail, sizeof p->detail, "chapter 1's model, no shadows%s",
+                 V.scene.emitter_count ? ", emitters as points" : "");
+        if (scene_mesh(&V.scene, &p->mesh, &V.uniforms, v3_splat(V.ambient), err, err_size))
+            return 2;
+        if (find_chapters(V.mode == MODE_RASTER ? "01_local" : NULL, err, err_size))
+            return 2;
+    }
+    apply_camera_options();
+
+    /* Render size: given, or the scene's aspect fitted into panel 1's area. */
+    int rw = V.render_width, rh = V.render_height;
+    if (!rw) {
+        rect whole, area;
+        panel_rects(0, V.panel_count, V.width, V.height, &whole, &area);
+        rw = area.w, rh = (int)lround((double)area.w * aspect_h / aspect_w);
+        if (rh > area.h)
+            rh = area.h, rw = (int)lround((double)area.h * aspect_w / aspect_h);
+        rw = rw < 1 ? 1 : rw, rh = rh < 1 ? 1 : rh;
+    }
+    for (int i = 0; i < V.panel_count; i++) {
+        panel *p = &V.panels[i];
+        if ((p->kind == SOURCE_RASTER || p->kind == SOURCE_PLY) && target_create(&p->target, rw, rh, true, err, err_size))
+            return 2;
+    }
+    if (V.verbose)
+        printf("render size %dx%d\n", rw, rh);
+
+    /* Children: outputs in a private temporary directory. */
+    if (V.mode == MODE_LIVE || V.mode == MODE_RASTER) {
+        snprintf(V.temp_dir, sizeof V.temp_dir, "%s/viewer-XXXXXX", getenv("TMPDIR") ? getenv("TMPDIR") : "/tmp");
+        if (!mkdtemp(V.temp_dir)) {
+            snprintf(err, err_size, "viewer: cannot make a temporary directory: %s", strerror(errno));
+            V.temp_dir[0] = '\0';
+            return 2;
+        }
+        static char ambient[32];
+        snprintf(ambient, sizeof ambient, "%.17g", V.ambient);
+        V.spec = (child_spec){.scene_path = V.scene_path, .width = rw, .height = rh,
+                              .time_budget = V.mode == MODE_LIVE ? V.live_time : 0.0, .directory = V.temp_dir};
+        if (V.mode == MODE_RASTER) {
+            if (V.no_shadows)
+                V.spec.extra[V.spec.extra_count++] = "--no-shadows";
+            V.spec.extra[V.spec.extra_count++] = "--ambient";
+            V.spec.extra[V.spec.extra_count++] = ambient;
+        }
+    }
+    return 0;
+}
+
+static void apply_camera_options(void)
+{
+    if (V.camera_given & 1)
+        V.scene_cam.eye = V.cam_option.eye;
+    if (V.camera_given & 2)
+        V.scene_cam.look = V.cam_option.look;
+    if (V.camera_given & 4)
+        V.scene_cam.up = V.cam_option.up;
+    if (V.camera_given & 8)
+        V.scene_cam.fov_degrees = V.cam_option.fov_degrees;
+    V.cam = V.scene_cam;
+}
+
+/* ---- input ---------------------------------------------------------------------------------------- */
+
+static bool three_d(void) { return V.mode != MODE_COMPARE; }
+
+static vec3 rotate(vec3 v, vec3 axis, double angle)
+{
+    /* Rodrigues */
+    double c = cos(angle), s = sin(angle);
+    return v3_add(v3_add(v3_scale(v, c), v3_scale(v3_cross(axis, v), s)), v3_scale(axis, v3_dot(axis, v) * (1 - c)));
+}
+
+static void orbit(double yaw_degrees, double pitch_degrees)
+{
+    vec3 up = v3_normalize(V.cam.up), d = v3_sub(V.cam.eye, V.cam.look);
+    d = rotate(d, up, -yaw_degrees * M_PI / 180.0);
+    vec3 right = v3_normalize(v3_cross(up, d));
+    vec3 pitched = rotate(d, right, pitch_degrees * M_PI / 180.0);
+    if (fabs(v3_dot(v3_normalize(pitched), up)) < 0.995)
+        d = pitched;
+    V.cam.eye = v3_add(V.cam.look, d);
+    V.camera_moved = true;
+}
+
+static void dolly(double factor)
+{
+    V.cam.eye = v3_add(V.cam.look, v3_scale(v3_sub(V.cam.eye, V.cam.look), factor));
+    V.camera_moved = true;
+}
+
+static void zoom_at(double factor, double x, double y)
+{
+    double u, v;
+    int index = panel_at(x, y, &u, &v);
+    double new_zoom = fmin(fmax(V.zoom * factor, 0.05), 512.0);
+    if (index >= 0) {
+        /* keep the image point under the cursor where it is */
+        V.cx = u + (V.cx - u) * V.zoom / new_zoom;
+        V.cy = v + (V.cy - v) * V.zoom / new_zoom;
+    }
+    V.zoom = new_zoom;
+    V.redraw = true;
+}
+
+static void pan_pixels(double dx, double dy)
+{
+    rect whole, area;
+    panel_rects(0, shown_panels(), V.width, V.height, &whole, &area);
+    const panel *p = &V.panels[V.split ? V.reference : 0];
+    double ox, oy, s;
+    placement(p, area, &ox, &oy, &s);
+    if (p->img.width > 0) {
+        V.cx -= dx / (s * p->img.width);
+        V.cy -= dy / (s * p->img.height);
+    }
+    V.redraw = true;
+}
+
+static void screenshot_key(void);
+
+static void on_key(GLFWwindow *w, int key, int scancode, int action, int mods)
+{
+    (void)w, (void)scancode, (void)mods;
+    if (action == GLFW_RELEASE)
+        return;
+    V.redraw = true;
+    switch (key) {
+    case GLFW_KEY_ESCAPE:
+    case GLFW_KEY_Q: quit_requested = 1; break;
+    case GLFW_KEY_H:
+    case GLFW_KEY_F1: V.help = !V.help; break;
+    case GLFW_KEY_KP_ADD: V.exposure += 0.5; break;
+    case GLFW_KEY_MINUS:
+    case GLFW_KEY_KP_SUBTRACT: V.exposure -= 0.5; break;
+    case GLFW_KEY_0:
+    case GLFW_KEY_KP_0: V.exposure = 0.0; break;
+    case GLFW_KEY_Z: zoom_at(1.25, V.width / 2.0, V.height / 2.0); break;
+    case GLFW_KEY_X: zoom_at(0.8, V.width / 2.0, V.height / 2.0); break;
+    case GLFW_KEY_F: V.zoom = 1.0, V.cx = V.cy = 0.5; break;
+    case GLFW_KEY_D: V.diff = !V.diff; break;
+    case GLFW_KEY_S:
+        V.split = !V.split && V.panel_count > 1;
+        if (V.split_b == V.reference || V.split_b >= V.panel_count)
+            V.split_b = (V.reference + 1) % V.panel_count;
+        break;
+    case GLFW_KEY_TAB:
+        if (V.panel_count > 1)
+            do
+                V.split_b = (V.split_b + 1) % V.panel_count;
+            while (V.split_b == V.reference);
+        break;
+    case GLFW_KEY_COMMA: V.split_position = fmax(0.0, V.split_position - 0.02); break;
+    case GLFW_KEY_PERIOD: V.split_position = fmin(1.0, V.split_position + 0.02); break;
+    case GLFW_KEY_C:
+        if (three_d()) {
+            V.cam = V.scene_cam;
+            V.camera_moved = true;
+        }
+        break;
+    case GLFW_KEY_P: screenshot_key(); break;
+    case GLFW_KEY_LEFT: three_d() ? orbit(-5, 0) : pan_pixels(40, 0); break;
+    case GLFW_KEY_RIGHT: three_d() ? orbit(5, 0) : pan_pixels(-40, 0); break;
+    case GLFW_KEY_UP: three_d() ? orbit(0, 5) : pan_pixels(0, 40); break;
+    case GLFW_KEY_DOWN: three_d() ? orbit(0, -5) : pan_pixels(0, -40); break;
+    case GLFW_KEY_PAGE_UP: if (three_d()) dolly(0.9); break;
+    case GLFW_KEY_PAGE_DOWN: if (three_d()) dolly(1.0 / 0.9); break;
+    default:
+        if (key >= GLFW_KEY_1 && key <= GLFW_KEY_9 && key - GLFW_KEY_1 < V.panel_count) {
+            V.reference = key - GLFW_KEY_1;
+            if (V.split_b == V.reference)
+                V.split_b = (V.reference + 1) % V.panel_count;
+        }
+    }
+}
+
+static void on_char(GLFWwindow *w, unsigned int codepoint)
+{
+    (void)w;
+    if (codepoint == '+' || codepoint == '=') { /* '+' wherever the layout puts it (on_char, not on_key) */
+        V.exposure += 0.5;
+        V.redraw = true;
+    }
+}
+
+static void on_cursor(GLFWwindow *w, double x, double y)
+{
+    int ww, wh, fw, fh;
+    glfwGetWindowSize(w, &ww, &wh);
+    glfwGetFramebufferSize(w, &fw, &fh);
+    x *= ww ? (double)fw / ww : 1.0, y *= wh ? (double)fh / wh : 1.0;
+    double dx = x - V.mouse_x, dy = y - V.mouse_y;
+    V.mouse_x = x, V.mouse_y = y, V.mouse_inside = true;
+    if (V.dragging) {
+        if (V.split && !V.panning)
+            V.split_position = fmin(fmax(x / V.width, 0.0), 1.0);
+        else if (three_d() && !V.panning)
+            orbit(dx * 0.3, dy * 0.3);
+        else
+            pan_pixels(dx, dy);
+    }
+    V.redraw = true;
+}
+
+static void on_cursor_enter(GLFWwindow *w, int entered)
+{
+    (void)w;
+    V.mouse_inside = entered;
+    V.redraw = true;
+}
+
+static void on_button(GLFWwindow *w, int button, int action, int mods)
+{
+    (void)w;
+    if (button == GLFW_MOUSE_BUTTON_LEFT) {
+        V.dragging = action == GLFW_PRESS;
+        V.panning = mods & GLFW_MOD_SHIFT;
+        if (V.dragging && V.split && !V.panning)
+            V.split_position = fmin(fmax(V.mouse_x / V.width, 0.0), 1.0);
+    } else if (button == GLFW_MOUSE_BUTTON_MIDDLE) {
+        V.dragging = action == GLFW_PRESS;
+        V.panning = true;
+    } else if (button == GLFW_MOUSE_BUTTON_RIGHT && action == GLFW_PRESS) {
+        double u, v;
+        int index = panel_at(V.mouse_x, V.mouse_y, &u, &v);
+        if (index >= 0 && !V.split)
+            V.reference = index, V.diff = true;
+    }
+    V.redraw = true;
+}
+
+static void on_scroll(GLFWwindow *w, double xoffset, double yoffset)
+{
+    (void)w, (void)xoffset;
+    if (three_d() && !(glfwGetKey(w, GLFW_KEY_LEFT_CONTROL) == GLFW_PRESS))
+        dolly(pow(0.9, yoffset));
+    else
+        zoom_at(pow(1.25, yoffset), V.mouse_x, V.mouse_y);
+}
+
+static void on_resize(GLFWwindow *w, int width, int height)
+{
+    (void)w, (void)width, (void)height;
+    V.redraw = true;
+}
+
+/* ---- the main loop ------------------------------------------------------------------------------- */
+
+static int save_screen(const char *path, int width, int height, char *err, size_t err_size)
+{
+    unsigned char *rgb = malloc((size_t)width * (size_t)height * 3);
+    if (!rgb) {
+        snprintf(err, err_size, "%s:0: out of memory", path);
+        return 2;
+    }
+    gfx_read_rgb8(width, height, rgb);
+    int status = write_rgb8(path, width, height, rgb, err, err_size);
+    free(rgb);
+    if (!status)
+        printf("wrote %s\n", path);
+    return status;
+}
+
+static void screenshot_key(void)
+{
+    char path[64], err[512];
+    snprintf(path, sizeof path, "viewer-%d.png", ++V.screenshot_counter);
+    int w, h;
+    glfwGetFramebufferSize(backend_window(), &w, &h);
+    draw_frame(0, w, h);
+    if (save_screen(path, w, h, err, sizeof err))
+        fprintf(stderr, "%s\n", err);
+    fflush(stdout);
+}
+
+static int write_panel_out(char *err, size_t err_size)
+{
+    if (!V.panel_out_path)
+        return 0;
+    if (!V.panels[0].img.pixels) {
+        snprintf(err, err_size, "%s:0: panel 1 has no image", V.panel_out_path);
+        return 2;
+    }
+    return image_write_pfm(&V.panels[0].img, V.panel_out_path, err, err_size);
+}
+
+/* Libraries mapped into the process: which GL implementation is really in use. */
+static void print_gl_libraries(void)
+{
+    FILE *f = fopen("/proc/self/maps", "r");
+    char line[1024];
+    const char *names[] = {"libOSMesa", "libEGL_mesa", "libGLX_mesa", "libglfw"};
+    bool seen[4] = {false};
+    while (f && fgets(line, sizeof line, f))
+        for (int k = 0; k < 4; k++)
+            seen[k] |= strstr(line, names[k]) != NULL;
+    if (f)
+        fclose(f);
+    printf("libraries:");
+    for (int k = 0; k < 4; k++)
+        if (seen[k])
+            printf(" %s", names[k]);
+    printf("\n");
+}
+
+static void run_frames(GLuint fbo, int width, int height)
+{
+    GLFWwindow *window = backend_window();
+    double start = now_seconds();
+    for (int f = 0; f < V.frames; f++) {
+        if (V.mode == MODE_RASTER || V.mode == MODE_PLY) { /* as when orbiting: the 3D panel is redrawn */
+            orbit(0.5, 0.0);
+            render_3d_panels();
+        }
+        draw_frame(fbo, width, height);
+        if (window)
+            glfwSwapBuffers(window);
+        glFinish();
+    }
+    double elapsed = now_seconds() - start;
+    printf("frames %d  %.1f fps  %.2f ms/frame  %dx%d  %d panels  backend %s\n", V.frames, V.frames / elapsed,
+           1e3 * elapsed / V.frames, width, height, shown_panels(), backend_name(V.backend));
+}
+
+static int headless_loop(char *err, size_t err_size)
+{
+    if (target_create(&V.screen, V.width, V.height, false, err, err_size))
+        return 2;
+    render_3d_panels();
+    while (!quit_requested) {
+        poll_sources();
+        if (complete())
+            break;
+        struct timespec pause = {0, 50 * 1000 * 1000}; /* wait for the children's next file */
+        nanosleep(&pause, NULL);
+    }
+    if (quit_requested) {
+        snprintf(err, err_size, "viewer: interrupted");
+        return 2;
+    }
+    for (int i = 0; i < V.panel_count; i++)
+        child_stop(&V.panels[i]);
+    draw_frame(V.screen.fbo, V.width, V.height);
+    int status = 0;
+    if (V.out_path)
+        status = save_screen(V.out_path, V.width, V.height, err, err_size);
+    if (!status)
+        status = write_panel_out(err, err_size);
+    if (!status && V.frames)
+        run_frames(V.screen.fbo, V.width, V.height);
+    return status;
+}
+
+static int window_loop(char *err, size_t err_size)
+{
+    GLFWwindow *window = backend_window();
+    glfwSetKeyCallback(window, on_key);
+    glfwSetCharCallback(window, on_char);
+    glfwSetCursorPosCallback(window, on_cursor);
+    glfwSetCursorEnterCallback(window, on_cursor_enter);
+    glfwSetMouseButtonCallback(window, on_button);
+    glfwSetScrollCallback(window, on_scroll);
+    glfwSetFramebufferSizeCallback(window, on_resize);
+    render_3d_panels();
+    V.redraw = true;
+    const char *screenshot = V.screenshot_path ? V.screenshot_path : V.out_path;
+    if (V.frames) {
+        int w, h;
+        glfwGetFramebufferSize(window, &w, &h);
+        run_frames(0, w, h);
+        return 0;
+    }
+    while (!quit_requested && !glfwWindowShouldClose(window)) {
+        if (poll_sources())
+            V.redraw = true;
+        if (V.camera_moved) {
+            V.camera_moved = false;
+            render_3d_panels();
+            V.restart_at = now_seconds() + 0.3;
+            V.redraw = true;
+        }
+        /* Restart the children once the camera rests (not on every mouse move). */
+        if (V.restart_at > 0 && now_seconds() >= V.restart_at && !V.dragging) {
+            V.restart_at = 0;
+            if (start_children(err, err_size))
+                return 2;
+        }
+        if (V.redraw) {
+            V.redraw = false;
+            int w, h;
+            glfwGetFramebufferSize(window, &w, &h);
+            draw_frame(0, w, h);
+            if (screenshot && complete() && V.restart_at == 0) {
+                int status = save_screen(screenshot, w, h, err, err_size);
+                if (!status)
+                    status = write_panel_out(err, err_size);
+                return status;
+            }
+            glfwSwapBuffers(window);
+        }
+        /* Sleep until input arrives, or a little while when children may
+         * have written a new image (no busy waiting). */
+        glfwWaitEventsTimeout(children_running() || V.restart_at > 0 ? 0.1 : 0.5);
+    }
+    return 0;
+}
+
+int main(int argc, char **argv)
+{
+    char err[1024] = "";
+    setvbuf(stdout, NULL, _IOLBF, 0);
+    int status = parse_options(argc, argv, err, sizeof err);
+    if (status) {
+        fprintf(stderr, "%s\n", err);
+        return status;
+    }
+    signal(SIGINT, on_signal);
+    signal(SIGTERM, on_signal);
+    signal(SIGPIPE, SIG_IGN);
+
+    /* The backend: the window when there is a display, else headless. */
+    bool display = (getenv("DISPLAY") && *getenv("DISPLAY")) || (getenv("WAYLAND_DISPLAY") && *getenv("WAYLAND_DISPLAY"));
+    if (!V.backend_given)
+        V.backend = V.headless || !display ? BACKEND_EGL : BACKEND_GLFW;
+    if (V.backend != BACKEND_GLFW)
+        V.headless = true;
+    if (V.headless && !V.out_path && !V.frames && !V.panel_out_path && !V.exit_after_updates) {
+        fprintf(stderr, "argv:0: no display ($DISPLAY is unset): give --out FILE.png to render headless\n");
+        return 2;
+    }
+    status = backend_open(V.backend, V.width, V.height, "viewer", err, sizeof err);
+    if (status == 3 && !V.backend_given && V.backend == BACKEND_EGL) {
+        fprintf(stderr, "%s; trying osmesa\n", err);
+        V.backend = BACKEND_OSMESA;
+        status = backend_open(V.backend, V.width, V.height, "viewer", err, sizeof err);
+    }
+    if (status) {
+        fprintf(stderr, "%s\n", err);
+        return status;
+    }
+    if (V.backend == BACKEND_GLFW) {
+        int fw, fh;
+        glfwGetFramebufferSize(backend_window(), &fw, &fh);
+        V.width = fw, V.height = fh;
+    }
+    status = gfx_init(V.raster_shader, err, sizeof err);
+    if (!status) {
+        printf("backend %s: %s\n", backend_name(V.backend), gfx_renderer());
+        print_gl_libraries();
+        status = set_up(err, sizeof err);
+    }
+    if (!status) {
+        if (((V.diff || V.split) && V.reference >= V.panel_count) ||
+            (V.split && (V.split_b >= V.panel_count || V.split_b == V.reference))) {
+            snprintf(err, sizeof err, "argv:0: --diff / --split name a panel that does not exist (there are %d)",
+                     V.panel_count);
+            status = 2;
+        }
+    }
+    if (!status)
+        status = start_children(err, sizeof err);
+    if (!status)
+        status = V.headless ? headless_loop(err, sizeof err) : window_loop(err, sizeof err);
+    if (status)
+        fprintf(stderr, "%s\n", err);
+
+    for (int i = 0; i < V.panel_count; i++)
+        panel_free(&V.panels[i]);
+    remove_temp_dir();
+    if (V.screen.fbo)
+        target_destroy(&V.screen);
+    if (V.scene_loaded)
+        scene_free(&V.scene);
+    gfx_shutdown();
+    backend_close();
+    return status;
+}
