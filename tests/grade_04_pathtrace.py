@@ -1,0 +1,439 @@
+"""Grading chapter 4 (path tracing) against closed forms and other methods.
+
+Truth comes from outside the path tracer: the furnace (a closed room of
+emitting diffuse walls, where the Neumann series (R6) is a geometric series
+with sum Le / (1 - rho)), Lambert's polygon formula for the irradiance under
+a rectangular light, the inverse-square law (R1), the radiosity chapter on
+the diffuse Cornell box, and statistics (every estimator has the same
+expectation; the error falls like N^-1/2).
+
+Monte Carlo tolerances are four estimated standard errors (a two-sided
+false alarm about once in 16,000 comparisons); each test says where its
+standard error comes from.  Two standard-error estimators are used:
+  * iid pixels: in the furnace every pixel has the same expectation, so the
+    pixel values are independent draws of one distribution and the sample
+    standard deviation over pixels / sqrt(P) is the error of their mean;
+  * paired pixels: to compare two renders A and B of a scene whose pixels
+    differ in expectation, d_p = A_p - B_p are independent across pixels
+    (each pixel has its own random streams) and have mean 0 if A and B agree,
+    so the mean of d has variance sum(Var d_p) / P^2, estimated by
+    sum(d_p^2) / P^2.
+Each test also demands that its standard error is small (relative to the
+answer) so the tolerance cannot hide a real error.
+"""
+import math
+import os
+
+from lib import ROOT, finite_image, lambert_polygon_irradiance, probe, read_json
+
+CHAPTER = "04_pathtrace"
+ESTIMATORS = ("hemisphere", "cosine", "light", "mis")
+
+
+def furnace_scene(ctx, rho, emission=1.0, name="furnace"):
+    """scenes/furnace-pt.scene with its wall material replaced by `emitter E E E diffuse rho rho rho`."""
+    with open(os.path.join(ROOT, "scenes", "furnace-pt.scene")) as f:
+        lines = f.read().splitlines()
+    text = []
+    for line in lines:
+        if line.startswith("material wall"):
+            line = f"material wall emitter {emission} {emission} {emission}  diffuse {rho} {rho} {rho}"
+        text.append(line)
+    return ctx.write(f"{name}.scene", "\n".join(text) + "\n")
+
+
+def iid_mean(img, channel=0):
+    """Mean over pixels and its standard error from the pixel sample variance."""
+    values = [p[channel] for p in img.pixels]
+    n = len(values)
+    mean = sum(values) / n
+    variance = sum((v - mean) ** 2 for v in values) / (n - 1)
+    return mean, math.sqrt(variance / n)
+
+
+def paired_difference(a, b, channel):
+    """Mean of A - B over pixels and its standard error sqrt(sum d^2) / P (see the module docstring)."""
+    d = [pa[channel] - pb[channel] for pa, pb in zip(a.pixels, b.pixels)]
+    return sum(d) / len(d), math.sqrt(sum(x * x for x in d)) / len(d)
+
+
+def image_mean(img, channel):
+    return sum(p[channel] for p in img.pixels) / len(img.pixels)
+
+
+# ---- the furnace -----------------------------------------------------------------------------
+
+def test_furnace_converges_to_Le_over_1_minus_rho(ctx):
+    """Closed box of walls emitting Le = 1 with albedo rho: L = Le / (1 - rho) at every
+    pixel, E = pi L at the probe.  rho = 0.99 needs walks of ~100 bounces: Russian
+    roulette must keep them (--max-depth 100000 so nothing is cut; the stats must say so).
+    Standard errors: iid pixels for the image, 32 batch means for the probe.
+    Estimators: mis and cosine for every rho; hemisphere only for rho = 0.5 -- with
+    uniform directions the per-bounce weight 2 rho cos(theta) has E[w^2] = 4 rho^2 / 3 > 1
+    for rho > 0.87, so its variance is infinite there and no standard error means
+    anything (light sampling alone has the same problem at the box's edges, where G of
+    R8 is unbounded; it is tested on the Cornell box and under a rectangle instead)."""
+    for rho in (0.5, 0.9, 0.99):
+        expected = 1.0 / (1.0 - rho)
+        scene = furnace_scene(ctx, rho, name=f"furnace{rho}")
+        for estimator in ("mis", "cosine") + (("hemisphere",) if rho == 0.5 else ()):
+            img, stats = ctx.render(CHAPTER, scene, "--size", "32x32", "--spp", 16, "--max-depth", 100000,
+                                    "--estimator", estimator, "--probe-samples", 8192, name=f"f{rho}{estimator}")
+            assert stats["nonfinite_samples"] == 0 and stats["truncated_paths"] == 0
+            assert stats["biased_by_max_depth"] is False
+            mean, se = iid_mean(img)
+            assert se < 0.01 * expected, f"rho {rho} {estimator}: standard error {se} too large to test"
+            assert abs(mean - expected) <= 4 * se, \
+                f"rho {rho} {estimator}: mean radiance {mean:.4f} vs Le/(1-rho) = {expected:.4f} (4 se = {4 * se:.3g})"
+            p = probe(stats, "floor_centre")
+            e, e_se = p["irradiance"][0], p["standard_error"][0]
+            assert 0 < e_se < 0.02 * math.pi * expected
+            assert abs(e - math.pi * expected) <= 4 * e_se, \
+                f"rho {rho} {estimator}: probe {e:.4f} vs pi Le/(1-rho) = {math.pi * expected:.4f} (4 se {4 * e_se:.3g})"
+
+
+def test_furnace_neumann_partial_sums(ctx):
+    """--bounces 0:k keeps E + KE + ... + K^k E = Le (1 + rho + ... + rho^k) in the furnace,
+    and k:k the single term Le rho^k.  0:0 is exact (every pixel sees Le); the
+    others within 4 standard errors of the pixel mean (iid pixels)."""
+    rho = 0.5
+    scene = furnace_scene(ctx, rho)
+    img, _ = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", 4, "--bounces", "0:0", name="b00")
+    assert all(p == (1.0, 1.0, 1.0) for p in img.pixels), "0:0 must be exactly the emission Le = 1"
+    for window, expected in (("0:1", 1 + rho), ("0:2", 1 + rho + rho ** 2), ("0:5", (1 - rho ** 6) / (1 - rho)),
+                             ("1:1", rho), ("3:3", rho ** 3), ("2:", rho ** 2 / (1 - rho))):
+        for estimator in ("mis", "cosine", "hemisphere"):
+            img, stats = ctx.render(CHAPTER, scene, "--size", "32x32", "--spp", 128, "--bounces", window,
+                                    "--estimator", estimator, "--probe-samples", 32, name=f"b{estimator}")
+            mean, se = iid_mean(img)
+            assert se < 0.01 * expected, f"{window} {estimator}: standard error {se} too large"
+            assert abs(mean - expected) <= 4 * se, \
+                f"--bounces {window} {estimator}: {mean:.5f} vs partial sum {expected:.5f} (4 se {4 * se:.3g})"
+
+
+def test_max_depth_cuts_and_says_so(ctx):
+    """--max-depth 3 cuts every walk after 3 bounces: the furnace then shows exactly the
+    partial sum Le (1 + rho + rho^2 + rho^3) (biased low; 4 standard errors of the
+    pixel mean), and the stats must report the cut walks."""
+    rho = 0.9
+    scene = furnace_scene(ctx, rho)
+    img, stats = ctx.render(CHAPTER, scene, "--size", "32x32", "--spp", 16, "--max-depth", 3,
+                            "--probe-samples", 32)
+    expected = 1 + rho + rho ** 2 + rho ** 3
+    mean, se = iid_mean(img)
+    assert abs(mean - expected) <= 4 * se and se < 0.01 * expected, f"{mean} vs {expected} (se {se})"
+    assert stats["truncated_paths"] > 0 and stats["biased_by_max_depth"] is True, "the cut was not reported"
+    r = ctx.run(CHAPTER, scene, "--quiet", "--size", "8x8", "--spp", 1, "--max-depth", 2, "--out", ctx.path("m.pfm"))
+    assert r.returncode == 0 and "max-depth" in r.stderr, f"no warning on stderr: {r.stderr!r}"
+
+
+def test_furnace_surfaces_key(ctx):
+    """"surfaces": each wall's area-averaged radiance is Le / (1 - rho) = 10 (rho = 0.9),
+    within 4 standard errors from 32 batch means, with the area of a 2 x 2 wall."""
+    scene = furnace_scene(ctx, 0.9)
+    _, stats = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 1, "--surface-samples", 16384,
+                          "--probe-samples", 32)
+    surfaces = stats["surfaces"]
+    assert sorted(s["name"] for s in surfaces) == sorted(["floor", "ceiling", "back", "front", "left", "right"])
+    for s in surfaces:
+        assert abs(s["area"] - 4.0) < 1e-12
+        for c in range(3):
+            se = s["standard_error"][c]
+            assert 0 < se < 0.01 * 10
+            assert abs(s["radiance"][c] - 10.0) <= 4 * se, f"{s['name']}: {s['radiance'][c]} vs 10 (4 se {4 * se})"
+
+
+# ---- the estimators agree -----------------------------------------------------------------
+
+def check_estimators_agree(ctx, scene, size, spp, label, relative_power=None):
+    """Every estimator against mis by paired pixel differences.  All use the same seed:
+    a sample's first random numbers place the camera ray in the pixel, so the images
+    share their camera rays and the pixel-footprint noise (a pixel half on the light,
+    half on the ceiling) cancels in the difference; what remains is the difference of
+    the estimators.  The paired standard error needs only that pixels are independent
+    of each other, not that A and B are."""
+    images = {}
+    for estimator in ESTIMATORS:
+        img, stats = ctx.render(CHAPTER, scene, "--size", size, "--spp", spp[estimator], "--seed", 11,
+                                "--estimator", estimator, "--probe-samples", 32, name=f"{label}-{estimator}")
+        assert stats["nonfinite_samples"] == 0 and finite_image(img)
+        images[estimator] = img
+    for estimator in ESTIMATORS[:-1]:
+        for c in range(3):
+            d, se = paired_difference(images[estimator], images["mis"], c)
+            mean = image_mean(images["mis"], c)
+            power = (relative_power or {}).get(estimator, 0.03)
+            assert 4 * se < power * mean, f"{label} {estimator} channel {c}: standard error {se} too large"
+            assert abs(d) <= 4 * se, \
+                f"{label}: {estimator} - mis = {d:.5f} in channel {c} (image mean {mean:.4f}, 4 se = {4 * se:.3g})"
+    return images
+
+
+def test_estimators_agree_on_cornell_box(ctx):
+    """hemisphere, cosine, light and mis have the same expectation on the Cornell box:
+    the mean of each image minus the mis image is within 4 paired standard errors of 0,
+    and 4 standard errors are below 3 % of the mean."""
+    check_estimators_agree(ctx, "scenes/cornell.scene", "32x32",
+                           {"hemisphere": 1024, "cosine": 1024, "light": 256, "mis": 256}, "cornell")
+
+
+GLOSSY_GLASS_SCENE = """\
+camera eye 278 273 -800  look 278 273 0  up 0 1 0  fov 39.3076
+background 0 0 0
+material white diffuse 0.725 0.71 0.68
+material red   diffuse 0.63 0.065 0.05
+material green diffuse 0.14 0.45 0.091
+material light emitter 17 12 4  diffuse 0.78 0.78 0.78
+material glossy phong kd 0.3 0.3 0.3 ks 0.6 0.6 0.6 exp 20
+material mirror mirror 0.9 0.9 0.9
+material glass glass 1.5
+quad floor     white  552.8 0 0      0 0 0          0 0 559.2       549.6 0 559.2
+quad ceiling   white  556 548.8 0    556 548.8 559.2  0 548.8 559.2  0 548.8 0
+quad back_wall glossy 549.6 0 559.2  0 0 559.2      0 548.8 559.2   556 548.8 559.2
+quad right_wall_green green  0 0 559.2  0 0 0       0 548.8 0       0 548.8 559.2
+triangle left_wall_red_a red  552.8 0 0  549.6 0 559.2  556 548.8 559.2
+triangle left_wall_red_b red  552.8 0 0  556 548.8 559.2  556 548.8 0
+quad light light  343 548.7 227  343 548.7 332  213 548.7 332  213 548.7 227
+sphere mirror_ball mirror  385 100 370  100
+sphere glass_ball  glass   175 100 190  100
+"""
+
+
+def test_estimators_agree_with_phong_mirror_and_glass(ctx):
+    """The same agreement with a glossy (normalised Phong) back wall, a mirror ball and a
+    glass ball (exact Fresnel; its caustic on the floor): the lobe sampling, the
+    Fresnel choice and MIS on specular chains must all be unbiased.  4 standard errors
+    must be below 3 % of the mean for light sampling, 5 % for cosine directions (which
+    find the light through the glass only by chance), and 8 % for uniform directions
+    (hemisphere): they
+    rarely find the exponent-20 lobe's reflection of the light or the light through
+    the glass, its error falls slowly (doubling the samples gained only 10 % here), so
+    it is held to 8 % -- a bias above 8 % would still show.  The difference between
+    hemisphere and importance sampling on this scene is what the chapter is about."""
+    scene = ctx.write("glossy.scene", GLOSSY_GLASS_SCENE)
+    check_estimators_agree(ctx, scene, "24x24", {"hemisphere": 1024, "cosine": 1024, "light": 256, "mis": 256},
+                           "glossy", relative_power={"hemisphere": 0.08, "cosine": 0.05})
+
+
+def test_caustic_under_glass_ball(ctx):
+    """scenes/cornell-spheres.scene: the glass ball focuses the light onto the floor.
+    Probe irradiance at the caustic, with the Neumann terms that pass through the
+    ball (--bounces 2:2: the two refractions) must be far above the same
+    terms at a floor point beside it; 4 standard errors apart at least."""
+    path = os.path.join(ROOT, "scenes", "cornell-spheres.scene")
+    if not os.path.exists(path):
+        path = ctx.write("spheres.scene", GLOSSY_GLASS_SCENE)
+    with open(path) as f:
+        text = f.read()
+    # The glass ball's centre and radius from the scene file.
+    for line in text.splitlines():
+        parts = line.split()
+        if len(parts) >= 7 and parts[0] == "sphere" and parts[1] == "glass_ball":
+            cx, cy, cz, radius = map(float, parts[3:7])
+    light = (278.0, 548.7, 279.5)
+    # The ball acts as a lens: rays from the light through the ball converge
+    # below it, beyond the ball, on the line from the light through its centre.
+    t = cy / (light[1] - cy)  # continue from the centre down to the floor, y = 0
+    focus = (cx + (cx - light[0]) * t, 0.0, cz + (cz - light[2]) * t)
+    aside = (cx + 2.2 * radius, 0.0, cz)  # beside the ball, in its open view of the light
+    scene = ctx.write("caustic.scene", text + "\nprobe caustic %g 0.01 %g 0 1 0\nprobe aside %g 0.01 %g 0 1 0\n"
+                      % (focus[0], focus[2], aside[0], aside[2]))
+    _, stats = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 1, "--probe-samples", 1 << 17,
+                          "--bounces", "2:2")
+    c, a = probe(stats, "caustic"), probe(stats, "aside")
+    diff = c["irradiance"][0] - a["irradiance"][0]
+    se = math.hypot(c["standard_error"][0], a["standard_error"][0])
+    assert diff > 4 * se and c["irradiance"][0] > 2 * a["irradiance"][0], \
+        f"no caustic: K^2 E irradiance {c['irradiance'][0]:.4f} under the ball vs {a['irradiance'][0]:.4f} beside it"
+
+
+def test_neumann_terms_add_up(ctx):
+    """Images of 0:0, 1:1 and 2: add up to the full image (0:) in expectation
+    (paired pixel differences, 4 standard errors; one seed for all, so the camera rays
+    are shared and the light's edge pixels cancel, as in check_estimators_agree)."""
+    scene = "scenes/cornell.scene"
+    parts = []
+    for window in ("0:0", "1:1", "2:", "0:"):
+        img, _ = ctx.render(CHAPTER, scene, "--size", "24x24", "--spp", 256, "--seed", 21, "--bounces", window,
+                            "--probe-samples", 32, name="w" + window.replace(":", "_"))
+        parts.append(img)
+    from lib import Image
+    total = Image(24, 24, [tuple(a[c] + b[c] + d[c] for c in range(3))
+                           for a, b, d in zip(parts[0].pixels, parts[1].pixels, parts[2].pixels)])
+    for c in range(3):
+        d, se = paired_difference(total, parts[3], c)
+        assert 4 * se < 0.02 * image_mean(parts[3], c), f"channel {c}: standard error {se} too large"
+        assert abs(d) <= 4 * se, f"channel {c}: E + KE + (K^2 E + ...) - L = {d:.5f} (4 se {4 * se:.3g})"
+    # Direct illumination is a large part of the Cornell box, indirect is not zero.
+    assert image_mean(parts[2], 0) > 0.1 * image_mean(parts[3], 0), "no indirect light" 
+
+
+# ---- convergence -----------------------------------------------------------------------------
+
+def test_rmse_falls_like_inverse_sqrt_samples(ctx):
+    """RMSE against a reference of 4096 spp (independent seed) at 2, 8, 32 and 128 spp:
+    the least-squares slope of log RMSE against log N is within [-0.6, -0.4].
+    The RMSE is taken over the rows below the light: the few pixels on the light's
+    edge have a Bernoulli error (light 17 or ceiling 0.1) so large that they alone
+    would decide the RMSE, and the RMSE of a handful of pixels is itself too noisy
+    for a slope.  The counts are not perfect squares, so the driver jitters pixel
+    positions uniformly rather than stratifying them (stratified pixels converge
+    faster than N^-1/2 at edges).  The reference's own noise raises the RMSE at
+    128 spp by sqrt(1 + 128/4096) = 1.6 %, flattening the slope by about 0.007."""
+    scene = "scenes/cornell.scene"
+    size, first_row = 24, 6  # the light covers rows 2-4 of 24
+    reference, _ = ctx.render(CHAPTER, scene, "--size", f"{size}x{size}", "--spp", 4096, "--seed", 99,
+                              "--probe-samples", 32, name="reference")
+    points = []
+    for n in (2, 8, 32, 128):
+        img, _ = ctx.render(CHAPTER, scene, "--size", f"{size}x{size}", "--spp", n, "--seed", n,
+                            "--probe-samples", 32, name=f"n{n}")
+        squares = [(a[c] - b[c]) ** 2 for a, b in zip(img.pixels[first_row * size:],
+                                                      reference.pixels[first_row * size:]) for c in range(3)]
+        points.append((math.log(n), 0.5 * math.log(sum(squares) / len(squares))))
+    mx = sum(x for x, _ in points) / len(points)
+    my = sum(y for _, y in points) / len(points)
+    slope = sum((x - mx) * (y - my) for x, y in points) / sum((x - mx) ** 2 for x, _ in points)
+    assert -0.6 <= slope <= -0.4, f"log-log slope of RMSE against spp is {slope:.3f} ({points})"
+
+
+# ---- probes ------------------------------------------------------------------------------------
+
+def area_light_scene(ctx, radiance, probes):
+    text = ("camera eye 0 -5 0  look 0 0 0  up 0 0 1  fov 30\nimage 4 4\nbackground 0 0 0\n"
+            "material lamp emitter %g %g %g\n" % radiance +
+            # a 1 x 0.6 rectangle at height 1, vertex order so the normal points down (-y)
+            "quad light lamp  -0.5 1 -0.3  0.5 1 -0.3  0.5 1 0.3  -0.5 1 0.3\n")
+    for name, (p, n) in probes.items():
+        text += "probe %s  %g %g %g  %g %g %g\n" % (name, *p, *n)
+    return ctx.write("area.scene", text)
+
+
+def test_probe_irradiance_matches_lambert_polygon(ctx):
+    """Irradiance under a 1 x 0.6 rectangle of radiance (1, 2, 3) at height 1, at a centred
+    and at an off-centre tilted probe, by every estimator: Lambert's polygon formula
+    within 4 standard errors (32 batch means), each below 1 % of the answer."""
+    radiance = (1.0, 2.0, 3.0)
+    rectangle = [(-0.5, 1, -0.3), (0.5, 1, -0.3), (0.5, 1, 0.3), (-0.5, 1, 0.3)]
+    probes = {"centre": ((0, 0, 0), (0, 1, 0)), "offset": ((0.7, 0.2, -0.3), (-0.28, 0.96, 0.0))}
+    scene = area_light_scene(ctx, radiance, probes)
+    for estimator in ESTIMATORS:
+        _, stats = ctx.render(CHAPTER, scene, "--estimator", estimator, "--probe-samples", 1 << 18, name=estimator)
+        for name, (p, n) in probes.items():
+            length = math.sqrt(sum(c * c for c in n))
+            n = tuple(c / length for c in n)
+            got = probe(stats, name)
+            for c in range(3):
+                expected = lambert_polygon_irradiance(radiance[c], rectangle, p, n)
+                se = got["standard_error"][c]
+                assert 0 < se < 0.01 * expected, f"{estimator} {name}: standard error {se} vs {expected}"
+                assert abs(got["irradiance"][c] - expected) <= 4 * se, \
+                    f"{estimator} probe {name} channel {c}: {got['irradiance'][c]:.5f} vs Lambert {expected:.5f} " \
+                    f"(4 se {4 * se:.2g})"
+
+
+POINT_LIGHT_SCENE = """\
+camera eye 0 10 0  look 0 0 0  up 0 0 1  fov 30
+image 8 8
+material floor diffuse 0.5 0.5 0.5
+quad floor floor  -50 0 -50  -50 0 50  50 0 50  50 0 -50
+light lamp point 1 3 0.5  40 40 40
+probe under 0.5 0 0.25  0 1 0
+"""
+
+
+def test_point_light_warning_and_inverse_square(ctx):
+    """A point light cannot be hit by a sampled direction: hemisphere and cosine must warn
+    on stderr that the image misses it; light sampling gets (R1) at the probe with
+    --bounces 0:0 (direct irradiance I cos / r^2, exact: one deterministic sample)."""
+    scene = ctx.write("point.scene", POINT_LIGHT_SCENE)
+    for estimator in ("hemisphere", "cosine"):
+        r = ctx.run(CHAPTER, scene, "--quiet", "--estimator", estimator, "--out", ctx.path(f"{estimator}.pfm"))
+        assert r.returncode == 0
+        assert "warning" in r.stderr and "point light" in r.stderr, f"{estimator}: no warning: {r.stderr!r}"
+    for estimator in ("light", "mis"):
+        r = ctx.run(CHAPTER, scene, "--quiet", "--estimator", estimator, "--out", ctx.path(f"{estimator}.pfm"))
+        assert r.returncode == 0 and "warning" not in r.stderr, r.stderr
+        _, stats = ctx.render(CHAPTER, scene, "--estimator", estimator, "--bounces", "0:0", name=estimator)
+        d = (0.5, 3.0, 0.25)
+        r2 = sum(x * x for x in d)
+        expected = 40.0 * d[1] / math.sqrt(r2) / r2
+        got = probe(stats, "under")["irradiance"][0]
+        assert abs(got - expected) <= 1e-9 * expected, f"{estimator}: {got} vs I cos / r^2 = {expected}"
+
+
+# ---- radiosity and path tracing agree -------------------------------------------------------
+
+def test_radiosity_and_path_tracing_agree_on_cornell_box(ctx):
+    """Each surface's area-averaged exitant radiance on the diffuse Cornell box, from
+    build/03_radiosity (patches of 50 and 25 mm, Jacobi to --tol 1e-7 so the solve
+    itself adds nothing) and from path tracing (--surface-samples, 32 batch means).
+
+    The bound: radiosity's error is the discretisation error (constant radiance per
+    patch, form factors by quadrature).  If it falls like h^p with p >= 0.585 the
+    error at 25 mm is at most 2 |L_50 - L_25| (e_25 = |L_50 - L_25| / (2^p - 1));
+    piecewise-constant elements converge at least linearly (p = 1) away from
+    singularities, so this is a safe bound.  Add 4 standard errors of the path
+    tracer's mean and require |L_pt - L_25| <= 2 |L_50 - L_25| + 4 se per surface
+    and channel.  Patches are one-sided in radiosity; the path tracer reports the
+    front side (normal as in the file) too."""
+    exe = os.path.join(ROOT, ctx.build, "03_radiosity")
+    assert os.path.exists(exe), "build/03_radiosity is missing (chapter 3 reports the same 'surfaces' key)"
+    scene = "scenes/cornell.scene"
+    radiosity = {}
+    for h in (50, 25):
+        _, stats = ctx.render("03_radiosity", scene, "--size", "8x8", "--patch-size", h, "--tol", "1e-7",
+                              "--iterations", 10000, name=f"radiosity{h}")
+        radiosity[h] = {s["name"]: s for s in stats["surfaces"]}
+    _, stats = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 1, "--surface-samples", 1 << 16,
+                          "--probe-samples", 32, name="pt")
+    traced = {s["name"]: s for s in stats["surfaces"]}
+    assert set(traced) == set(radiosity[25]) == set(radiosity[50]), "the two chapters report different surfaces"
+    for name, s in traced.items():
+        r25, r50 = radiosity[25][name], radiosity[50][name]
+        assert abs(s["area"] - r25["area"]) <= 1e-6 * s["area"], f"{name}: areas {s['area']} vs {r25['area']}"
+        for c in range(3):
+            bound = 2 * abs(r50["radiance"][c] - r25["radiance"][c]) + 4 * s["standard_error"][c]
+            diff = abs(s["radiance"][c] - r25["radiance"][c])
+            assert diff <= bound, f"{name} channel {c}: path tracing {s['radiance'][c]:.5f} vs radiosity " \
+                                  f"{r25['radiance'][c]:.5f} (50 mm: {r50['radiance'][c]:.5f}); bound {bound:.3g}"
+            assert s["standard_error"][c] <= 0.02 * s["radiance"][c] + 1e-4
+
+
+# ---- plumbing -----------------------------------------------------------------------------------
+
+def test_threads_give_identical_bytes(ctx):
+    """The driver's per-sample streams make the image independent of the thread count."""
+    outputs = []
+    for threads in (1, 2):
+        pfm = ctx.path(f"t{threads}.pfm")
+        r = ctx.run(CHAPTER, "scenes/cornell-spheres.scene" if os.path.exists(
+            os.path.join(ROOT, "scenes/cornell-spheres.scene")) else "scenes/cornell.scene",
+            "--quiet", "--size", "24x24", "--spp", 8, "--threads", threads, "--out", pfm, "--probe-samples", 32)
+        assert r.returncode == 0, r.stderr
+        with open(pfm, "rb") as f:
+            outputs.append(f.read())
+    assert outputs[0] == outputs[1], "1 and 2 threads gave different images"
+
+
+def test_time_budget_gives_valid_image(ctx):
+    """--time renders progressive passes and still writes a finite image and stats."""
+    img, stats = ctx.render(CHAPTER, "scenes/cornell-small-light.scene", "--size", "24x24", "--time", 0.5,
+                            "--probe-samples", 32)
+    assert finite_image(img) and stats["spp"] >= 1 and stats["nonfinite_samples"] == 0
+    assert stats["counters"]["bounce_rays"] > 0 and stats["counters"]["shadow_rays"] > 0
+
+
+def check_bad_input(ctx, args):
+    out = ctx.path("should-not-exist.png")
+    r = ctx.run(CHAPTER, *args, "--out", out)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2, f"{args}: exit {r.returncode}, expected 2 ({r.stderr.strip()})"
+    assert len(lines) == 1 and lines[0].startswith("argv:"), f"{args}: want one 'argv:N:' line, got {r.stderr!r}"
+    assert not os.path.exists(out), f"{args}: an output file was created"
+
+
+def test_bad_options_exit_2(ctx):
+    for args in (["--estimator", "photon"], ["--estimator"], ["--rr-depth", "-1"], ["--max-depth", "x"],
+                 ["--probe-samples", "0"], ["--surface-samples", "-5"], ["--bounces", "2:1"]):
+        check_bad_input(ctx, ["scenes/cornell.scene", *args])
