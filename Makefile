@@ -56,7 +56,7 @@ $(BUILD)/tests/%: tests/%.c $(COMMON_OBJ)
 	$(CC) $(CFLAGS) -Icommon $< $(COMMON_OBJ) -o $@ $(LDFLAGS) $(LDLIBS)
 
 # --- set-up ---------------------------------------------------------------
-DEBIAN_PACKAGES := build-essential clang libpng-dev libomp-dev python3
+DEBIAN_PACKAGES := build-essential clang libpng-dev libomp-dev python3 valgrind
 # Parts of the build that own their rules (the viewer) add packages and targets here.
 -include viewer/viewer.mk
 print-deps:

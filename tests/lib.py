@@ -97,8 +97,11 @@ def lambert_polygon_irradiance(radiance, polygon, point, normal):
     total = 0.0
     for i in range(len(rs)):
         a, b = rs[i], rs[(i + 1) % len(rs)]
-        beta = math.acos(max(-1.0, min(1.0, dot(a, b))))
-        total += beta * dot(normal, unit(cross(a, b)))
+        c = cross(a, b)
+        # atan2(|a x b|, a.b), not acos(a.b): accurate for the tiny angles a
+        # small or distant polygon subtends, where the terms nearly cancel.
+        beta = math.atan2(math.sqrt(dot(c, c)), dot(a, b))
+        total += beta * dot(normal, unit(c))
     return abs(total) / 2.0 * radiance
 
 
