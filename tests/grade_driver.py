@@ -14,15 +14,21 @@ CHAPTER = "01_local"
 
 def test_sigint_writes_completed_passes_and_exits_130(ctx):
     """SIGINT mid-render: exit status 130, the image of the completed passes
-    (finite, complete), stats saying interrupted, no temporary files left."""
-    pfm, stats = ctx.path("i.pfm"), ctx.path("i.json")
-    exe = os.path.join(ROOT, ctx.build, CHAPTER)
+    (finite, complete), stats saying interrupted, no temporary files left.
+    Checked for the cheapest and the most progressive chapter."""
+    for chapter in ("01_local", "04_pathtrace"):
+        check_sigint(ctx, chapter)
+
+
+def check_sigint(ctx, chapter):
+    pfm, stats = ctx.path(chapter + ".pfm"), ctx.path(chapter + ".json")
+    exe = os.path.join(ROOT, ctx.build, chapter)
     child = subprocess.Popen([exe, "scenes/cornell.scene", "--quiet", "--size", "64x64", "--spp", "1000000",
                               "--out", pfm, "--stats", stats], cwd=ROOT, stderr=subprocess.PIPE, text=True)
     time.sleep(1.5)
     child.send_signal(signal.SIGINT)
     _, stderr = child.communicate(timeout=60)
-    assert child.returncode == 130, f"exit {child.returncode}: {stderr}"
+    assert child.returncode == 130, f"{chapter}: exit {child.returncode}: {stderr}"
     s = read_json(stats)
     assert s["interrupted"] is True and 1 <= s["spp"] < 1000000, s
     img = read_pfm(pfm)
