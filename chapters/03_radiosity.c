@@ -1348,38 +1348,16 @@ static probe_result probe_irradiance(const void *state_pointer, const scene *s, 
 
 /* ---- outputs: PLY mesh, form-factor table, stats --------------------------------------------- */
 
-/* Write through a temporary and rename, like the driver's outputs. */
-static FILE *open_temporary(const char *path, char *temporary, size_t size, char *err, size_t err_size)
-{
-    snprintf(temporary, size, "%s.tmp.%ld", path, (long)getpid());
-    FILE *f = fopen(temporary, "w");
-    if (!f)
-        snprintf(err, err_size, "%s:0: cannot write", path);
-    return f;
-}
-
-static int close_temporary(FILE *f, const char *temporary, const char *path, char *err, size_t err_size)
-{
-    int failed = ferror(f) != 0;
-    failed |= fclose(f) != 0;
-    if (failed || rename(temporary, path) != 0) {
-        remove(temporary);
-        snprintf(err, err_size, "%s:0: write failed", path);
-        return 2;
-    }
-    return 0;
-}
-
 /* ASCII PLY of the patches with per-vertex radiance: float properties
  * radiance_r/g/b (linear) and uchar red/green/blue (tone-mapped sRGB, what
  * MeshLab and Blender display).  Flat shading writes each patch with its own
  * corners so its colour stays flat; smooth shares the vertices. */
 static int write_ply(const radiosity_state *st, const char *path, char *err, size_t err_size)
 {
-    char temporary[4200];
-    FILE *f = open_temporary(path, temporary, sizeof temporary, err, err_size);
-    if (!f)
+    atomic_file out; /* written through a temporary and renamed, like the driver's outputs */
+    if (atomic_file_open(&out, path, err, err_size))
         return 2;
+    FILE *f = out.file;
     int corners = 0;
     for (int p = 0; p < st->patch_count; p++)
         corners += st->patches[p].corner_count;
@@ -1411,7 +1389,7 @@ static int write_ply(const radiosity_state *st, const char *path, char *err, siz
             fprintf(f, " %d", st->smooth ? c->vertex[k] : next++);
         fputc('\n', f);
     }
-    return close_temporary(f, temporary, path, err, err_size);
+    return atomic_file_commit(&out, 0, err, err_size);
 }
 
 /* --formfactors FILE.csv: surface-to-surface form factors
@@ -1446,16 +1424,16 @@ static int write_formfactors(radiosity_state *st, const scene *s, char *err, siz
     double *area = calloc((size_t)m + 1, sizeof *area);
     for (int i = 0; area && i < n; i++)
         area[st->patches[i].surface] += st->patches[i].area;
-    char temporary[4200];
-    FILE *f = area ? open_temporary(st->formfactors_path, temporary, sizeof temporary, err, err_size) : NULL;
+    atomic_file out;
     int status = 2;
-    if (f) {
+    if (area && atomic_file_open(&out, st->formfactors_path, err, err_size) == 0) {
+        FILE *f = out.file;
         fprintf(f, "from,to,F\n");
         for (int a = 0; a < m; a++)
             for (int b = 0; b < m; b++)
                 if (area[a] > 0.0 && area[b] > 0.0)
                     fprintf(f, "%s,%s,%.10g\n", s->surfaces[a].name, s->surfaces[b].name, sums[a * m + b] / area[a]);
-        status = close_temporary(f, temporary, st->formfactors_path, err, err_size);
+        status = atomic_file_commit(&out, 0, err, err_size);
     } else if (!area) {
         snprintf(err, err_size, "argv:0: out of memory");
     }

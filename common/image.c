@@ -32,38 +32,53 @@ int path_has_extension(const char *path, const char *ext)
 
 /* --- atomic writing -------------------------------------------------------- */
 
-typedef int (*write_body_fn)(const image *img, FILE *f, double exposure);
-
-/* Write into a temporary beside `path`, then rename: the output name only
- * ever holds a complete file (or its previous contents). */
-static int write_atomically(const image *img, const char *path, double exposure, write_body_fn body, char *err,
-                            size_t err_size)
+int atomic_file_open(atomic_file *a, const char *path, char *err, size_t err_size)
 {
-    char temporary[4096];
-    if (snprintf(temporary, sizeof temporary, "%s.tmp.%ld", path, (long)getpid()) >= (int)sizeof temporary) {
+    a->path = path;
+    a->file = NULL;
+    if (snprintf(a->temporary, sizeof a->temporary, "%s.tmp.%ld", path, (long)getpid()) >= (int)sizeof a->temporary) {
         snprintf(err, err_size, "%s:0: output path too long", path);
         return 2;
     }
-    FILE *f = fopen(temporary, "wb");
-    if (!f) {
+    a->file = fopen(a->temporary, "wb");
+    if (!a->file) {
         snprintf(err, err_size, "%s:0: cannot write: %s", path, strerror(errno));
         return 2;
     }
-    int failed = body(img, f, exposure);
-    failed |= fflush(f) != 0;
-    failed |= ferror(f) != 0;
+    return 0;
+}
+
+int atomic_file_commit(atomic_file *a, int failed, char *err, size_t err_size)
+{
+    errno = 0;
+    failed |= fflush(a->file) != 0;
+    failed |= ferror(a->file) != 0;
     int saved_errno = errno;
-    failed |= fclose(f) != 0;
-    if (!failed && rename(temporary, path) != 0) {
+    failed |= fclose(a->file) != 0;
+    a->file = NULL;
+    if (!saved_errno)
+        saved_errno = errno;
+    if (!failed && rename(a->temporary, a->path) != 0) {
         saved_errno = errno;
         failed = 1;
     }
     if (failed) {
-        remove(temporary);
-        snprintf(err, err_size, "%s:0: write failed: %s", path, saved_errno ? strerror(saved_errno) : "I/O error");
+        remove(a->temporary);
+        snprintf(err, err_size, "%s:0: write failed: %s", a->path, saved_errno ? strerror(saved_errno) : "I/O error");
         return 2;
     }
     return 0;
+}
+
+typedef int (*write_body_fn)(const image *img, FILE *f, double exposure);
+
+static int write_atomically(const image *img, const char *path, double exposure, write_body_fn body, char *err,
+                            size_t err_size)
+{
+    atomic_file out;
+    if (atomic_file_open(&out, path, err, err_size))
+        return 2;
+    return atomic_file_commit(&out, body(img, out.file, exposure), err, err_size);
 }
 
 /* --- PFM ------------------------------------------------------------------- */
@@ -156,36 +171,41 @@ uint8_t tonemap_srgb8(double linear, double exposure_stops)
     return (uint8_t)lround(255.0 * srgb_encode(v));
 }
 
-static int png_body(const image *img, FILE *f, double exposure)
+int png_write_rgb8(FILE *f, const uint8_t *rgb, int width, int height)
 {
     png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
     png_infop info = png ? png_create_info_struct(png) : NULL;
-    unsigned char *row = malloc(3 * (size_t)img->width);
-    if (!png || !info || !row) {
+    if (!png || !info) {
         png_destroy_write_struct(&png, &info);
-        free(row);
         return 1;
     }
     if (setjmp(png_jmpbuf(png))) {
         png_destroy_write_struct(&png, &info);
-        free(row);
         return 1;
     }
     png_init_io(png, f);
-    png_set_IHDR(png, info, (png_uint_32)img->width, (png_uint_32)img->height, 8, PNG_COLOR_TYPE_RGB,
-                 PNG_INTERLACE_NONE, PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+    png_set_IHDR(png, info, (png_uint_32)width, (png_uint_32)height, 8, PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE,
+                 PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
     png_set_sRGB(png, info, PNG_sRGB_INTENT_PERCEPTUAL);
     png_write_info(png, info);
-    for (int y = 0; y < img->height; y++) {
-        const float *src = img->pixels + 3 * (size_t)y * (size_t)img->width;
-        for (int i = 0; i < 3 * img->width; i++)
-            row[i] = tonemap_srgb8(src[i], exposure);
-        png_write_row(png, row);
-    }
+    for (int y = 0; y < height; y++)
+        png_write_row(png, (png_const_bytep)(rgb + 3 * (size_t)y * (size_t)width));
     png_write_end(png, NULL);
     png_destroy_write_struct(&png, &info);
-    free(row);
     return 0;
+}
+
+static int png_body(const image *img, FILE *f, double exposure)
+{
+    size_t n = 3 * (size_t)img->width * (size_t)img->height;
+    uint8_t *rgb = malloc(n);
+    if (!rgb)
+        return 1;
+    for (size_t i = 0; i < n; i++)
+        rgb[i] = tonemap_srgb8(img->pixels[i], exposure);
+    int failed = png_write_rgb8(f, rgb, img->width, img->height);
+    free(rgb);
+    return failed;
 }
 
 int image_write_png(const image *img, const char *path, double exposure_stops, char *err, size_t err_size)

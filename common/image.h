@@ -9,6 +9,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdio.h>
 
 #include "vec.h"
 
@@ -29,6 +30,25 @@ static inline void image_set(image *img, int x, int y, vec3 c)
     float *p = img->pixels + 3 * ((size_t)y * (size_t)img->width + (size_t)x);
     p[0] = (float)c.x, p[1] = (float)c.y, p[2] = (float)c.z;
 }
+
+/* An output file that appears under its name only when complete: it is
+ * written as "<path>.tmp.<pid>" and renamed over path by
+ * atomic_file_commit(), so a crash, Ctrl-C or a full disk never leaves a
+ * half-written file under the output name.  Every output of the project
+ * (images, stats, meshes, tables, screenshots) goes through it. */
+typedef struct {
+    FILE *file;
+    const char *path;
+    char temporary[4200];
+} atomic_file;
+/* 0, or 2 with "path:0: cannot write: reason" in err. */
+int atomic_file_open(atomic_file *a, const char *path, char *err, size_t err_size);
+/* Close; rename into place unless `failed` or a write error occurred
+ * (then the temporary is removed).  0, or 2 with a message in err. */
+int atomic_file_commit(atomic_file *a, int failed, char *err, size_t err_size);
+
+/* 8-bit RGB rows (top first) as a PNG into an open file; nonzero on failure. */
+int png_write_rgb8(FILE *f, const uint8_t *rgb, int width, int height);
 
 /* All writers are atomic: they write "<path>.tmp.<pid>" and rename it over
  * path only when complete, so a crash or a full disk never leaves a

@@ -404,13 +404,10 @@ static int write_stats(const chapter *ch, const void *state, const scene *s, con
                        int height, const accumulation *acc, const probe_result *probes, const run_summary *run,
                        char *err, size_t err_size)
 {
-    char temporary[4096];
-    snprintf(temporary, sizeof temporary, "%s.tmp.%ld", o->stats_path, (long)getpid());
-    FILE *f = fopen(temporary, "w");
-    if (!f) {
-        snprintf(err, err_size, "%s:0: cannot write: %s", o->stats_path, strerror(errno));
+    atomic_file out;
+    if (atomic_file_open(&out, o->stats_path, err, err_size))
         return 2;
-    }
+    FILE *f = out.file;
     fprintf(f, "{\n  \"chapter\": ");
     json_string(f, ch->name);
     fprintf(f, ",\n  \"scene\": ");
@@ -461,14 +458,7 @@ static int write_stats(const chapter *ch, const void *state, const scene *s, con
     if (ch->write_stats)
         ch->write_stats(state, f);
     fprintf(f, "\n}\n");
-    int failed = ferror(f) != 0;
-    failed |= fclose(f) != 0;
-    if (failed || rename(temporary, o->stats_path) != 0) {
-        remove(temporary);
-        snprintf(err, err_size, "%s:0: write failed", o->stats_path);
-        return 2;
-    }
-    return 0;
+    return atomic_file_commit(&out, 0, err, err_size);
 }
 
 /* --- main ----------------------------------------------------------------------------- */

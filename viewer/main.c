@@ -15,7 +15,6 @@
 #include <glob.h>
 #include <limits.h>
 #include <math.h>
-#include <png.h>
 #include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -358,42 +357,17 @@ static int parse_options(int argc, char **argv, char *err, size_t err_size)
 
 static int write_rgb8(const char *path, int w, int h, const unsigned char *rgb, char *err, size_t err_size)
 {
-    char temporary[PATH_LEN + 32];
-    snprintf(temporary, sizeof temporary, "%s.tmp.%ld", path, (long)getpid());
-    FILE *f = fopen(temporary, "wb");
-    if (!f) {
-        snprintf(err, err_size, "%s:0: cannot write: %s", path, strerror(errno));
+    atomic_file out;
+    if (atomic_file_open(&out, path, err, err_size))
         return 2;
-    }
-    int failed = 0;
+    int failed;
     if (path_has_extension(path, ".ppm")) {
-        fprintf(f, "P6\n%d %d\n255\n", w, h);
-        failed = fwrite(rgb, 3, (size_t)w * (size_t)h, f) != (size_t)w * (size_t)h;
+        fprintf(out.file, "P6\n%d %d\n255\n", w, h);
+        failed = fwrite(rgb, 3, (size_t)w * (size_t)h, out.file) != (size_t)w * (size_t)h;
     } else {
-        png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
-        png_infop info = png ? png_create_info_struct(png) : NULL;
-        if (!png || !info || setjmp(png_jmpbuf(png))) {
-            failed = 1;
-        } else {
-            png_init_io(png, f);
-            png_set_IHDR(png, info, (png_uint_32)w, (png_uint_32)h, 8, PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE,
-                         PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
-            png_set_sRGB(png, info, PNG_sRGB_INTENT_PERCEPTUAL);
-            png_write_info(png, info);
-            for (int y = 0; y < h; y++)
-                png_write_row(png, (png_const_bytep)(rgb + (size_t)y * (size_t)w * 3));
-            png_write_end(png, NULL);
-        }
-        png_destroy_write_struct(&png, &info);
+        failed = png_write_rgb8(out.file, rgb, w, h);
     }
-    failed |= fflush(f) != 0;
-    failed |= fclose(f) != 0;
-    if (failed || rename(temporary, path) != 0) {
-        remove(temporary);
-        snprintf(err, err_size, "%s:0: write failed", path);
-        return 2;
-    }
-    return 0;
+    return atomic_file_commit(&out, failed, err, err_size);
 }
 
 /* ---- layout ------------------------------------------------------------------------------------ */
