@@ -9,7 +9,8 @@ import glob
 import math
 import os
 
-from lib import ROOT, finite_image, lambert_polygon_irradiance, probe, read_pfm
+from lib import (ROOT, check_bad_input, check_probes_match_lambert, check_thread_independence, finite_image,
+                 lambert_polygon_irradiance, probe)
 
 CHAPTER = "01_local"
 
@@ -95,17 +96,7 @@ def test_area_light_probe_converges_to_lambert_formula(ctx):
     scene = area_light_scene(ctx, radiance, probes)
     _, stats = ctx.render(CHAPTER, scene, "--probe-samples", 262144)
     assert abs(lambert_polygon_irradiance(1.0, square, (0, 0, 0), (0, 1, 0)) - 0.7522747) < 1e-7
-    for name, (p, n) in probes.items():
-        length = math.sqrt(sum(c * c for c in n))
-        n = tuple(c / length for c in n)
-        got = probe(stats, name)
-        for c in range(3):
-            expected = lambert_polygon_irradiance(radiance[c], square, p, n)
-            se = got["standard_error"][c]
-            assert 0 < se < 0.005 * expected, f"probe {name}: standard error {se} not in (0, 0.5% of {expected})"
-            assert abs(got["irradiance"][c] - expected) <= 4 * se, \
-                f"probe {name} channel {c}: {got['irradiance'][c]:.6f} vs Lambert {expected:.6f} " \
-                f"(4 standard errors = {4 * se:.2g})"
+    check_probes_match_lambert(stats, square, radiance, probes, 0.005)
 
 
 def test_area_light_error_shrinks_with_samples(ctx):
@@ -172,34 +163,16 @@ def test_cornell_image_finite_and_light_exact(ctx):
 
 def test_threads_give_identical_bytes(ctx):
     """The per-pixel generator makes the image independent of the thread count."""
-    outputs = []
-    for threads in (1, 2):
-        pfm = ctx.path(f"t{threads}.pfm")
-        r = ctx.run(CHAPTER, "scenes/cornell.scene", "--quiet", "--size", "48x48", "--spp", 4, "--threads",
-                    threads, "--out", pfm)
-        assert r.returncode == 0, r.stderr
-        with open(pfm, "rb") as f:
-            outputs.append(f.read())
-    assert outputs[0] == outputs[1], "1 and 2 threads gave different images"
-
-
-def check_bad_input(ctx, args, expected_prefix):
-    out = ctx.path("should-not-exist.png")
-    r = ctx.run(CHAPTER, *args, "--out", out)
-    lines = r.stderr.strip().splitlines()
-    assert r.returncode == 2, f"{args}: exit {r.returncode}, expected 2 ({r.stderr.strip()})"
-    assert len(lines) == 1 and lines[0].startswith(expected_prefix), \
-        f"{args}: stderr should be one line starting '{expected_prefix}', got {r.stderr!r}"
-    assert not os.path.exists(out), f"{args}: an output file was created"
+    check_thread_independence(ctx, CHAPTER, "scenes/cornell.scene", "--size", "48x48", "--spp", 4)
 
 
 def test_bad_command_lines_exit_2(ctx):
-    check_bad_input(ctx, ["scenes/cornell.scene", "--frobnicate"], "argv:")
-    check_bad_input(ctx, ["scenes/cornell.scene", "--spp", "0"], "argv:")
-    check_bad_input(ctx, ["scenes/cornell.scene", "--size", "12"], "argv:")
-    check_bad_input(ctx, ["scenes/cornell.scene", "--bounces", "3:1"], "argv:")
-    check_bad_input(ctx, ["scenes/cornell.scene", "--model", "torrance"], "argv:")
-    check_bad_input(ctx, ["scenes/does-not-exist.scene"], "scenes/does-not-exist.scene:")
+    check_bad_input(ctx, CHAPTER, ["scenes/cornell.scene", "--frobnicate"], "argv:")
+    check_bad_input(ctx, CHAPTER, ["scenes/cornell.scene", "--spp", "0"], "argv:")
+    check_bad_input(ctx, CHAPTER, ["scenes/cornell.scene", "--size", "12"], "argv:")
+    check_bad_input(ctx, CHAPTER, ["scenes/cornell.scene", "--bounces", "3:1"], "argv:")
+    check_bad_input(ctx, CHAPTER, ["scenes/cornell.scene", "--model", "torrance"], "argv:")
+    check_bad_input(ctx, CHAPTER, ["scenes/does-not-exist.scene"], "scenes/does-not-exist.scene:")
 
 
 def test_failed_render_keeps_existing_output(ctx):

@@ -14,7 +14,7 @@ lights only, every pixel is a deterministic sum, compared to float rounding.
 import math
 import os
 
-from lib import finite_image
+from lib import check_bad_input, check_thread_independence, finite_image
 
 CHAPTER = "02_whitted"
 FLOAT = 2e-6  # relative rounding of float32 pixels after a few double operations
@@ -417,25 +417,8 @@ def test_grazing_incidence_stays_finite(ctx):
 
 def test_threads_give_identical_bytes(ctx):
     """The per-sample generator makes the image independent of the thread count."""
-    outputs = []
-    for threads in (1, 2):
-        pfm = ctx.path(f"t{threads}.pfm")
-        r = ctx.run(CHAPTER, "scenes/cornell-spheres.scene", "--quiet", "--size", "40x40", "--spp", 4,
-                    "--light-samples", 2, "--threads", threads, "--out", pfm)
-        assert r.returncode == 0, r.stderr
-        with open(pfm, "rb") as f:
-            outputs.append(f.read())
-    assert outputs[0] == outputs[1], "1 and 2 threads gave different images"
-
-
-def check_bad_input(ctx, args, expected_prefix):
-    out = ctx.path("should-not-exist.png")
-    r = ctx.run(CHAPTER, *args, "--out", out)
-    lines = r.stderr.strip().splitlines()
-    assert r.returncode == 2, f"{args}: exit {r.returncode}, expected 2 ({r.stderr.strip()})"
-    assert len(lines) == 1 and lines[0].startswith(expected_prefix), \
-        f"{args}: stderr should be one line starting '{expected_prefix}', got {r.stderr!r}"
-    assert not os.path.exists(out), f"{args}: an output file was created"
+    check_thread_independence(ctx, CHAPTER, "scenes/cornell-spheres.scene", "--size", "40x40", "--spp", 4,
+                              "--light-samples", 2)
 
 
 def test_bad_materials_are_file_line_errors(ctx):
@@ -450,11 +433,11 @@ def test_bad_materials_are_file_line_errors(ctx):
                                           "# a bad material on the next line\n"
                                           f"material m {material}\n"
                                           "sphere s m  0 0 0  1\n")
-        check_bad_input(ctx, [path], f"{path}:3:")
+        check_bad_input(ctx, CHAPTER, [path], f"{path}:3:")
 
 
 def test_bad_command_lines_exit_2(ctx):
     for args in (["--max-depth", "-1"], ["--max-depth", "65"], ["--max-depth", "two"], ["--min-weight", "1.5"],
                  ["--min-weight", "-0.1"], ["--min-weight", "nan"], ["--fresnel", "fast"], ["--fresnel"],
                  ["--shadows", "soft"], ["--absorption", "0"], ["--absorption", "inf"], ["--model", "cook"]):
-        check_bad_input(ctx, ["scenes/cornell-spheres.scene", *args], "argv:")
+        check_bad_input(ctx, CHAPTER, ["scenes/cornell-spheres.scene", *args], "argv:")

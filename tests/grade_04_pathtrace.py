@@ -24,7 +24,8 @@ answer) so the tolerance cannot hide a real error.
 import math
 import os
 
-from lib import ROOT, finite_image, lambert_polygon_irradiance, probe, read_json
+from lib import (ROOT, check_bad_input, check_probes_match_lambert, check_thread_independence, finite_image,
+                 probe)
 
 CHAPTER = "04_pathtrace"
 ESTIMATORS = ("hemisphere", "cosine", "light", "mis")
@@ -319,17 +320,7 @@ def test_probe_irradiance_matches_lambert_polygon(ctx):
     scene = area_light_scene(ctx, radiance, probes)
     for estimator in ESTIMATORS:
         _, stats = ctx.render(CHAPTER, scene, "--estimator", estimator, "--probe-samples", 1 << 18, name=estimator)
-        for name, (p, n) in probes.items():
-            length = math.sqrt(sum(c * c for c in n))
-            n = tuple(c / length for c in n)
-            got = probe(stats, name)
-            for c in range(3):
-                expected = lambert_polygon_irradiance(radiance[c], rectangle, p, n)
-                se = got["standard_error"][c]
-                assert 0 < se < 0.01 * expected, f"{estimator} {name}: standard error {se} vs {expected}"
-                assert abs(got["irradiance"][c] - expected) <= 4 * se, \
-                    f"{estimator} probe {name} channel {c}: {got['irradiance'][c]:.5f} vs Lambert {expected:.5f} " \
-                    f"(4 se {4 * se:.2g})"
+        check_probes_match_lambert(stats, rectangle, radiance, probes, 0.01, estimator)
 
 
 POINT_LIGHT_SCENE = """\
@@ -404,16 +395,8 @@ def test_radiosity_and_path_tracing_agree_on_cornell_box(ctx):
 
 def test_threads_give_identical_bytes(ctx):
     """The driver's per-sample streams make the image independent of the thread count."""
-    outputs = []
-    for threads in (1, 2):
-        pfm = ctx.path(f"t{threads}.pfm")
-        r = ctx.run(CHAPTER, "scenes/cornell-spheres.scene" if os.path.exists(
-            os.path.join(ROOT, "scenes/cornell-spheres.scene")) else "scenes/cornell.scene",
-            "--quiet", "--size", "24x24", "--spp", 8, "--threads", threads, "--out", pfm, "--probe-samples", 32)
-        assert r.returncode == 0, r.stderr
-        with open(pfm, "rb") as f:
-            outputs.append(f.read())
-    assert outputs[0] == outputs[1], "1 and 2 threads gave different images"
+    check_thread_independence(ctx, CHAPTER, "scenes/cornell-spheres.scene", "--size", "24x24", "--spp", 8,
+                              "--probe-samples", 32)
 
 
 def test_time_budget_gives_valid_image(ctx):
@@ -424,16 +407,7 @@ def test_time_budget_gives_valid_image(ctx):
     assert stats["counters"]["bounce_rays"] > 0 and stats["counters"]["shadow_rays"] > 0
 
 
-def check_bad_input(ctx, args):
-    out = ctx.path("should-not-exist.png")
-    r = ctx.run(CHAPTER, *args, "--out", out)
-    lines = r.stderr.strip().splitlines()
-    assert r.returncode == 2, f"{args}: exit {r.returncode}, expected 2 ({r.stderr.strip()})"
-    assert len(lines) == 1 and lines[0].startswith("argv:"), f"{args}: want one 'argv:N:' line, got {r.stderr!r}"
-    assert not os.path.exists(out), f"{args}: an output file was created"
-
-
 def test_bad_options_exit_2(ctx):
     for args in (["--estimator", "photon"], ["--estimator"], ["--rr-depth", "-1"], ["--max-depth", "x"],
                  ["--probe-samples", "0"], ["--surface-samples", "-5"], ["--bounces", "2:1"]):
-        check_bad_input(ctx, ["scenes/cornell.scene", *args])
+        check_bad_input(ctx, CHAPTER, ["scenes/cornell.scene", *args])

@@ -10,7 +10,7 @@ import os
 import re
 import subprocess
 
-from lib import ROOT, finite_image, lambert_polygon_irradiance, probe, read_json
+from lib import ROOT, finite_image, lambert_polygon_irradiance, probe
 
 CHAPTERS = ("01_local", "02_whitted", "03_radiosity", "04_pathtrace")
 # Per-chapter settings that keep a 32x32 render well under a second.

@@ -107,3 +107,46 @@ def lambert_polygon_irradiance(radiance, polygon, point, normal):
 
 def finite_image(img):
     return all(math.isfinite(c) for px in img.pixels for c in px)
+
+
+def check_bad_input(ctx, chapter, args, expected_prefix="argv:"):
+    """The chapter must exit 2 with one line starting expected_prefix and create no output."""
+    out = ctx.path("should-not-exist.png")
+    r = ctx.run(chapter, *args, "--out", out)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2, f"{chapter} {args}: exit {r.returncode}, expected 2 ({r.stderr.strip()})"
+    assert len(lines) == 1 and lines[0].startswith(expected_prefix), \
+        f"{chapter} {args}: stderr should be one line starting '{expected_prefix}', got {r.stderr!r}"
+    assert not os.path.exists(out), f"{chapter} {args}: an output file was created"
+
+
+def check_thread_independence(ctx, chapter, scene, *args):
+    """1 and 2 threads must give byte-identical PFM files (per-sample random streams)."""
+    outputs = []
+    for threads in (1, 2):
+        pfm = ctx.path(f"threads{threads}.pfm")
+        r = ctx.run(chapter, scene, "--quiet", *args, "--threads", threads, "--out", pfm)
+        assert r.returncode == 0, r.stderr
+        with open(pfm, "rb") as f:
+            outputs.append(f.read())
+    assert outputs[0] == outputs[1], f"{chapter}: 1 and 2 threads gave different images"
+
+
+def check_probes_match_lambert(stats, polygon, radiance, probes, max_relative_se, label=""):
+    """Each probe's irradiance equals Lambert's polygon formula for the
+    emitter `polygon` of RGB `radiance`, within 4 of the standard errors the
+    chapter reports (a false alarm about once in 16,000 channels), and each
+    standard error is positive and below max_relative_se of the answer, so
+    the tolerance cannot silently grow."""
+    for name, (p, n) in probes.items():
+        length = math.sqrt(sum(c * c for c in n))
+        n = tuple(c / length for c in n)
+        got = probe(stats, name)
+        for c in range(3):
+            expected = lambert_polygon_irradiance(radiance[c], polygon, p, n)
+            se = got["standard_error"][c]
+            assert 0 < se < max_relative_se * expected, \
+                f"{label} probe {name}: standard error {se} not in (0, {max_relative_se:.1%} of {expected})"
+            assert abs(got["irradiance"][c] - expected) <= 4 * se, \
+                f"{label} probe {name} channel {c}: {got['irradiance'][c]:.6f} vs Lambert {expected:.6f} " \
+                f"(4 standard errors = {4 * se:.2g})"
