@@ -5,6 +5,7 @@
 #   make bench      throughput and timing (a benchmark, not a test)
 #   make fuzz       libFuzzer on the scene parser (FUZZ_SECONDS=60)
 #   make tradeoff   error against time for every method (QUICK=1: under a minute)
+#   make slides     lecture decks (HTML + PDF) into out/slides/
 #   make deps       install the Debian packages the project needs
 #   make clean
 # Options: NATIVE=1 adds -march=native; CC=clang builds with clang;
@@ -60,6 +61,7 @@ $(BUILD)/tests/%: tests/%.c $(COMMON_OBJ)
 DEBIAN_PACKAGES := build-essential clang libpng-dev libomp-dev python3 valgrind
 # Parts of the build that own their rules (the viewer) add packages and targets here.
 -include viewer/viewer.mk
+-include slides/slides.mk
 -include tradeoff/tradeoff.mk
 print-deps:
 	@echo $(DEBIAN_PACKAGES)
