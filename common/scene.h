@@ -164,7 +164,9 @@ int scene_occluded(const scene *s, vec3 a, vec3 b);
 vec3 scene_offset_origin(const scene *s, vec3 p, vec3 n, vec3 d);
 
 /* Low-level intersection routines (exposed for the unit tests). */
-/* Moller-Trumbore; returns t > 0 or INFINITY. */
+/* Baldwin & Weber (2016) coordinate-transformation test, each edge moved
+ * out by 1e-11 of the scene so a ray through a shared edge or a quad's
+ * diagonal cannot slip between two triangles; returns t > 0 or INFINITY. */
 double intersect_triangle(const triangle *tri, ray r);
 /* Numerically robust ray-sphere (Haines et al., Ray Tracing Gems ch. 7):
  * accurate for radius 1e5 walls; returns the smallest t > 0 or INFINITY. */
