@@ -356,8 +356,7 @@ static void write_stats(const void *state_pointer, FILE *json)
             state->fresnel == FRESNEL_EXACT ? "exact" : "schlick", state->opaque_glass ? "opaque" : "filtered",
             state->max_depth);
     json_number(json, state->min_weight);
-    fprintf(json, ",\n  \"absorption_distance\": ");
-    json_number(json, state->absorption_distance);
+    json_field_number(json, "absorption_distance", state->absorption_distance);
     fprintf(json, ",\n  \"model\": \"%s\",\n  \"normalised\": %s,\n  \"shadows\": %s,\n  \"light_samples\": %d",
             state->local.model == SPECULAR_PHONG ? "phong" : "blinn", state->local.normalised ? "true" : "false",
             state->local.shadows ? "true" : "false", state->local.light_samples);

@@ -1458,10 +1458,8 @@ static void write_stats(const void *state_pointer, FILE *json)
     json_number(json, st->patch_size);
     fprintf(json, ",\n  \"patches\": %d,\n  \"refinements\": %d,\n  \"iterations\": %d,\n  \"shots\": %d",
             st->patch_count, st->refinements, st->iterations, st->shots);
-    fprintf(json, ",\n  \"residual\": ");
-    json_number(json, st->residual);
-    fprintf(json, ",\n  \"tolerance\": ");
-    json_number(json, st->tolerance);
+    json_field_number(json, "residual", st->residual);
+    json_field_number(json, "tolerance", st->tolerance);
     fprintf(json, ",\n  \"converged\": %s,\n  \"no_light\": %s,\n  \"residual_history\": [",
             st->converged ? "true" : "false", st->no_light ? "true" : "false");
     for (int k = 0; k < st->history_count; k++) {
@@ -1471,17 +1469,13 @@ static void write_stats(const void *state_pointer, FILE *json)
     }
     fprintf(json, "],\n  \"formfactor_s\": ");
     json_number(json, st->formfactor_s);
-    fprintf(json, ",\n  \"solve_s\": ");
-    json_number(json, st->solve_s);
+    json_field_number(json, "solve_s", st->solve_s);
     fprintf(json, ",\n  \"visibility_rays\": %llu,\n  \"reciprocity\": \"%s\"", (unsigned long long)st->visibility_rays,
             st->enforce_reciprocity ? "enforce" : "check");
     if (st->have_matrix_checks) {
-        fprintf(json, ",\n  \"reciprocity_error\": ");
-        json_number(json, st->reciprocity_error);
-        fprintf(json, ",\n  \"row_sum_min\": ");
-        json_number(json, st->row_sum_min);
-        fprintf(json, ",\n  \"row_sum_max\": ");
-        json_number(json, st->row_sum_max);
+        json_field_number(json, "reciprocity_error", st->reciprocity_error);
+        json_field_number(json, "row_sum_min", st->row_sum_min);
+        json_field_number(json, "row_sum_max", st->row_sum_max);
     }
     fprintf(json, ",\n  \"matrix_bytes\": %.0f", st->form_factors ? (double)st->patch_count * st->patch_count * 4.0 : 0.0);
 

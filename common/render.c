@@ -61,6 +61,12 @@ void json_number(FILE *f, double v)
         fputs("null", f);
 }
 
+void json_field_number(FILE *f, const char *key, double v)
+{
+    fprintf(f, ",\n  \"%s\": ", key);
+    json_number(f, v);
+}
+
 void json_vec3(FILE *f, vec3 v)
 {
     fputc('[', f);
@@ -415,12 +421,9 @@ static int write_stats(const chapter *ch, const void *state, const scene *s, con
     fprintf(f, ",\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %ld,\n  \"passes\": %d,\n  \"seed\": %llu", width,
             height, run->samples_per_pixel, run->passes, (unsigned long long)o->seed);
     fprintf(f, ",\n  \"threads\": %d", omp_get_max_threads());
-    fprintf(f, ",\n  \"time_s\": ");
-    json_number(f, run->time_total);
-    fprintf(f, ",\n  \"prepare_s\": ");
-    json_number(f, run->time_prepare);
-    fprintf(f, ",\n  \"render_s\": ");
-    json_number(f, run->time_render);
+    json_field_number(f, "time_s", run->time_total);
+    json_field_number(f, "prepare_s", run->time_prepare);
+    json_field_number(f, "render_s", run->time_render);
     fprintf(f, ",\n  \"bounces\": [%d, %d]", o->bounce_min, o->bounce_max);
     fprintf(f, ",\n  \"interrupted\": %s", interrupted ? "true" : "false");
     fprintf(f, ",\n  \"counters\": {\"camera_rays\": %llu",

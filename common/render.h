@@ -95,6 +95,8 @@ void warn_once(int *flag, const char *format, ...);
 void json_string(FILE *f, const char *s);
 void json_number(FILE *f, double v); /* null for non-finite */
 void json_vec3(FILE *f, vec3 v);
+/* One more member of the stats object: `,\n  "key": value`. */
+void json_field_number(FILE *f, const char *key, double v);
 
 /* Parse helpers for chapter options: a whole number / a finite double in
  * [lo, hi]; on failure write "argv:N: message" into err and return 2. */
