@@ -56,3 +56,23 @@ def test_unwritable_output_is_an_error_without_partial_file(ctx):
         r = ctx.run(CHAPTER, "scenes/cornell.scene", "--size", "8x8", "--out", target)
     assert r.returncode == 2 and r.stderr.startswith(target + ":"), r.stderr
     assert not os.path.exists(target)
+
+
+def test_failed_write_like_a_full_disk(ctx):
+    """A write that fails midway (the file-size limit RLIMIT_FSIZE makes
+    write() fail with EFBIG, as a full disk fails with ENOSPC): exit 2 with
+    'file:0: write failed', no file under the output name, no temporary left."""
+    import resource
+
+    def limit_file_size():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # fail the write instead of killing the process
+
+    out = ctx.path("big.pfm")
+    exe = os.path.join(ROOT, ctx.build, CHAPTER)
+    r = subprocess.run([exe, "scenes/cornell.scene", "--quiet", "--size", "64x64", "--out", out], cwd=ROOT,
+                       capture_output=True, text=True, preexec_fn=limit_file_size, timeout=120)
+    assert r.returncode == 2, f"exit {r.returncode}: {r.stderr}"
+    assert r.stderr.startswith(out + ":0: write failed"), r.stderr
+    assert not os.path.exists(out), "a partial output file was left under the output name"
+    assert not [f for f in os.listdir(ctx.scratch) if ".tmp." in f], "temporary file left behind"
