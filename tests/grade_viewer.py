@@ -10,7 +10,12 @@ Truth comes from outside the viewer:
   * the GLFW window (under Xvfb) must show what the headless backends write;
   * PLY radiance: a quad of known per-vertex radiance, checked pixel by pixel;
   * live mode: the chapter's progressive files must reach the viewer, and the
-    children must be gone when it exits.
+    children must be gone when it exits;
+  * the window's input (keys, drag, wheel), driven by xdotool under Xvfb: the
+    screenshot after exposure keys is the input tone-mapped at the documented
+    step, a drag restarts the children with an eye orbited on the sphere about
+    the look point (old children reaped, checked in /proc), the wheel dollies
+    by the documented factor, Q / Esc exit 0 with no child left.
 The layout the tests rely on is the documented one (build/viewer --help):
 ceil(sqrt(n)) columns, a 34-pixel label band on top of each panel, the
 image scaled to fit the rest, centred on a whole pixel.
@@ -23,6 +28,7 @@ import shutil
 import signal
 import struct
 import subprocess
+import threading
 import time
 import zlib
 
@@ -284,6 +290,279 @@ def test_glfw_window_under_xvfb_equals_headless(ctx):
     worst = max(abs(p - q) for ra, rb in zip(a[2], b[2]) for p, q in zip(ra, rb))
     assert worst <= 1, f"window and headless screenshots differ by up to {worst}/255"
     check_grid(b, inputs)
+
+
+# ---- the window driven by synthetic input (xdotool, XTEST) under Xvfb ------------------------------
+#
+# The documented input mapping (viewer/README.md, the H overlay): `+` / `-`
+# half a stop of exposure per press, `P` a screenshot viewer-N.png in the
+# current directory, left drag orbits 0.3 degrees per pixel about the look
+# point (distance kept), each wheel step scales the distance to the look point
+# by 0.9 (in) or 1/0.9 (out), `Q` / Esc quit with status 0.  The viewer's
+# stdout says what happened (`live: start|restart ... eye=... pids ...`,
+# `camera: ... eye=... look=...` with --verbose, `wrote FILE`); the tests
+# check those, the screenshots and /proc from outside.
+
+EXPOSURE_STEP = 0.5      # stops per `+` / `-` press
+ORBIT_DEGREES_PER_PIXEL = 0.3
+DOLLY_STEP = 0.9         # distance factor per wheel step towards the look point
+
+
+class WindowSession:
+    """build/viewer in a GLFW window on a private Xvfb, its stdout collected
+    line by line, driven by xdotool through XTEST (real input events, in
+    order on the X connection, so a later key sees the effect of the earlier
+    ones).  Never skips: no xdotool or no Xvfb is a failure."""
+
+    def __init__(self, ctx, *args, cwd=None):
+        self.xdotool = shutil.which("xdotool")
+        assert self.xdotool, "xdotool is not installed (apt-get install xdotool; make deps)"
+        self.lines, self.errors = [], []
+        self.changed = threading.Condition()
+        self.proc = None
+        self.xvfb, self.display = start_xvfb()
+        try:
+            self.env = viewer_env()
+            self.env["DISPLAY"] = self.display
+            self.env["TMPDIR"] = ctx.scratch  # the live children's directory, checked for removal
+            exe = os.path.join(lib.ROOT, ctx.build, "viewer")
+            assert os.access(exe, os.X_OK), f"{exe} is not built (make {ctx.build}/viewer)"
+            self.proc = subprocess.Popen([exe, *map(str, args)], cwd=cwd or ctx.scratch, env=self.env, text=True,
+                                         stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+            self.readers = [threading.Thread(target=self._read, args=(stream, store), daemon=True)
+                            for stream, store in ((self.proc.stdout, self.lines), (self.proc.stderr, self.errors))]
+            for t in self.readers:
+                t.start()
+            # The window: mapped (viewable), then focused and the pointer in it.
+            found = self.xdo("search", "--sync", "--onlyvisible", "--pid", self.proc.pid, timeout=30)
+            self.window = found.split()[0]
+            self.xdo("windowfocus", "--sync", self.window)
+        except BaseException:
+            self.close()
+            raise
+
+    def _read(self, stream, store):
+        for line in stream:
+            with self.changed:
+                store.append(line.rstrip("\n"))
+                self.changed.notify_all()
+        with self.changed:
+            self.changed.notify_all()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        if self.proc and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+        if self.proc:
+            for t in self.readers:
+                t.join(timeout=5)
+            self.proc.stdout.close()
+            self.proc.stderr.close()
+        self.xvfb.terminate()
+        self.xvfb.wait()
+
+    def describe(self):
+        return f"stdout: {self.lines[-40:]}\nstderr: {self.errors[-40:]}"
+
+    def xdo(self, *args, timeout=10):
+        try:
+            r = subprocess.run([self.xdotool, *map(str, args)], env=self.env, capture_output=True, text=True,
+                               timeout=timeout, stdin=subprocess.DEVNULL)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"xdotool {' '.join(map(str, args))} timed out (viewer exit {self.proc.poll()})\n"
+                                 f"{self.describe()}") from None
+        assert r.returncode == 0, f"xdotool {' '.join(map(str, args))}: exit {r.returncode} {r.stderr}"
+        return r.stdout
+
+    def wait_line(self, prefix, after=0, timeout=20):
+        """The first stdout line from index `after` on that starts with prefix, and its index."""
+        deadline = time.time() + timeout
+        with self.changed:
+            while True:
+                for k in range(after, len(self.lines)):
+                    if self.lines[k].startswith(prefix):
+                        return self.lines[k], k
+                left = deadline - time.time()
+                assert left > 0 and self.proc.poll() is None, \
+                    f"no line '{prefix}...' from the viewer (exit {self.proc.poll()})\n{self.describe()}"
+                self.changed.wait(left)
+
+    def finish(self, key, timeout=20):
+        """Press key; the viewer must exit by itself; returns its status."""
+        self.xdo("key", key)
+        try:
+            status = self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"the viewer did not exit after {key}\n{self.describe()}") from None
+        for t in self.readers:
+            t.join(timeout=5)
+        return status
+
+
+def children_of(pid):
+    """Processes whose parent is pid (zombies included), from /proc."""
+    kids = []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as f:
+                stat = f.read()
+        except OSError:
+            continue
+        fields = stat[stat.rindex(")") + 2:].split()  # after "pid (comm) ": state ppid ...
+        if int(fields[1]) == pid:
+            kids.append((int(entry), fields[0]))
+    return kids
+
+
+def process_exists(pid):
+    """Anything at all with this pid, a zombie included."""
+    return os.path.exists(f"/proc/{pid}")
+
+
+def parse_live_line(line):
+    """'live: start|restart N children eye=X,Y,Z look=X,Y,Z pids P1,P2' -> (eye, look, [pids])."""
+    words = line.split()
+    eye = [float(v) for v in next(w for w in words if w.startswith("eye=")) [4:].split(",")]
+    look = [float(v) for v in next(w for w in words if w.startswith("look=")) [5:].split(",")]
+    pids = [int(p) for p in words[words.index("pids") + 1].split(",")]
+    return eye, look, pids
+
+
+def v_sub(a, b): return [a[k] - b[k] for k in range(3)]
+def v_dot(a, b): return sum(a[k] * b[k] for k in range(3))
+def v_len(a): return math.sqrt(v_dot(a, a))
+def v_cross(a, b): return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def test_window_exposure_keys(ctx):
+    """`+` twice, then `P`: every panel of the screenshot is its input
+    tone-mapped at +1 stop (2 x the documented half stop), within 1/255.
+    Then `-` three times (-1/2), the keypad's `+` three times (+1: one step
+    per press, not two) and `0` (back to 0), each checked the same way."""
+    inputs, w, h = synthetic_inputs(ctx)
+    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
+    shots = ((["plus", "plus"], 2 * EXPOSURE_STEP),
+             (["minus", "minus", "minus"], -EXPOSURE_STEP),
+             (["KP_Add", "KP_Add", "KP_Add"], 2 * EXPOSURE_STEP),
+             (["0"], 0.0))
+    with WindowSession(ctx, "--size", size, *inputs) as s:
+        s.xdo("mousemove", "--window", s.window, 5, 5)  # on a label: the pointer changes no image pixel
+        after = 0
+        for n, (keys, exposure) in enumerate(shots, 1):
+            s.xdo("key", *keys, "p")
+            line, after = s.wait_line(f"wrote viewer-{n}.png", after)
+            png = read_png(ctx.path(f"viewer-{n}.png"))
+            assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND)), f"screenshot {png[0]}x{png[1]}, not {size}"
+            try:
+                check_grid(png, inputs, exposure)
+            except AssertionError as e:
+                raise AssertionError(f"after keys {keys} (expected exposure {exposure:+}): {e}") from None
+        status = s.finish("q")
+    assert status == 0, f"Q: exit {status}\n{s.describe()}"
+
+
+def live_args(ctx):
+    return ("--live", os.path.join(lib.ROOT, "scenes", "cornell-point.scene"), "--chapter", "01_local",
+            "--size", "320x200", "--render-size", "48x48", "--live-time", "60")
+
+
+def test_window_live_drag_orbits_and_restarts(ctx):
+    """A left drag of 40 pixels to the right in --live mode: once the camera
+    rests the chapter children restart with the new eye, which lies on the
+    sphere about the look point (distance kept to 1e-6 relative), turned
+    40 x 0.3 = 12 degrees about the up axis; the old children are gone (not
+    even zombies) and the viewer's only children are the new ones."""
+    with WindowSession(ctx, *live_args(ctx)) as s:
+        line, at = s.wait_line("live: start ")
+        eye0, look0, pids0 = parse_live_line(line)
+        assert sorted(pid for pid, _ in children_of(s.proc.pid)) == sorted(pids0), \
+            f"children {children_of(s.proc.pid)} are not the logged ones {pids0}"
+        assert not any(l.startswith("live: restart") for l in s.lines), "a restart before any input"
+        x, y = 100, 120
+        s.xdo("mousemove", "--window", s.window, x, y)
+        s.xdo("mousedown", 1)
+        for step in (10, 20, 30, 40):
+            s.xdo("mousemove", "--window", s.window, x + step, y)
+        s.xdo("mouseup", 1)
+        line, at = s.wait_line("live: restart ", at + 1)
+        eye1, look1, pids1 = parse_live_line(line)
+        assert look1 == look0, f"the look point moved: {look0} -> {look1}"
+        d0, d1 = v_sub(eye0, look0), v_sub(eye1, look1)
+        assert abs(v_len(d1) - v_len(d0)) <= 1e-6 * v_len(d0), \
+            f"orbit changed the distance to the look point: {v_len(d0)!r} -> {v_len(d1)!r}"
+        scene_up = parse_scene_surfaces("scenes/cornell-point.scene")[1][2]
+        up = [c / v_len(scene_up) for c in scene_up]
+        assert abs(v_dot(d1, up) - v_dot(d0, up)) <= 1e-6 * v_len(d0), "a horizontal drag pitched the camera"
+        p0 = v_sub(d0, [c * v_dot(d0, up) for c in up])
+        p1 = v_sub(d1, [c * v_dot(d1, up) for c in up])
+        angle = math.degrees(math.atan2(v_len(v_cross(p0, p1)), v_dot(p0, p1)))
+        expected = 40 * ORBIT_DEGREES_PER_PIXEL
+        assert abs(angle - expected) <= 1e-6 * expected, f"orbit of {angle} degrees, expected {expected}"
+        assert set(pids1).isdisjoint(pids0), f"restart kept the old children {pids0} -> {pids1}"
+        for pid in pids0:
+            assert not process_exists(pid), f"old child {pid} (previous camera) is still there (zombie/orphan?)"
+        kids = children_of(s.proc.pid)
+        assert sorted(pid for pid, _ in kids) == sorted(pids1) and all(state != "Z" for _, state in kids), \
+            f"the viewer's children are {kids}, expected exactly the new {pids1}"
+        status = s.finish("q")
+    assert status == 0, f"Q: exit {status}\n{s.describe()}"
+    for pid in pids1:
+        assert not process_exists(pid), f"child {pid} outlived the viewer"
+
+
+def test_window_wheel_dollies(ctx):
+    """--ply, eye 2 from the look point: two wheel steps in and one out give
+    distances 2 * 0.9, 2 * 0.81, 2 * 0.9 (the documented factor), along the
+    same line (to 1e-9 relative)."""
+    ply = ctx.write("quad.ply", "ply\nformat ascii 1.0\nelement vertex 4\n"
+                    "property float x\nproperty float y\nproperty float z\n"
+                    "property float red\nproperty float green\nproperty float blue\n"
+                    "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                    "-1 -1 0 0.1 0.25 0\n1 -1 0 0.9 0.25 0\n1 1 0 0.9 0.25 0\n-1 1 0 0.1 0.25 0\n4 0 1 2 3\n")
+    eye, look = [0.3, 0.4, 2.0], [0.1, -0.2, 0.0]
+    with WindowSession(ctx, "--ply", ply, "--size", "200x150", "--eye", ",".join(map(str, eye)),
+                       "--look", ",".join(map(str, look)), "--verbose") as s:
+        s.xdo("mousemove", "--window", s.window, 100, 80)
+        s.xdo("click", "--repeat", 2, "--delay", 20, 4)  # button 4: wheel up, towards the look point
+        s.xdo("click", 5)                                # button 5: wheel down
+        status = s.finish("q")  # after the wheel events on the same connection: all of them are handled
+    assert status == 0, f"Q: exit {status}\n{s.describe()}"
+    moves = [line for line in s.lines if line.startswith("camera: ")]
+    assert len(moves) == 3 and all(line.startswith("camera: dolly ") for line in moves), \
+        f"expected three dolly moves, got {moves}\n{s.describe()}"
+    d0 = v_sub(eye, look)
+    for line, factor in zip(moves, (DOLLY_STEP, DOLLY_STEP ** 2, DOLLY_STEP)):
+        e, l, _ = parse_live_line(line + " pids 0")
+        assert l == look, f"dolly moved the look point: {line}"
+        d = v_sub(e, l)
+        assert abs(v_len(d) - factor * v_len(d0)) <= 1e-9 * v_len(d0), \
+            f"distance {v_len(d)!r}, expected {factor * v_len(d0)!r} ({line})"
+        assert v_len(v_cross(d, d0)) <= 1e-9 * v_len(d0) ** 2 and v_dot(d, d0) > 0, f"dolly turned the eye: {line}"
+
+
+def test_window_quit_keys_leave_no_children(ctx):
+    """`Q` and Esc in --live mode: exit status 0, the running chapter children
+    stopped and reaped (nothing left in /proc), the temporary directory gone."""
+    for key in ("q", "Escape"):
+        with WindowSession(ctx, *live_args(ctx)) as s:
+            line, _ = s.wait_line("live: start ")
+            _, _, pids = parse_live_line(line)
+            for pid in pids:
+                assert process_exists(pid), f"child {pid} should be running"
+            status = s.finish(key)
+        assert status == 0, f"{key}: exit {status}\n{s.describe()}"
+        for pid in pids:
+            assert not process_exists(pid), f"{key}: child {pid} is still there after the viewer exited"
+        left = [name for name in os.listdir(ctx.scratch) if name.startswith("viewer-")]
+        assert not left, f"{key}: the viewer left its temporary directory {left}"
 
 
 # ---- the GLSL raster against chapter 1 --------------------------------------------------------------

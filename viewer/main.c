@@ -113,7 +113,7 @@ static void usage(void)
            "  --exit-after-updates N  headless live: stop after N image updates from every chapter\n"
            "  --no-shadows --ambient LA  chapter 1's options, for the raster and passed to 01_local\n"
            "  --raster-shader FILE.frag  replace the built-in Blinn-Phong fragment shader\n"
-           "  --verbose            print the layout and every update\n"
+           "  --verbose            print the layout, every update and (window) every camera move\n"
            "Layout: ceil(sqrt(n)) columns; each panel's top %d pixels are its label, the image is scaled\n"
            "to fit the rest (zoom 1), centred, its corner on a whole pixel, nearest-neighbour sampled.\n"
            "Exit status: 0, 2 bad input or shader error (file:line: message), 3 no such backend here.\n",
@@ -543,8 +543,15 @@ static void render_3d_panels(void)
     }
 }
 
+/* (Re)start every child with the current camera.  Each start is logged:
+ *   live: start|restart N children eye=X,Y,Z look=X,Y,Z pids P1,P2,...
+ * (the old children are stopped and reaped before the new ones start). */
 static int start_children(char *err, size_t err_size)
 {
+    static int starts;
+    char pids[PANEL_MAX * 24] = "";
+    size_t used = 0;
+    int count = 0;
     V.spec.cam = V.cam;
     for (int i = 0; i < V.panel_count; i++)
         if (V.panels[i].kind == SOURCE_CHILD) {
@@ -553,7 +560,16 @@ static int start_children(char *err, size_t err_size)
                 return 2;
             if (V.verbose)
                 printf("spawn %s pid %ld\n", V.panels[i].method, (long)V.panels[i].pid);
+            if (used < sizeof pids)
+                used += (size_t)snprintf(pids + used, sizeof pids - used, "%s%ld", count ? "," : "",
+                                         (long)V.panels[i].pid);
+            count++;
         }
+    if (count) {
+        const vec3 e = V.cam.eye, l = V.cam.look;
+        printf("live: %s %d children eye=%.17g,%.17g,%.17g look=%.17g,%.17g,%.17g pids %s\n",
+               starts++ ? "restart" : "start", count, e.x, e.y, e.z, l.x, l.y, l.z, pids);
+    }
     fflush(stdout);
     return 0;
 }
@@ -789,6 +805,17 @@ static vec3 rotate(vec3 v, vec3 axis, double angle)
     return v3_add(v3_add(v3_scale(v, c), v3_scale(v3_cross(axis, v), s)), v3_scale(axis, v3_dot(axis, v) * (1 - c)));
 }
 
+/* --verbose, in a window: every camera move from the keys or the mouse, as
+ *   camera: orbit|dolly|reset eye=X,Y,Z look=X,Y,Z */
+static void log_camera(const char *what)
+{
+    if (V.verbose && !V.frames)
+        printf("camera: %s eye=%.17g,%.17g,%.17g look=%.17g,%.17g,%.17g\n", what, V.cam.eye.x, V.cam.eye.y,
+               V.cam.eye.z, V.cam.look.x, V.cam.look.y, V.cam.look.z);
+}
+
+/* Yaw about the camera's up, then pitch about its right axis (skipped near
+ * the poles); the distance to the look point stays the same. */
 static void orbit(double yaw_degrees, double pitch_degrees)
 {
     vec3 up = v3_normalize(V.cam.up), d = v3_sub(V.cam.eye, V.cam.look);
@@ -799,12 +826,14 @@ static void orbit(double yaw_degrees, double pitch_degrees)
         d = pitched;
     V.cam.eye = v3_add(V.cam.look, d);
     V.camera_moved = true;
+    log_camera("orbit");
 }
 
 static void dolly(double factor)
 {
     V.cam.eye = v3_add(V.cam.look, v3_scale(v3_sub(V.cam.eye, V.cam.look), factor));
     V.camera_moved = true;
+    log_camera("dolly");
 }
 
 static void zoom_at(double factor, double x, double y)
@@ -848,7 +877,6 @@ static void on_key(GLFWwindow *w, int key, int scancode, int action, int mods)
     case GLFW_KEY_Q: quit_requested = 1; break;
     case GLFW_KEY_H:
     case GLFW_KEY_F1: V.help = !V.help; break;
-    case GLFW_KEY_KP_ADD: V.exposure += 0.5; break;
     case GLFW_KEY_MINUS:
     case GLFW_KEY_KP_SUBTRACT: V.exposure -= 0.5; break;
     case GLFW_KEY_0:
@@ -874,6 +902,7 @@ static void on_key(GLFWwindow *w, int key, int scancode, int action, int mods)
         if (three_d()) {
             V.cam = V.scene_cam;
             V.camera_moved = true;
+            log_camera("reset");
         }
         break;
     case GLFW_KEY_P: screenshot_key(); break;
@@ -895,7 +924,9 @@ static void on_key(GLFWwindow *w, int key, int scancode, int action, int mods)
 static void on_char(GLFWwindow *w, unsigned int codepoint)
 {
     (void)w;
-    if (codepoint == '+' || codepoint == '=') { /* '+' wherever the layout puts it (on_char, not on_key) */
+    /* '+' wherever the layout puts it, the keypad's too: on_char, not on_key
+     * (handling GLFW_KEY_KP_ADD as well would count that key twice). */
+    if (codepoint == '+' || codepoint == '=') {
         V.exposure += 0.5;
         V.redraw = true;
     }
