@@ -78,6 +78,7 @@ typedef struct {
     light_source *lights;
     int light_count;
     double *surface_pick_probability; /* per surface: probability its light is picked (0 if not a light) */
+    struct reflection_lobes *material_lobes; /* per material, then probe_material's: see lobes_of */
     surface_average *surface_averages;
     int surface_average_count;
     uint64_t surface_rays;
@@ -133,19 +134,48 @@ static bool uses_light_sampling(const pathtrace_state *st)
  *
  * alpha the angle between w_i and the mirror direction of w_o.  The factor
  * (n + 2)/(2 pi) makes the lobe reflect at most ks of the incident energy,
- * so rho + ks <= 1 conserves energy (the classic Phong lobe does not). */
-typedef struct {
-    vec3 diffuse;    /* rho */
-    vec3 glossy;     /* ks */
-    double exponent; /* n */
+ * so rho + ks <= 1 conserves energy (the classic Phong lobe does not).
+ *
+ * Everything here that depends on the material only, not on the directions,
+ * is worked out once per material in prepare() (lobes_of), not at every
+ * vertex of every walk. */
+typedef struct reflection_lobes {
+    vec3 lambert;        /* rho / pi: the Lambertian term of f */
+    vec3 glossy;         /* ks */
+    double exponent;     /* n */
+    bool has_lobe;       /* ks > 0 or n > 0; otherwise f is the Lambertian term alone */
+    double lobe_norm;    /* (n + 2) / (2 pi): the lobe's normalisation in f */
+    /* For importance sampling (bsdf_sample, bsdf_pdf): */
+    double glossy_share; /* probability of drawing w_i from the lobe, see below */
+    double lobe_pdf;     /* glossy_share (n + 1) / (2 pi): the lobe term of the pdf is this times cos^n(alpha) */
+    double inverse_exponent_plus_1; /* 1 / (n + 1), for drawing cos(alpha) = u^(1/(n+1)) */
 } reflection_lobes;
+
+/* Which share of BSDF samples go to the glossy lobe: in proportion to the
+ * lobes' albedos (a one-sample mixture; the pdf below is the full mixture). */
+static double glossy_share(vec3 rho, vec3 ks)
+{
+    double d = v3_average(rho), s = v3_average(ks);
+    return d + s > 0.0 ? s / (d + s) : 0.0;
+}
 
 static reflection_lobes lobes_of(const material *m)
 {
-    reflection_lobes b = {.diffuse = m->albedo, .glossy = v3_splat(0.0), .exponent = 0.0};
+    vec3 rho = m->albedo, ks = v3_splat(0.0);
+    double n = 0.0;
     if (m->kind == MATERIAL_PHONG)
-        b.glossy = m->specular, b.exponent = m->exponent;
-    return b;
+        ks = m->specular, n = m->exponent;
+    double share = glossy_share(rho, ks);
+    return (reflection_lobes){
+        .lambert = v3_scale(rho, 1.0 / M_PI),
+        .glossy = ks,
+        .exponent = n,
+        .has_lobe = n > 0.0 || v3_max_component(ks) > 0.0,
+        .lobe_norm = (n + 2.0) / (2.0 * M_PI),
+        .glossy_share = share,
+        .lobe_pdf = share * (n + 1.0) / (2.0 * M_PI),
+        .inverse_exponent_plus_1 = 1.0 / (n + 1.0),
+    };
 }
 
 /* A probe measures irradiance E = Int L cos dw: the radiance a white
@@ -155,42 +185,45 @@ static const material probe_material = {.name = "probe", .kind = MATERIAL_DIFFUS
 /* Unit mirror direction of w about n: 2 (n.w) n - w. */
 static vec3 mirror_of(vec3 w, vec3 n) { return v3_reflect(v3_neg(w), n); }
 
-/* f(w_i, w_o); n is the normal on the side of w_o (two-sided surfaces). */
-static vec3 bsdf_value(const reflection_lobes *b, vec3 n, vec3 w_i, vec3 w_o)
+/* The lobes of m, a material of the scene or the probe's. */
+static const reflection_lobes *lobes_for(const pathtrace_state *st, const scene *s, const material *m)
+{
+    return m == &probe_material ? &st->material_lobes[s->material_count] : &st->material_lobes[m - s->materials];
+}
+
+/* Is every channel of a colour zero (or negative)?  Written out rather than
+ * v3_max_component(c) <= 0, whose fmax calls into libm at every vertex. */
+static bool is_black(vec3 c) { return !(c.x > 0.0 || c.y > 0.0 || c.z > 0.0); }
+
+/* f(w_i, w_o); n is the normal on the side of w_o (two-sided surfaces).
+ * (This and bsdf_pdf are inline: small, and called up to twice per vertex.) */
+static inline vec3 bsdf_value(const reflection_lobes *b, vec3 n, vec3 w_i, vec3 w_o)
 {
     if (v3_dot(n, w_i) <= 0.0 || v3_dot(n, w_o) <= 0.0)
         return v3_splat(0.0);
-    vec3 f = v3_scale(b->diffuse, 1.0 / M_PI);
-    if (b->exponent > 0.0 || v3_max_component(b->glossy) > 0.0) {
+    vec3 f = b->lambert;
+    if (b->has_lobe) {
         double cos_alpha = v3_dot(w_i, mirror_of(w_o, n));
         if (cos_alpha > 0.0)
-            f = v3_add(f, v3_scale(b->glossy, (b->exponent + 2.0) / (2.0 * M_PI) * pow(cos_alpha, b->exponent)));
+            f = v3_add(f, v3_scale(b->glossy, b->lobe_norm * pow(cos_alpha, b->exponent)));
     }
     return f;
 }
 
-/* Which share of BSDF samples go to the glossy lobe: in proportion to the
- * lobes' albedos (a one-sample mixture; the pdf below is the full mixture). */
-static double glossy_share(const reflection_lobes *b)
-{
-    double d = v3_average(b->diffuse), s = v3_average(b->glossy);
-    return d + s > 0.0 ? s / (d + s) : 0.0;
-}
-
-/* Density per steradian of bsdf_sample's direction w_i. */
-static double bsdf_pdf(const pathtrace_state *st, const reflection_lobes *b, vec3 n, vec3 w_i, vec3 w_o)
+/* Density per steradian of bsdf_sample's direction w_i:
+ * (1 - share) cos(theta)/pi + share (n + 1)/(2 pi) cos^n(alpha). */
+static inline double bsdf_pdf(const pathtrace_state *st, const reflection_lobes *b, vec3 n, vec3 w_i, vec3 w_o)
 {
     double cos_i = v3_dot(n, w_i);
     if (cos_i <= 0.0)
         return 0.0;
     if (st->estimator == ESTIMATOR_HEMISPHERE)
         return uniform_hemisphere_pdf();
-    double share = glossy_share(b);
-    double pdf = (1.0 - share) * cosine_hemisphere_pdf(cos_i);
-    if (share > 0.0) {
+    double pdf = (1.0 - b->glossy_share) * cosine_hemisphere_pdf(cos_i);
+    if (b->glossy_share > 0.0) {
         double cos_alpha = v3_dot(w_i, mirror_of(w_o, n));
         if (cos_alpha > 0.0)
-            pdf += share * (b->exponent + 1.0) / (2.0 * M_PI) * pow(cos_alpha, b->exponent);
+            pdf += b->lobe_pdf * pow(cos_alpha, b->exponent);
     }
     return pdf;
 }
@@ -205,10 +238,10 @@ static bool bsdf_sample(const pathtrace_state *st, const reflection_lobes *b, ve
     double u1 = rng_uniform(g), u2 = rng_uniform(g);
     if (st->estimator == ESTIMATOR_HEMISPHERE) {
         *w_i = onb_to_world(onb_from_normal(n), uniform_sample_hemisphere(u1, u2));
-    } else if (rng_uniform(g) >= glossy_share(b)) {
+    } else if (rng_uniform(g) >= b->glossy_share) {
         *w_i = onb_to_world(onb_from_normal(n), cosine_sample_hemisphere(u1, u2));
     } else {
-        double cos_alpha = pow(u1, 1.0 / (b->exponent + 1.0));
+        double cos_alpha = pow(u1, b->inverse_exponent_plus_1);
         double sin_alpha = sqrt(fmax(0.0, 1.0 - cos_alpha * cos_alpha));
         double phi = 2.0 * M_PI * u2;
         vec3 local = v3(sin_alpha * cos(phi), sin_alpha * sin(phi), cos_alpha);
@@ -233,6 +266,15 @@ typedef struct {
     bool delta;
 } light_sample;
 
+/* A planar emitter is sampled uniformly by area, p_A = 1 / A; per steradian
+ * that is p_A |x - y|^2 / cos(theta_y) (R7).  to_y = y - x, of squared
+ * length r2 and length r (the caller may need them too). */
+static double planar_light_pdf(const surface *surf, vec3 to_y, double r2, double r, vec3 n_y)
+{
+    double cos_y = fabs(v3_dot(n_y, to_y)) / r;
+    return cos_y > 0.0 ? r2 / (cos_y * surf->area) : 0.0;
+}
+
 static double area_light_pdf(const scene *s, int surface_index, vec3 x, vec3 y, vec3 n_y)
 {
     const surface *surf = &s->surfaces[surface_index];
@@ -240,8 +282,7 @@ static double area_light_pdf(const scene *s, int surface_index, vec3 x, vec3 y, 
         return sphere_light_pdf(surf->center, surf->radius, x, y, n_y);
     vec3 to_y = v3_sub(y, x);
     double r2 = v3_dot(to_y, to_y);
-    double cos_y = fabs(v3_dot(n_y, to_y)) / sqrt(r2);
-    return cos_y > 0.0 ? r2 / (cos_y * surf->area) : 0.0; /* (R7): p_A = 1 / A */
+    return planar_light_pdf(surf, to_y, r2, sqrt(r2), n_y);
 }
 
 /* The density with which next-event estimation at x would have chosen the
@@ -279,19 +320,20 @@ static bool sample_light(const pathtrace_state *st, const scene *s, vec3 x, rng 
     }
     const surface *surf = &s->surfaces[light->surface];
     vec3 y, n_y;
-    double pdf;
+    double pdf = 0.0;
     if (surf->kind == SURFACE_SPHERE) {
         if (!sphere_light_sample(surf->center, surf->radius, x, u1, u2, &y, &n_y, &pdf))
             return false;
     } else {
         surface_sample_point(s, light->surface, u1, u2, u3, &y, &n_y);
-        pdf = area_light_pdf(s, light->surface, x, y, n_y);
     }
     vec3 to_y = v3_sub(y, x);
-    double r2 = v3_dot(to_y, to_y);
+    double r2 = v3_dot(to_y, to_y), r = sqrt(r2);
+    if (surf->kind != SURFACE_SPHERE)
+        pdf = planar_light_pdf(surf, to_y, r2, r, n_y);
     if (!(r2 > 0.0) || !(pdf > 0.0))
         return false;
-    vec3 w_i = v3_scale(to_y, 1.0 / sqrt(r2));
+    vec3 w_i = v3_scale(to_y, 1.0 / r);
     if (v3_dot(n_y, w_i) >= 0.0)
         return false; /* the back of an emitter: emitters shine from their front only */
     *out = (light_sample){.point = y, .w_i = w_i, .radiance = s->materials[surf->material].emission,
@@ -312,7 +354,7 @@ static vec3 next_event(const pathtrace_state *st, const scene *s, vec3 x, vec3 n
     if (cos_i <= 0.0)
         return v3_splat(0.0);
     vec3 f = bsdf_value(b, n, ls.w_i, w_o);
-    if (v3_max_component(f) <= 0.0)
+    if (is_black(f))
         return v3_splat(0.0);
     counters->value[COUNT_SHADOW_RAYS]++;
     if (scene_occluded(s, x, ls.point)) /* V(x, y) */
@@ -381,14 +423,14 @@ static vec3 reflected_radiance(const pathtrace_state *st, const scene *s, vec3 x
             }
         } else {
             vec3 n = v3_dot(n_geometric, w_o) > 0.0 ? n_geometric : v3_neg(n_geometric); /* two-sided */
-            reflection_lobes b = lobes_of(m);
+            const reflection_lobes *b = lobes_for(st, s, m);
             if (uses_light_sampling(st) && bounces_keep(&window, k))
-                radiance = v3_add(radiance, v3_mul(throughput, next_event(st, s, x, n, w_o, &b, g, counters)));
-            if (!bsdf_sample(st, &b, n, w_o, g, &w_i))
+                radiance = v3_add(radiance, v3_mul(throughput, next_event(st, s, x, n, w_o, b, g, counters)));
+            if (!bsdf_sample(st, b, n, w_o, g, &w_i))
                 break;
-            pdf_bsdf = bsdf_pdf(st, &b, n, w_i, w_o);
-            vec3 f = bsdf_value(&b, n, w_i, w_o);
-            if (!(pdf_bsdf > 0.0) || v3_max_component(f) <= 0.0)
+            pdf_bsdf = bsdf_pdf(st, b, n, w_i, w_o);
+            vec3 f = bsdf_value(b, n, w_i, w_o);
+            if (!(pdf_bsdf > 0.0) || is_black(f))
                 break;
             throughput = v3_mul(throughput, v3_scale(f, v3_dot(n, w_i) / pdf_bsdf)); /* f cos / p (R2) */
             specular = false;
@@ -570,10 +612,10 @@ static int compute_surface_averages(pathtrace_state *st, const scene *s, char *e
 
 /* ---- main ------------------------------------------------------------------------------------ */
 
-/* Build the list of lights next-event estimation picks from, each with a
- * probability proportional to its power (Phi = pi L A for a Lambertian
- * emitter, 4 pi I for an isotropic point light), and warn about lights the
- * chosen estimator cannot see. */
+/* Work out every material's lobes; build the list of lights next-event
+ * estimation picks from, each with a probability proportional to its power
+ * (Phi = pi L A for a Lambertian emitter, 4 pi I for an isotropic point
+ * light); and warn about lights the chosen estimator cannot see. */
 static int prepare(void *state_pointer, const scene *s, const render_options *o, char *err, size_t err_size)
 {
     pathtrace_state *st = state_pointer;
@@ -583,10 +625,15 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
 
     st->lights = calloc((size_t)(s->emitter_count + s->light_count) + 1, sizeof *st->lights);
     st->surface_pick_probability = calloc((size_t)s->surface_count + 1, sizeof *st->surface_pick_probability);
-    if (!st->lights || !st->surface_pick_probability) {
+    st->material_lobes = calloc((size_t)s->material_count + 1, sizeof *st->material_lobes);
+    if (!st->lights || !st->surface_pick_probability || !st->material_lobes) {
         snprintf(err, err_size, "argv:0: out of memory");
         return 2;
     }
+    /* The lobes depend on the material only: once here, not at every vertex. */
+    for (int i = 0; i < s->material_count; i++)
+        st->material_lobes[i] = lobes_of(&s->materials[i]);
+    st->material_lobes[s->material_count] = lobes_of(&probe_material);
     double total_power = 0.0;
     for (int e = 0; e < s->emitter_count; e++) {
         const surface *surf = &s->surfaces[s->emitters[e]];
@@ -652,8 +699,9 @@ static void finish(void *state_pointer)
     pathtrace_state *st = state_pointer;
     free(st->lights);
     free(st->surface_pick_probability);
+    free(st->material_lobes);
     free(st->surface_averages);
-    st->lights = NULL, st->surface_pick_probability = NULL, st->surface_averages = NULL;
+    st->lights = NULL, st->surface_pick_probability = NULL, st->material_lobes = NULL, st->surface_averages = NULL;
 }
 
 int main(int argc, char **argv)
