@@ -333,6 +333,7 @@ typedef struct {
 static void render_pass(const chapter *ch, const void *state, const scene *s, const render_options *o, int width,
                         int height, int first_sample, int pass_samples, int spp_total, accumulation *acc)
 {
+    const camera_frame frame = camera_frame_make(&s->camera, width, height); /* once, not per ray */
 #pragma omp parallel
     {
         render_counters local = {{0}};
@@ -346,7 +347,7 @@ static void render_pass(const chapter *ch, const void *state, const scene *s, co
                     rng g = rng_for(o->seed, pixel, (uint64_t)k);
                     double dx, dy;
                     pixel_offset(k, spp_total, &g, &dx, &dy);
-                    ray r = camera_ray(&s->camera, width, height, x + dx, y + dy);
+                    ray r = camera_frame_ray(&frame, x + dx, y + dy);
                     vec3 L = ch->radiance(state, s, r, &g, &local);
                     if (v3_is_finite(L))
                         total = v3_add(total, L);

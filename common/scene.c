@@ -1390,16 +1390,34 @@ int scene_find_surface(const scene *s, const char *name)
     return -1;
 }
 
-ray camera_ray(const camera *c, int width, int height, double px, double py)
+camera_frame camera_frame_make(const camera *c, int width, int height)
 {
     vec3 forward = v3_normalize(v3_sub(c->look, c->eye));
     vec3 right = v3_normalize(v3_cross(forward, c->up));
-    vec3 up = v3_cross(right, forward);
     double half_height = tan(0.5 * c->fov_degrees * M_PI / 180.0);
-    double half_width = half_height * (double)width / (double)height;
+    return (camera_frame){
+        .eye = c->eye,
+        .forward = forward,
+        .right = right,
+        .up = v3_cross(right, forward),
+        .half_width = half_height * (double)width / (double)height,
+        .half_height = half_height,
+        .width = width,
+        .height = height,
+    };
+}
+
+ray camera_frame_ray(const camera_frame *f, double px, double py)
+{
     /* Image x grows to the right, image y grows downward. */
-    double sx = (2.0 * px / width - 1.0) * half_width;
-    double sy = (1.0 - 2.0 * py / height) * half_height;
-    vec3 direction = v3_add(forward, v3_add(v3_scale(right, sx), v3_scale(up, sy)));
-    return (ray){c->eye, v3_normalize(direction)};
+    double sx = (2.0 * px / f->width - 1.0) * f->half_width;
+    double sy = (1.0 - 2.0 * py / f->height) * f->half_height;
+    vec3 direction = v3_add(f->forward, v3_add(v3_scale(f->right, sx), v3_scale(f->up, sy)));
+    return (ray){f->eye, v3_normalize(direction)};
+}
+
+ray camera_ray(const camera *c, int width, int height, double px, double py)
+{
+    camera_frame f = camera_frame_make(c, width, height);
+    return camera_frame_ray(&f, px, py);
 }
