@@ -832,9 +832,10 @@ static int bvh_partition(bvh_builder *b, int first, int count, int depth, int *a
  *     contiguous run of memory with no primitive_order indirection.  Each
  *     keeps its original index for hit.primitive. */
 typedef struct {
-    double bounds[6][2]; /* [face][child] */
+    double bounds[12];   /* face f (lo x, y, z, hi x, y, z = 0 .. 5) of child k at [2 f + k] */
     int child[2];        /* trace_node index of an inner child, first leaf_primitive of a leaf */
     int count[2];        /* primitives of a leaf child, 0 for an inner child */
+    int unused[4];       /* pads the node to 128 bytes: nodes[index] is then a shift, not a multiply */
 } trace_node;
 
 typedef struct {
@@ -896,7 +897,7 @@ static void trace_set_child(scene *s, trace_node *nodes, int *trace_count, int o
     const bvh_node *node = &s->nodes[index];
     const double faces[6] = {node->bounds.lo.x, node->bounds.lo.y, node->bounds.lo.z,
                              node->bounds.hi.x, node->bounds.hi.y, node->bounds.hi.z};
-    for (int f = 0; f < 6; f++) nodes[out].bounds[f][k] = faces[f];
+    for (int f = 0; f < 6; f++) nodes[out].bounds[2 * f + k] = faces[f];
     nodes[out].count[k] = node->count;
     if (node->count > 0) {
         nodes[out].child[k] = node->first;
@@ -916,7 +917,7 @@ static void build_trace_copy(scene *s)
     if (s->nodes[0].count > 0) {
         /* A root leaf becomes child 0 of trace node 0; child 1 is an empty
          * box (lo = +inf, hi = -inf), which every ray misses. */
-        for (int f = 0; f < 6; f++) nodes[0].bounds[f][1] = f < 3 ? INFINITY : -INFINITY;
+        for (int f = 0; f < 6; f++) nodes[0].bounds[2 * f + 1] = f < 3 ? INFINITY : -INFINITY;
         nodes[0].child[1] = nodes[0].count[1] = 0;
         trace_set_child(s, nodes, &trace_count, 0, 0, 0);
     } else {
@@ -1146,20 +1147,31 @@ static void fill_hit(const scene *s, ray r, double t, int primitive, hit *out)
 }
 
 /* What the slab test needs of a ray, computed once per ray: the division
- * is done here, and for each axis the index into trace_node.bounds of the
- * face the ray meets first (lo if the direction is positive, hi if not) and
- * of the face it leaves by. */
+ * is done here, and for each axis where in trace_node.bounds (counted in
+ * doubles) the face lies that the ray meets first (lo if the direction is
+ * positive, hi if not) and the face it leaves by.  (ptrdiff_t and a count
+ * of doubles, so that each load is one instruction: base + 8 * offset.) */
 typedef struct {
     vec3 origin, inv_dir;
-    int near_x, near_y, near_z, far_x, far_y, far_z;
+    ptrdiff_t near_x, near_y, near_z, far_x, far_y, far_z;
+#ifdef __SSE2__
+    __m128d origin_x2, origin_y2, origin_z2, inv_dir_x2, inv_dir_y2, inv_dir_z2; /* in both lanes, for box_entries */
+#endif
 } ray_setup;
 
 static inline ray_setup setup_ray(vec3 origin, vec3 direction)
 {
     /* 1/0 = inf is what the slab test wants for an axis-parallel ray. */
     vec3 inv_dir = v3(1.0 / direction.x, 1.0 / direction.y, 1.0 / direction.z);
-    int neg_x = inv_dir.x < 0.0, neg_y = inv_dir.y < 0.0, neg_z = inv_dir.z < 0.0;
-    return (ray_setup){origin, inv_dir, 3 * neg_x, 1 + 3 * neg_y, 2 + 3 * neg_z, 3 - 3 * neg_x, 4 - 3 * neg_y, 5 - 3 * neg_z};
+    ptrdiff_t neg_x = inv_dir.x < 0.0, neg_y = inv_dir.y < 0.0, neg_z = inv_dir.z < 0.0;
+    /* face f (lo x, y, z = 0, 1, 2; hi x, y, z = 3, 4, 5) starts at double 2 f */
+    return (ray_setup){origin, inv_dir, 2 * (3 * neg_x), 2 * (1 + 3 * neg_y), 2 * (2 + 3 * neg_z),
+                       2 * (3 - 3 * neg_x), 2 * (4 - 3 * neg_y), 2 * (5 - 3 * neg_z),
+#ifdef __SSE2__
+                       _mm_set1_pd(origin.x), _mm_set1_pd(origin.y), _mm_set1_pd(origin.z),
+                       _mm_set1_pd(inv_dir.x), _mm_set1_pd(inv_dir.y), _mm_set1_pd(inv_dir.z),
+#endif
+    };
 }
 
 /* Slab test (Kay & Kajiya) against both child boxes of a node: entry[k] is
@@ -1178,15 +1190,15 @@ static inline ray_setup setup_ray(vec3 origin, vec3 direction)
  * version after #else computes, in about a third of the instructions. */
 static inline void box_entries(const trace_node *node, const ray_setup *r, double t_max, double entry[2])
 {
-    const double(*b)[2] = node->bounds;
-    __m128d ox = _mm_set1_pd(r->origin.x), oy = _mm_set1_pd(r->origin.y), oz = _mm_set1_pd(r->origin.z);
-    __m128d ix = _mm_set1_pd(r->inv_dir.x), iy = _mm_set1_pd(r->inv_dir.y), iz = _mm_set1_pd(r->inv_dir.z);
-    __m128d near_x = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b[r->near_x]), ox), ix);
-    __m128d far_x = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b[r->far_x]), ox), ix);
-    __m128d near_y = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b[r->near_y]), oy), iy);
-    __m128d far_y = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b[r->far_y]), oy), iy);
-    __m128d near_z = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b[r->near_z]), oz), iz);
-    __m128d far_z = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b[r->far_z]), oz), iz);
+    const double *b = node->bounds;
+    __m128d ox = r->origin_x2, oy = r->origin_y2, oz = r->origin_z2;
+    __m128d ix = r->inv_dir_x2, iy = r->inv_dir_y2, iz = r->inv_dir_z2;
+    __m128d near_x = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->near_x), ox), ix);
+    __m128d far_x = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->far_x), ox), ix);
+    __m128d near_y = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->near_y), oy), iy);
+    __m128d far_y = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->far_y), oy), iy);
+    __m128d near_z = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->near_z), oz), iz);
+    __m128d far_z = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->far_z), oz), iz);
     __m128d t_near = _mm_max_pd(near_x, _mm_setzero_pd());
     t_near = _mm_max_pd(near_y, t_near);
     t_near = _mm_max_pd(near_z, t_near);
@@ -1201,14 +1213,14 @@ static inline void box_entries(const trace_node *node, const ray_setup *r, doubl
 #else
 static inline void box_entries(const trace_node *node, const ray_setup *r, double t_max, double entry[2])
 {
-    const double(*b)[2] = node->bounds;
+    const double *b = node->bounds;
     for (int k = 0; k < 2; k++) {
-        double near_x = (b[r->near_x][k] - r->origin.x) * r->inv_dir.x;
-        double far_x = (b[r->far_x][k] - r->origin.x) * r->inv_dir.x;
-        double near_y = (b[r->near_y][k] - r->origin.y) * r->inv_dir.y;
-        double far_y = (b[r->far_y][k] - r->origin.y) * r->inv_dir.y;
-        double near_z = (b[r->near_z][k] - r->origin.z) * r->inv_dir.z;
-        double far_z = (b[r->far_z][k] - r->origin.z) * r->inv_dir.z;
+        double near_x = (b[r->near_x + k] - r->origin.x) * r->inv_dir.x;
+        double far_x = (b[r->far_x + k] - r->origin.x) * r->inv_dir.x;
+        double near_y = (b[r->near_y + k] - r->origin.y) * r->inv_dir.y;
+        double far_y = (b[r->far_y + k] - r->origin.y) * r->inv_dir.y;
+        double near_z = (b[r->near_z + k] - r->origin.z) * r->inv_dir.z;
+        double far_z = (b[r->far_z + k] - r->origin.z) * r->inv_dir.z;
         double t_near = near_x > 0.0 ? near_x : 0.0;
         t_near = near_y > t_near ? near_y : t_near;
         t_near = near_z > t_near ? near_z : t_near;
