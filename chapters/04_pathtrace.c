@@ -56,6 +56,7 @@ typedef struct {
     int surface;        /* emitting surface index, or -1 */
     int point_light;    /* index into scene.lights, or -1 */
     double probability; /* of being picked at a vertex */
+    vec3 emission;      /* L_e of the emitting surface (looked up once, in prepare) */
 } light_source;
 
 /* Area-averaged exitant radiance of one surface (--surface-samples). */
@@ -140,13 +141,15 @@ static bool uses_light_sampling(const pathtrace_state *st)
  * is worked out once per material in prepare() (lobes_of), not at every
  * vertex of every walk. */
 typedef struct reflection_lobes {
+    vec3 albedo;         /* rho */
     vec3 lambert;        /* rho / pi: the Lambertian term of f */
     vec3 glossy;         /* ks */
     double exponent;     /* n */
     bool has_lobe;       /* ks > 0 or n > 0; otherwise f is the Lambertian term alone */
     double lobe_norm;    /* (n + 2) / (2 pi): the lobe's normalisation in f */
-    /* For importance sampling (bsdf_sample, bsdf_pdf): */
+    /* For importance sampling (bsdf_sample, bsdf_eval): */
     double glossy_share; /* probability of drawing w_i from the lobe, see below */
+    double lambert_pdf;  /* (1 - glossy_share) / pi: the Lambertian term of the pdf is this times cos(theta) */
     double lobe_pdf;     /* glossy_share (n + 1) / (2 pi): the lobe term of the pdf is this times cos^n(alpha) */
     double inverse_exponent_plus_1; /* 1 / (n + 1), for drawing cos(alpha) = u^(1/(n+1)) */
 } reflection_lobes;
@@ -167,12 +170,14 @@ static reflection_lobes lobes_of(const material *m)
         ks = m->specular, n = m->exponent;
     double share = glossy_share(rho, ks);
     return (reflection_lobes){
+        .albedo = rho,
         .lambert = v3_scale(rho, 1.0 / M_PI),
         .glossy = ks,
         .exponent = n,
         .has_lobe = n > 0.0 || v3_max_component(ks) > 0.0,
         .lobe_norm = (n + 2.0) / (2.0 * M_PI),
         .glossy_share = share,
+        .lambert_pdf = (1.0 - share) / M_PI,
         .lobe_pdf = share * (n + 1.0) / (2.0 * M_PI),
         .inverse_exponent_plus_1 = 1.0 / (n + 1.0),
     };
@@ -192,62 +197,99 @@ static const reflection_lobes *lobes_for(const pathtrace_state *st, const scene 
 }
 
 /* Is every channel of a colour zero (or negative)?  Written out rather than
- * v3_max_component(c) <= 0, whose fmax calls into libm at every vertex. */
+ * v3_max_component(c) <= 0: three comparisons. */
 static bool is_black(vec3 c) { return !(c.x > 0.0 || c.y > 0.0 || c.z > 0.0); }
 
-/* f(w_i, w_o); n is the normal on the side of w_o (two-sided surfaces).
- * (This and bsdf_pdf are inline: small, and called up to twice per vertex.) */
-static inline vec3 bsdf_value(const reflection_lobes *b, vec3 n, vec3 w_i, vec3 w_o)
+/* What the BSDF needs at one vertex of a walk, worked out once there and
+ * shared by next-event estimation and by the choice of the next direction. */
+typedef struct {
+    const reflection_lobes *lobes;
+    vec3 n;      /* unit normal on the side of w_o (surfaces are two-sided) */
+    vec3 mirror; /* mirror direction of w_o, the axis of the glossy lobe (if there is one) */
+} shading_point;
+
+/* The shading point for light leaving toward w_o (unit: toward the eye or
+ * the previous vertex).  Returns false when w_o lies in the surface's plane
+ * (n . w_o = 0): f = 0 there, nothing is reflected toward w_o. */
+static bool shading_point_at(const pathtrace_state *st, const scene *s, const material *m, vec3 n_geometric,
+                             vec3 w_o, shading_point *sp)
 {
-    if (v3_dot(n, w_i) <= 0.0 || v3_dot(n, w_o) <= 0.0)
-        return v3_splat(0.0);
+    double cos_o = v3_dot(n_geometric, w_o);
+    sp->lobes = lobes_for(st, s, m);
+    sp->n = cos_o > 0.0 ? n_geometric : v3_neg(n_geometric);
+    sp->mirror = sp->lobes->has_lobe ? mirror_of(w_o, sp->n) : sp->n; /* (unused without a lobe) */
+    return cos_o != 0.0;
+}
+
+/* f(w_i, w_o), and the density per steradian with which bsdf_sample draws
+ * w_i (for MIS), for a w_i above the surface (cos_i = n . w_i > 0):
+ *   pdf = (1 - share) cos(theta)/pi + share (n + 1)/(2 pi) cos^n(alpha),
+ * or 1/(2 pi) for --estimator hemisphere.  f and pdf share cos^n(alpha): one
+ * pow for both.  (Inline: small, and called up to twice per vertex.) */
+static inline vec3 bsdf_eval(const pathtrace_state *st, const shading_point *sp, vec3 w_i, double cos_i, double *pdf)
+{
+    const reflection_lobes *b = sp->lobes;
+    bool uniform = st->estimator == ESTIMATOR_HEMISPHERE;
     vec3 f = b->lambert;
+    *pdf = uniform ? uniform_hemisphere_pdf() : b->lambert_pdf * cos_i;
     if (b->has_lobe) {
-        double cos_alpha = v3_dot(w_i, mirror_of(w_o, n));
-        if (cos_alpha > 0.0)
-            f = v3_add(f, v3_scale(b->glossy, b->lobe_norm * pow(cos_alpha, b->exponent)));
+        double cos_alpha = v3_dot(w_i, sp->mirror);
+        if (cos_alpha > 0.0) {
+            double lobe = pow(cos_alpha, b->exponent); /* cos^n(alpha) */
+            f = v3_add(f, v3_scale(b->glossy, b->lobe_norm * lobe));
+            if (!uniform)
+                *pdf += b->lobe_pdf * lobe;
+        }
     }
     return f;
 }
 
-/* Density per steradian of bsdf_sample's direction w_i:
- * (1 - share) cos(theta)/pi + share (n + 1)/(2 pi) cos^n(alpha). */
-static inline double bsdf_pdf(const pathtrace_state *st, const reflection_lobes *b, vec3 n, vec3 w_i, vec3 w_o)
-{
-    double cos_i = v3_dot(n, w_i);
-    if (cos_i <= 0.0)
-        return 0.0;
-    if (st->estimator == ESTIMATOR_HEMISPHERE)
-        return uniform_hemisphere_pdf();
-    double pdf = (1.0 - b->glossy_share) * cosine_hemisphere_pdf(cos_i);
-    if (b->glossy_share > 0.0) {
-        double cos_alpha = v3_dot(w_i, mirror_of(w_o, n));
-        if (cos_alpha > 0.0)
-            pdf += b->lobe_pdf * pow(cos_alpha, b->exponent);
-    }
-    return pdf;
-}
+/* A direction drawn by bsdf_sample. */
+typedef struct {
+    vec3 w_i;    /* unit, above the surface */
+    double pdf;  /* per steradian, for MIS if w_i finds a light */
+    vec3 weight; /* f cos(theta_i) / pdf: what the walk's throughput is multiplied by (R2) */
+} bsdf_sample_result;
 
 /* Draw w_i: uniformly over the hemisphere (--estimator hemisphere), or by
  * importance: cos(theta)/pi for the Lambertian term and
  * (n + 1)/(2 pi) cos^n(alpha) around the mirror direction for the lobe.
- * Returns false if the direction points below the surface (a lobe sample
- * near the horizon): the walk ends there, which is what f = 0 means. */
-static bool bsdf_sample(const pathtrace_state *st, const reflection_lobes *b, vec3 n, vec3 w_o, rng *g, vec3 *w_i)
+ * Returns false if f cos / p is zero, the end of the walk: a lobe sample
+ * below the surface (near the horizon), or a black surface. */
+static bool bsdf_sample(const pathtrace_state *st, const shading_point *sp, rng *g, bsdf_sample_result *out)
 {
+    const reflection_lobes *b = sp->lobes;
     double u1 = rng_uniform(g), u2 = rng_uniform(g);
+    if (st->estimator != ESTIMATOR_HEMISPHERE && !b->has_lobe) {
+        /* A Lambertian surface, the common case: the cosine density cancels
+         * everything but the albedo, f cos / p = (rho/pi) cos / (cos/pi) = rho,
+         * so there is nothing to evaluate.  cos(theta) = local.z > 0. */
+        vec3 local = cosine_sample_hemisphere(u1, u2);
+        *out = (bsdf_sample_result){.w_i = onb_to_world(onb_from_normal(sp->n), local),
+                                    .pdf = b->lambert_pdf * local.z, .weight = b->albedo};
+        return !is_black(b->albedo);
+    }
+    vec3 w_i;
     if (st->estimator == ESTIMATOR_HEMISPHERE) {
-        *w_i = onb_to_world(onb_from_normal(n), uniform_sample_hemisphere(u1, u2));
+        w_i = onb_to_world(onb_from_normal(sp->n), uniform_sample_hemisphere(u1, u2));
     } else if (rng_uniform(g) >= b->glossy_share) {
-        *w_i = onb_to_world(onb_from_normal(n), cosine_sample_hemisphere(u1, u2));
+        w_i = onb_to_world(onb_from_normal(sp->n), cosine_sample_hemisphere(u1, u2));
     } else {
         double cos_alpha = pow(u1, b->inverse_exponent_plus_1);
-        double sin_alpha = sqrt(fmax(0.0, 1.0 - cos_alpha * cos_alpha));
-        double phi = 2.0 * M_PI * u2;
-        vec3 local = v3(sin_alpha * cos(phi), sin_alpha * sin(phi), cos_alpha);
-        *w_i = onb_to_world(onb_from_normal(mirror_of(w_o, n)), local);
+        double sin_alpha = sqrt_one_minus_square(cos_alpha);
+        double sin_phi, cos_phi; /* phi = 2 pi u2 */
+        sincos_turns(u2, &sin_phi, &cos_phi);
+        vec3 local = v3(sin_alpha * cos_phi, sin_alpha * sin_phi, cos_alpha);
+        w_i = onb_to_world(onb_from_normal(sp->mirror), local);
     }
-    return v3_dot(n, *w_i) > 0.0;
+    double cos_i = v3_dot(sp->n, w_i), pdf;
+    if (!(cos_i > 0.0))
+        return false;
+    vec3 f = bsdf_eval(st, sp, w_i, cos_i, &pdf);
+    if (!(pdf > 0.0) || is_black(f))
+        return false;
+    *out = (bsdf_sample_result){.w_i = w_i, .pdf = pdf, .weight = v3_scale(f, cos_i / pdf)};
+    return true;
 }
 
 /* ---- lights: next-event estimation (R9) --------------------------------------------------- */
@@ -267,46 +309,48 @@ typedef struct {
 } light_sample;
 
 /* A planar emitter is sampled uniformly by area, p_A = 1 / A; per steradian
- * that is p_A |x - y|^2 / cos(theta_y) (R7).  to_y = y - x, of squared
- * length r2 and length r (the caller may need them too). */
-static double planar_light_pdf(const surface *surf, vec3 to_y, double r2, double r, vec3 n_y)
+ * that is p_A |x - y|^2 / cos(theta_y) (R7), with r2 = |x - y|^2 and
+ * cos(theta_y) = |n_y . w| for the unit direction w from x to y. */
+static double planar_light_pdf(double area, double r2, vec3 n_y, vec3 w)
 {
-    double cos_y = fabs(v3_dot(n_y, to_y)) / r;
-    return cos_y > 0.0 ? r2 / (cos_y * surf->area) : 0.0;
-}
-
-static double area_light_pdf(const scene *s, int surface_index, vec3 x, vec3 y, vec3 n_y)
-{
-    const surface *surf = &s->surfaces[surface_index];
-    if (surf->kind == SURFACE_SPHERE)
-        return sphere_light_pdf(surf->center, surf->radius, x, y, n_y);
-    vec3 to_y = v3_sub(y, x);
-    double r2 = v3_dot(to_y, to_y);
-    return planar_light_pdf(surf, to_y, r2, sqrt(r2), n_y);
+    double cos_y = fabs(v3_dot(n_y, w));
+    return cos_y > 0.0 ? r2 / (cos_y * area) : 0.0;
 }
 
 /* The density with which next-event estimation at x would have chosen the
- * emitter point y: what MIS needs when a BSDF-sampled ray hits a light. */
+ * emitter point y (normal n_y): what MIS needs when a BSDF-sampled ray hits
+ * a light.  Worked out from x and y exactly as sample_light does, so the
+ * two MIS weights of the same path add up to one. */
 static double light_pdf(const pathtrace_state *st, const scene *s, int surface_index, vec3 x, vec3 y, vec3 n_y)
 {
     double pick = st->surface_pick_probability[surface_index];
-    return pick > 0.0 ? pick * area_light_pdf(s, surface_index, x, y, n_y) : 0.0;
+    if (!(pick > 0.0))
+        return 0.0;
+    const surface *surf = &s->surfaces[surface_index];
+    if (surf->kind == SURFACE_SPHERE)
+        return pick * sphere_light_pdf(surf->center, surf->radius, x, y, n_y);
+    vec3 to_y = v3_sub(y, x);
+    double r2 = v3_dot(to_y, to_y);
+    return pick * planar_light_pdf(surf->area, r2, n_y, v3_scale(to_y, 1.0 / sqrt(r2)));
 }
 
 static bool sample_light(const pathtrace_state *st, const scene *s, vec3 x, rng *g, light_sample *out)
 {
     if (st->light_count == 0)
         return false;
-    double u = rng_uniform(g), u1 = rng_uniform(g), u2 = rng_uniform(g), u3 = rng_uniform(g);
-    int chosen = st->light_count - 1;
-    for (int l = 0; l < st->light_count - 1; l++) {
-        if (u < st->lights[l].probability) {
-            chosen = l;
-            break;
+    /* Pick a light by power (with one light there is nothing to draw). */
+    const light_source *light = &st->lights[0];
+    if (st->light_count > 1) {
+        double u = rng_uniform(g);
+        light = &st->lights[st->light_count - 1];
+        for (int l = 0; l < st->light_count - 1; l++) {
+            if (u < st->lights[l].probability) {
+                light = &st->lights[l];
+                break;
+            }
+            u -= st->lights[l].probability;
         }
-        u -= st->lights[l].probability;
     }
-    const light_source *light = &st->lights[chosen];
     if (light->point_light >= 0) {
         const point_light *p = &s->lights[light->point_light];
         vec3 to_light = v3_sub(p->position, x);
@@ -319,41 +363,44 @@ static bool sample_light(const pathtrace_state *st, const scene *s, vec3 x, rng 
         return true;
     }
     const surface *surf = &s->surfaces[light->surface];
+    double u1 = rng_uniform(g), u2 = rng_uniform(g);
     vec3 y, n_y;
     double pdf = 0.0;
     if (surf->kind == SURFACE_SPHERE) {
         if (!sphere_light_sample(surf->center, surf->radius, x, u1, u2, &y, &n_y, &pdf))
             return false;
     } else {
-        surface_sample_point(s, light->surface, u1, u2, u3, &y, &n_y);
+        surface_sample_point(s, light->surface, u1, u2, rng_uniform(g), &y, &n_y);
     }
     vec3 to_y = v3_sub(y, x);
-    double r2 = v3_dot(to_y, to_y), r = sqrt(r2);
-    if (surf->kind != SURFACE_SPHERE)
-        pdf = planar_light_pdf(surf, to_y, r2, r, n_y);
-    if (!(r2 > 0.0) || !(pdf > 0.0))
+    double r2 = v3_dot(to_y, to_y);
+    if (!(r2 > 0.0))
         return false;
-    vec3 w_i = v3_scale(to_y, 1.0 / r);
+    vec3 w_i = v3_scale(to_y, 1.0 / sqrt(r2));
     if (v3_dot(n_y, w_i) >= 0.0)
         return false; /* the back of an emitter: emitters shine from their front only */
-    *out = (light_sample){.point = y, .w_i = w_i, .radiance = s->materials[surf->material].emission,
-                          .pdf = pdf * light->probability, .delta = false};
+    if (surf->kind != SURFACE_SPHERE)
+        pdf = planar_light_pdf(surf->area, r2, n_y, w_i);
+    if (!(pdf > 0.0))
+        return false;
+    *out = (light_sample){.point = y, .w_i = w_i, .radiance = light->emission, .pdf = pdf * light->probability,
+                          .delta = false};
     return true;
 }
 
 /* One light sample's contribution to the radiance reflected at x toward w_o:
  * f L_e cos(theta_i) V / p  (R9), times the MIS weight when BSDF sampling
  * could have found the same light. */
-static vec3 next_event(const pathtrace_state *st, const scene *s, vec3 x, vec3 n, vec3 w_o,
-                       const reflection_lobes *b, rng *g, render_counters *counters)
+static vec3 next_event(const pathtrace_state *st, const scene *s, vec3 x, const shading_point *sp, rng *g,
+                       render_counters *counters)
 {
     light_sample ls;
     if (!sample_light(st, s, x, g, &ls))
         return v3_splat(0.0);
-    double cos_i = v3_dot(n, ls.w_i);
+    double cos_i = v3_dot(sp->n, ls.w_i), pdf_bsdf;
     if (cos_i <= 0.0)
         return v3_splat(0.0);
-    vec3 f = bsdf_value(b, n, ls.w_i, w_o);
+    vec3 f = bsdf_eval(st, sp, ls.w_i, cos_i, &pdf_bsdf);
     if (is_black(f))
         return v3_splat(0.0);
     counters->value[COUNT_SHADOW_RAYS]++;
@@ -361,7 +408,7 @@ static vec3 next_event(const pathtrace_state *st, const scene *s, vec3 x, vec3 n
         return v3_splat(0.0);
     if (ls.delta) /* a point light: nothing else can find it */
         return v3_scale(v3_mul(f, ls.radiance), cos_i);
-    double weight = st->estimator == ESTIMATOR_MIS ? power_heuristic(ls.pdf, bsdf_pdf(st, b, n, ls.w_i, w_o)) : 1.0;
+    double weight = st->estimator == ESTIMATOR_MIS ? power_heuristic(ls.pdf, pdf_bsdf) : 1.0;
     return v3_scale(v3_mul(f, ls.radiance), cos_i * weight / ls.pdf);
 }
 
@@ -422,17 +469,16 @@ static vec3 reflected_radiance(const pathtrace_state *st, const scene *s, vec3 x
                 throughput = v3_mul(throughput, v3_scale(m->specular, eta * eta));
             }
         } else {
-            vec3 n = v3_dot(n_geometric, w_o) > 0.0 ? n_geometric : v3_neg(n_geometric); /* two-sided */
-            const reflection_lobes *b = lobes_for(st, s, m);
+            shading_point sp;
+            if (!shading_point_at(st, s, m, n_geometric, w_o, &sp))
+                break; /* w_o in the surface's plane: f = 0 */
             if (uses_light_sampling(st) && bounces_keep(&window, k))
-                radiance = v3_add(radiance, v3_mul(throughput, next_event(st, s, x, n, w_o, b, g, counters)));
-            if (!bsdf_sample(st, b, n, w_o, g, &w_i))
+                radiance = v3_add(radiance, v3_mul(throughput, next_event(st, s, x, &sp, g, counters)));
+            bsdf_sample_result scattered;
+            if (!bsdf_sample(st, &sp, g, &scattered))
                 break;
-            pdf_bsdf = bsdf_pdf(st, b, n, w_i, w_o);
-            vec3 f = bsdf_value(b, n, w_i, w_o);
-            if (!(pdf_bsdf > 0.0) || is_black(f))
-                break;
-            throughput = v3_mul(throughput, v3_scale(f, v3_dot(n, w_i) / pdf_bsdf)); /* f cos / p (R2) */
+            w_i = scattered.w_i, pdf_bsdf = scattered.pdf;
+            throughput = v3_mul(throughput, scattered.weight); /* f cos / p (R2) */
             specular = false;
         }
 
@@ -441,7 +487,7 @@ static vec3 reflected_radiance(const pathtrace_state *st, const scene *s, vec3 x
          * dim walk ends early and a bright one (a furnace with rho = 0.99)
          * keeps going as long as its light matters. */
         if (k >= st->rr_depth) {
-            double p = fmin(1.0, v3_max_component(throughput));
+            double p = min_ignoring_nan(1.0, v3_max_component(throughput));
             if (!(p > 0.0) || rng_uniform(g) >= p)
                 break;
             throughput = v3_scale(throughput, 1.0 / p);
@@ -639,8 +685,9 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
         const surface *surf = &s->surfaces[s->emitters[e]];
         double power = M_PI * v3_average(s->materials[surf->material].emission) * surf->area;
         if (power > 0.0)
-            st->lights[st->light_count++] = (light_source){.surface = s->emitters[e], .point_light = -1,
-                                                           .probability = power};
+            st->lights[st->light_count++] = (light_source){
+                .surface = s->emitters[e], .point_light = -1, .probability = power,
+                .emission = s->materials[surf->material].emission};
     }
     for (int l = 0; l < s->light_count; l++) {
         double power = 4.0 * M_PI * v3_average(s->lights[l].intensity);

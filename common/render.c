@@ -296,18 +296,31 @@ static void show_progress(const render_options *o, double fraction, int pass, do
  * pixel centre (a deterministic image for the local and Whitted chapters);
  * a square number of samples is stratified on a grid with jitter inside each
  * cell; anything else (0 = unknown in advance) is uniformly jittered. */
-static void pixel_offset(int index, int spp, rng *g, double *dx, double *dy)
+typedef struct {
+    int spp;          /* samples per pixel of the whole render, 0 if unknown */
+    int side;         /* of the grid of strata when spp is a square > 1, else 0 */
+    double cell_size; /* 1 / side: a multiplication per sample rather than a division */
+} pixel_strata;
+
+static pixel_strata pixel_strata_for(int spp)
 {
-    if (spp == 1) {
+    int side = (int)lround(sqrt((double)spp));
+    if (!(spp > 1 && side * side == spp))
+        side = 0;
+    return (pixel_strata){.spp = spp, .side = side, .cell_size = side > 0 ? 1.0 / side : 0.0};
+}
+
+static void pixel_offset(int index, const pixel_strata *strata, rng *g, double *dx, double *dy)
+{
+    if (strata->spp == 1) {
         *dx = *dy = 0.5;
         return;
     }
     double u1 = rng_uniform(g), u2 = rng_uniform(g);
-    int side = (int)lround(sqrt((double)spp));
-    if (spp > 1 && side * side == spp) {
-        int cell = index % spp;
-        *dx = ((cell % side) + u1) / side;
-        *dy = ((cell / side) + u2) / side;
+    if (strata->side > 0) {
+        int cell = index % strata->spp, side = strata->side;
+        *dx = ((cell % side) + u1) * strata->cell_size;
+        *dy = ((cell / side) + u2) * strata->cell_size;
     } else {
         *dx = u1, *dy = u2;
     }
@@ -333,7 +346,12 @@ typedef struct {
 static void render_pass(const chapter *ch, const void *state, const scene *s, const render_options *o, int width,
                         int height, int first_sample, int pass_samples, int spp_total, accumulation *acc)
 {
-    const camera_frame frame = camera_frame_make(&s->camera, width, height); /* once, not per ray */
+    /* Once per pass, not per sample: the camera's frame, the strata, and the
+     * seed (a local, so the compiler sees it cannot change inside the loop
+     * and hoists the seed's part of rng_for out of it). */
+    const camera_frame frame = camera_frame_make(&s->camera, width, height);
+    const pixel_strata strata = pixel_strata_for(spp_total);
+    const uint64_t seed = o->seed;
 #pragma omp parallel
     {
         render_counters local = {{0}};
@@ -344,9 +362,9 @@ static void render_pass(const chapter *ch, const void *state, const scene *s, co
                 uint64_t pixel = (uint64_t)y * (uint64_t)width + (uint64_t)x;
                 vec3 total = v3_splat(0.0);
                 for (int k = first_sample; k < first_sample + pass_samples; k++) {
-                    rng g = rng_for(o->seed, pixel, (uint64_t)k);
+                    rng g = rng_for(seed, pixel, (uint64_t)k);
                     double dx, dy;
-                    pixel_offset(k, spp_total, &g, &dx, &dy);
+                    pixel_offset(k, &strata, &g, &dx, &dy);
                     ray r = camera_frame_ray(&frame, x + dx, y + dy);
                     vec3 L = ch->radiance(state, s, r, &g, &local);
                     if (v3_is_finite(L))

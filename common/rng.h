@@ -1,9 +1,17 @@
 /* rng.h — a small deterministic random number generator.
  *
- * PCG32 (O'Neill 2014, pcg-random.org), seeded per (seed, pixel, sample) by a
- * 64-bit hash.  Every sample of every pixel therefore has its own stream that
- * does not depend on which thread renders it or in which order: an image is
- * bit-identical for any --threads.
+ * PCG (O'Neill 2014, pcg-random.org): a 64-bit linear congruential generator
+ * whose state is scrambled by an output permutation, seeded per (seed, pixel,
+ * sample) by a 64-bit hash.  Every sample of every pixel therefore has its
+ * own stream that does not depend on which thread renders it or in which
+ * order: an image is bit-identical for any --threads.
+ *
+ * The state can be read out two ways, both from O'Neill's paper:
+ *   rng_next_u32  PCG-XSH-RR 64/32, the classic pcg32: 32 bits per step;
+ *   rng_next_u64  PCG-RXS-M-XS 64/64: all 64 bits from one step, which is
+ *                 what a uniform double (53 bits) needs.  A path tracer draws
+ *                 some ten numbers per path vertex, so one step per number
+ *                 rather than two matters.
  */
 #ifndef COMMON_RNG_H
 #define COMMON_RNG_H
@@ -22,13 +30,27 @@ static inline uint64_t hash64(uint64_t x)
     return x ^ (x >> 31);
 }
 
-static inline uint32_t rng_next_u32(rng *g)
+/* Advance the LCG and return the state it left. */
+static inline uint64_t rng_step(rng *g)
 {
     uint64_t old = g->state;
     g->state = old * 6364136223846793005ull + g->increment;
+    return old;
+}
+
+static inline uint32_t rng_next_u32(rng *g)
+{
+    uint64_t old = rng_step(g);
     uint32_t xorshifted = (uint32_t)(((old >> 18u) ^ old) >> 27u);
     uint32_t rot = (uint32_t)(old >> 59u);
     return (xorshifted >> rot) | (xorshifted << ((-rot) & 31u));
+}
+
+static inline uint64_t rng_next_u64(rng *g)
+{
+    uint64_t old = rng_step(g);
+    uint64_t word = ((old >> ((old >> 59u) + 5u)) ^ old) * 12605985483452484001ull;
+    return (word >> 43u) ^ word;
 }
 
 /* A stream for sample `sample` of item `index` (pixel, probe, patch ...). */
@@ -36,18 +58,17 @@ static inline rng rng_for(uint64_t seed, uint64_t index, uint64_t sample)
 {
     rng g = {.state = 0, .increment = (hash64(seed ^ 0x5851f42d4c957f2dull) << 1u) | 1u};
     uint64_t init = hash64(hash64(seed) ^ hash64(index + 0x632be59bd9b4e019ull) ^ (sample * 0xd1342543de82ef95ull));
-    rng_next_u32(&g);
+    rng_step(&g);
     g.state += init;
-    rng_next_u32(&g);
+    rng_step(&g);
     return g;
 }
 
-/* Uniform double in [0, 1): 53 random bits from two outputs. */
+/* Uniform double in [0, 1): the top 53 bits of one 64-bit output (converted
+ * through int64_t, which the hardware does in one instruction; they fit). */
 static inline double rng_uniform(rng *g)
 {
-    uint64_t hi = rng_next_u32(g) >> 5; /* 27 bits */
-    uint64_t lo = rng_next_u32(g) >> 6; /* 26 bits */
-    return (double)((hi << 26) | lo) * (1.0 / 9007199254740992.0);
+    return (double)(int64_t)(rng_next_u64(g) >> 11) * (1.0 / 9007199254740992.0);
 }
 
 #endif

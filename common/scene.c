@@ -449,6 +449,8 @@ static int parse_polygon(parser *p, fields *f, int vertex_count)
     for (int i = 1; i + 1 < vertex_count; i++)
         if (add_triangle(p, v[0], v[i], v[i + 1], surface_index)) return out_of_memory(p);
     surf->triangle_count = vertex_count - 2;
+    surf->parallelogram = vertex_count == 4 && v3_length(v3_sub(v3_add(v[0], v[2]), v3_add(v[1], v[3]))) <=
+                                                   1e-12 * sqrt(bounding_box_diagonal_squared(v, 4));
     p->s->surface_count++;
     return 0;
 }
@@ -1359,10 +1361,6 @@ int scene_occluded(const scene *s, vec3 a, vec3 b)
     return traverse(s, origin, d, 1.0 - 2.0 * step, 1, &t, &primitive);
 }
 
-vec3 scene_offset_origin(const scene *s, vec3 p, vec3 n, vec3 d)
-{
-    return v3_madd(p, n, v3_dot(n, d) >= 0.0 ? s->epsilon : -s->epsilon);
-}
 
 /* ------------------------------------------------------------------------ */
 /* Sampling, lookup, camera                                                  */
@@ -1375,6 +1373,13 @@ void surface_sample_point(const scene *s, int surface_index, double u1, double u
         vec3 direction = uniform_sample_sphere(u1, u2);
         *point = v3_madd(surf->center, direction, surf->radius);
         *normal = direction;
+        return;
+    }
+    if (surf->parallelogram) { /* uniform in (u1, u2) along two sides: no triangle to pick */
+        const triangle *t = &s->triangles[surf->first_triangle];
+        *point = v3_add(surf->vertex[0], v3_add(v3_scale(v3_sub(surf->vertex[1], surf->vertex[0]), u1),
+                                                v3_scale(v3_sub(surf->vertex[3], surf->vertex[0]), u2)));
+        *normal = t->normal;
         return;
     }
     /* Pick a triangle with probability area / total area (linear search:
@@ -1407,24 +1412,27 @@ camera_frame camera_frame_make(const camera *c, int width, int height)
     vec3 forward = v3_normalize(v3_sub(c->look, c->eye));
     vec3 right = v3_normalize(v3_cross(forward, c->up));
     double half_height = tan(0.5 * c->fov_degrees * M_PI / 180.0);
+    vec3 up = v3_cross(right, forward);
+    double half_width = half_height * (double)width / (double)height;
     return (camera_frame){
         .eye = c->eye,
         .forward = forward,
         .right = right,
-        .up = v3_cross(right, forward),
-        .half_width = half_height * (double)width / (double)height,
+        .up = up,
+        .half_width = half_width,
         .half_height = half_height,
         .width = width,
         .height = height,
+        .top_left = v3_add(forward, v3_sub(v3_scale(up, half_height), v3_scale(right, half_width))),
+        .step_x = v3_scale(right, 2.0 * half_width / width),
+        .step_y = v3_scale(up, -2.0 * half_height / height),
     };
 }
 
 ray camera_frame_ray(const camera_frame *f, double px, double py)
 {
     /* Image x grows to the right, image y grows downward. */
-    double sx = (2.0 * px / f->width - 1.0) * f->half_width;
-    double sy = (1.0 - 2.0 * py / f->height) * f->half_height;
-    vec3 direction = v3_add(f->forward, v3_add(v3_scale(f->right, sx), v3_scale(f->up, sy)));
+    vec3 direction = v3_add(f->top_left, v3_add(v3_scale(f->step_x, px), v3_scale(f->step_y, py)));
     return (ray){f->eye, v3_normalize(direction)};
 }
 

@@ -12,6 +12,7 @@
 #define COMMON_SCENE_H
 
 #include <stddef.h>
+#include <stdbool.h>
 #include <stdint.h>
 
 #include "vec.h"
@@ -49,6 +50,7 @@ typedef struct {
     int first_triangle;  /* this surface's triangles in scene.triangles */
     int triangle_count;  /* 0 for spheres */
     double area;         /* total surface area */
+    bool parallelogram;  /* a quad with vertex[0] + vertex[2] = vertex[1] + vertex[3]: sampled directly */
     int line;            /* line of the statement in the scene file */
 } surface;
 
@@ -160,8 +162,12 @@ int scene_intersect_brute_force(const scene *s, ray r, double t_max, hit *out);
 int scene_occluded(const scene *s, vec3 a, vec3 b);
 
 /* A ray origin for leaving surface point p (geometric normal n) in
- * direction d: p moved by scene.epsilon to the side of n that d points to. */
-vec3 scene_offset_origin(const scene *s, vec3 p, vec3 n, vec3 d);
+ * direction d: p moved by scene.epsilon to the side of n that d points to.
+ * (Inline: a few flops, at every bounce of every path.) */
+static inline vec3 scene_offset_origin(const scene *s, vec3 p, vec3 n, vec3 d)
+{
+    return v3_madd(p, n, v3_dot(n, d) >= 0.0 ? s->epsilon : -s->epsilon);
+}
 
 /* Low-level intersection routines (exposed for the unit tests). */
 /* Baldwin & Weber (2016) coordinate-transformation test, each edge moved
@@ -191,6 +197,9 @@ typedef struct {
     vec3 eye, forward, right, up;
     double half_width, half_height;
     int width, height;
+    /* The unnormalised direction through image position (px, py) is
+     * top_left + px * step_x + py * step_y: no division per ray. */
+    vec3 top_left, step_x, step_y;
 } camera_frame;
 camera_frame camera_frame_make(const camera *c, int width, int height);
 ray camera_frame_ray(const camera_frame *f, double px, double py);

@@ -30,7 +30,7 @@ static inline bool sphere_cone_cos_max(vec3 center, double radius, vec3 x, doubl
     double d2 = v3_dot(to_center, to_center);
     if (d2 <= radius * radius)
         return false;
-    *cos_theta_max = sqrt(fmax(0.0, 1.0 - radius * radius / d2));
+    *cos_theta_max = sqrt(1.0 - radius * radius / d2); /* the quotient is at most 1, even rounded */
     return true;
 }
 
@@ -52,7 +52,7 @@ static inline bool sphere_light_sample(vec3 center, double radius, vec3 x, doubl
         double b = v3_dot(oc, w);
         vec3 closest = v3_sub(oc, v3_scale(w, b)); /* centre-relative point of closest approach */
         double h2 = radius * radius - v3_dot(closest, closest);
-        double t = -b - sqrt(fmax(0.0, h2));
+        double t = -b - (h2 > 0.0 ? sqrt(h2) : 0.0);
         *y = v3_madd(x, w, t);
         *normal = v3_normalize(v3_sub(*y, center));
         *pdf_solid_angle = uniform_cone_pdf(cos_max);

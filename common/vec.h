@@ -34,8 +34,14 @@ static inline vec3 v3_cross(vec3 a, vec3 b)
 }
 static inline double v3_length(vec3 a) { return sqrt(v3_dot(a, a)); }
 static inline vec3 v3_normalize(vec3 a) { return v3_scale(a, 1.0 / v3_length(a)); }
-static inline double v3_max_component(vec3 a) { return fmax(a.x, fmax(a.y, a.z)); }
-static inline double v3_min_component(vec3 a) { return fmin(a.x, fmin(a.y, a.z)); }
+/* fmax and fmin by comparisons.  The compiler turns the libm functions into
+ * calls (a plain x86 max instruction would not ignore a NaN argument as they
+ * must), and the path tracer asks for a colour's largest channel at every
+ * vertex.  The same results: a NaN argument is ignored. */
+static inline double max_ignoring_nan(double a, double b) { return a > b || isnan(b) ? a : b; }
+static inline double min_ignoring_nan(double a, double b) { return a < b || isnan(b) ? a : b; }
+static inline double v3_max_component(vec3 a) { return max_ignoring_nan(a.x, max_ignoring_nan(a.y, a.z)); }
+static inline double v3_min_component(vec3 a) { return min_ignoring_nan(a.x, min_ignoring_nan(a.y, a.z)); }
 static inline double v3_get(vec3 a, int axis) { return axis == 0 ? a.x : axis == 1 ? a.y : a.z; }
 static inline vec3 v3_min(vec3 a, vec3 b) { return (vec3){fmin(a.x, b.x), fmin(a.y, b.y), fmin(a.z, b.z)}; }
 static inline vec3 v3_max(vec3 a, vec3 b) { return (vec3){fmax(a.x, b.x), fmax(a.y, b.y), fmax(a.z, b.z)}; }
