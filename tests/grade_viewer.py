@@ -15,7 +15,11 @@ Truth comes from outside the viewer:
     screenshot after exposure keys is the input tone-mapped at the documented
     step, a drag restarts the children with an eye orbited on the sphere about
     the look point (old children reaped, checked in /proc), the wheel dollies
-    by the documented factor, Q / Esc exit 0 with no child left.
+    by the documented factor, Q / Esc exit 0 with no child left;
+  * the view keys of the compare grid, each screenshot against the inputs
+    placed by the documented layout: Z / X / F zoom and fit, the arrows pan,
+    D the heat map against the reference picked with 1..9 (an input against
+    itself black), S / Tab / , / . the A/B split, its panels and its slider.
 The layout the tests rely on is the documented one (build/viewer --help):
 ceil(sqrt(n)) columns, a 34-pixel label band on top of each panel, the
 image scaled to fit the rest, centred on a whole pixel.
@@ -563,6 +567,355 @@ def test_window_quit_keys_leave_no_children(ctx):
             assert not process_exists(pid), f"{key}: child {pid} is still there after the viewer exited"
         left = [name for name in os.listdir(ctx.scratch) if name.startswith("viewer-")]
         assert not left, f"{key}: the viewer left its temporary directory {left}"
+
+
+# ---- view keys in the compare grid: zoom, pan, heat map, reference, split ----------------------------
+#
+# The documented view (build/viewer --help, viewer/README.md, the H overlay):
+# ceil(sqrt(n)) columns, a 34-pixel label band, the image scaled to fit the
+# rest (zoom 1), the shared image point (--center, 0.5,0.5 at fit) on the panel
+# centre, its corner on a whole pixel, nearest-neighbour sampled.  `Z` / `X`
+# zoom in / out by 1.25 (X undoes Z), `F` fit (zoom 1, centred), the arrow
+# keys pan a 2D image by 40 window pixels (Left shows what lies to the left:
+# the image moves right), `D` the heat map of the relative error against the
+# reference panel (`1`..`9`; scale 1e-3..1, zero error black), `S` the A/B
+# split reference | B in one panel (`Tab` next B, skipping the reference),
+# `,` / `.` the slider by 2 % of the width, clamped to 0..1 (as --split POS).
+# viewer/README.md states these step sizes (1.25, 40 pixels, 2 %).
+
+ZOOM_STEP = 1.25         # Z multiplies the zoom by this, X divides by it
+PAN_PIXELS = 40          # window pixels per arrow key in 2D
+SPLIT_STEP = 0.02        # fraction of the width per `,` / `.`
+
+
+def shoot(s, ctx, keys, n, after):
+    """Press keys, then `P`; wait for `wrote viewer-n.png`; the decoded PNG."""
+    s.xdo("key", *keys, "p")
+    _, after = s.wait_line(f"wrote viewer-{n}.png", after)
+    return read_png(ctx.path(f"viewer-{n}.png")), after
+
+
+def panel_area(i, n, width, height):
+    """(x, y, w, h) of panel i's image area under the documented layout."""
+    cols = math.ceil(math.sqrt(n))
+    rows = (n + cols - 1) // cols
+    c, r = i % cols, i // cols
+    x0, x1 = c * width // cols, (c + 1) * width // cols
+    y0, y1 = r * height // rows, (r + 1) * height // rows
+    return x0, y0 + LABEL_BAND, x1 - x0, y1 - y0 - LABEL_BAND
+
+
+def placement(area, iw, ih, zoom=1.0, shift=(0, 0)):
+    """Scale (fit x zoom) and top-left corner of an iw x ih image in area:
+    image point (0.5, 0.5) on the area's centre, the corner rounded to a whole
+    pixel, then moved by `shift` window pixels (the pans)."""
+    ax, ay, aw, ah = area
+    s = min(aw / iw, ah / ih) * zoom
+    ox = math.floor(ax + aw / 2 - 0.5 * iw * s + 0.5) + shift[0]
+    oy = math.floor(ay + ah / 2 - 0.5 * ih * s + 0.5) + shift[1]
+    return s, ox, oy
+
+
+def texels(p, origin, s, size):
+    """Image pixel(s) nearest-neighbour sampling may show at window pixel p
+    (its centre p + 0.5).  Within 1e-3 of a texel boundary both neighbours
+    (float rounding in the shader decides there).  [] if any of them is outside
+    the image: background or the image's edge, not compared."""
+    q = (p + 0.5 - origin) / s
+    r = round(q)
+    ks = (r - 1, r) if abs(q - r) < 1e-3 else (math.floor(q),)
+    return [] if any(k < 0 or k >= size for k in ks) else ks
+
+
+def tonemapped(img, exposure=0.0):
+    return [[tuple(tonemap(v, exposure) for v in img.at(x, y)) for x in range(img.width)] for y in range(img.height)]
+
+
+def check_image_in(png, rect, img_tm, s, ox, oy, what, columns=None):
+    """Every pixel of rect (x, y, w, h) that the placed image covers shows the
+    tone-mapped image pixel nearest-neighbour sampling puts there, within 1/255;
+    columns (a predicate) restricts the window columns.  Returns the count."""
+    rx, ry, rw, rh = rect
+    height, width = len(img_tm), len(img_tm[0])
+    count = 0
+    for py in range(ry, ry + rh):
+        ys = texels(py, oy, s, height)
+        if not ys:
+            continue
+        for px in range(rx, rx + rw):
+            if columns and not columns(px):
+                continue
+            xs = texels(px, ox, s, width)
+            if not xs:
+                continue
+            got = rgb_at(png, px, py)
+            candidates = [img_tm[ty][tx] for ty in ys for tx in xs]
+            if not any(max(abs(e - g) for e, g in zip(c, got)) <= 1 for c in candidates):
+                raise AssertionError(f"{what}: window pixel ({px},{py}) shows {got}, expected image pixel "
+                                     f"({xs[0]},{ys[0]}) = {candidates[0]} (scale {s:g}, corner {ox},{oy})")
+            count += 1
+    return count
+
+
+def check_view(png, images, zoom=1.0, shift=(0, 0), what=""):
+    """Every panel of the grid at the given zoom and pan: see check_image_in.
+    At least a quarter of every image area must be compared."""
+    n = len(images)
+    for i, tm in enumerate(images):
+        area = panel_area(i, n, png[0], png[1])
+        s, ox, oy = placement(area, len(tm[0]), len(tm), zoom, shift)
+        count = check_image_in(png, area, tm, s, ox, oy, f"{what} panel {i + 1}")
+        assert count >= area[2] * area[3] // 4, \
+            f"{what} panel {i + 1}: only {count} pixels show the image (zoom {zoom}, pan {shift})"
+
+
+def test_window_zoom_pan_fit_keys(ctx):
+    """The 3-panel grid (each image at scale 1 when fitted), `P` after each
+    step; every panel is compared pixel by pixel with its tone-mapped input
+    placed as documented (see check_view; 1/255 from 8-bit rounding; window
+    pixels whose centre falls within 1e-3 image pixels of a texel boundary may
+    show either neighbour, pixels on the image's edge are left out):
+    `Z` zoom 1.25, `Z` 1.5625, `X` 1.25, `F` fit, `X` 0.8 (the image smaller
+    than its area); `F Z Left` zoom 1.25 and the image 40 window pixels
+    (not 40 image pixels) to the right, `Up` 40 down, `Right Right Down Down`
+    40 left and 40 up of the centred place; `F` the plain grid again.  The
+    window centre lies on no image here, so Z / X keep the image point at the
+    panel centres (zoom about the centre of every panel, as --zoom)."""
+    inputs, w, h = synthetic_inputs(ctx)
+    images = [tonemapped(lib.read_pfm(p)) for p in inputs]
+    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
+    z = ZOOM_STEP
+    shots = ((["z"], z, (0, 0)),
+             (["z"], z * z, (0, 0)),
+             (["x"], z, (0, 0)),
+             (["f"], 1.0, (0, 0)),
+             (["x"], 1 / z, (0, 0)),
+             (["f", "z", "Left"], z, (PAN_PIXELS, 0)),
+             (["Up"], z, (PAN_PIXELS, PAN_PIXELS)),
+             (["Right", "Right", "Down", "Down"], z, (-PAN_PIXELS, -PAN_PIXELS)),
+             (["f"], 1.0, (0, 0)))
+    with WindowSession(ctx, "--size", size, *inputs) as s:
+        s.xdo("mousemove", "--window", s.window, 5, 5)  # on a label: the pointer changes no image pixel
+        after = 0
+        for n, (keys, zoom, shift) in enumerate(shots, 1):
+            png, after = shoot(s, ctx, keys, n, after)
+            assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND)), f"screenshot {png[0]}x{png[1]}, not {size}"
+            check_view(png, images, zoom, shift, f"after {' '.join(keys)} (zoom {zoom:g}, image moved {shift})")
+        check_grid(png, inputs)  # F: exactly the fitted grid of the exposure test
+        status = s.finish("q")
+    assert status == 0, f"Q: exit {status}\n{s.describe()}"
+
+
+def heat_inputs(ctx, w=96, h=64):
+    """R: smooth, luminance >= 0.24 everywhere; X = R (1 + e(x)) with the
+    relative error e = 10^(-5 + 7 x / (w - 1)) growing along x from 1e-5 to
+    1e2 (the same in every row).  Panels R, X, R."""
+    def ref(x, y):
+        return (0.15 + 0.7 * x / (w - 1), 0.25 + 0.5 * y / (h - 1), 0.4)
+    def err(x):
+        return 10.0 ** (-5 + 7 * x / (w - 1))
+    r, x_ = ctx.path("heat-ref.pfm"), ctx.path("heat-x.pfm")
+    write_pfm(r, w, h, ref)
+    write_pfm(x_, w, h, lambda x, y: tuple(c * (1 + err(x)) for c in ref(x, y)))
+    return [r, x_, r], err
+
+
+def luminance(p):
+    return 0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]
+
+
+def panel_pixels(png, i, n, w, h):
+    """Panel i's image pixels at scale 1 (rows of RGB tuples)."""
+    ox, oy = grid_image_origin(i, n, png[0], png[1])
+    return [[rgb_at(png, ox + x, oy + y) for x in range(w)] for y in range(h)]
+
+
+def check_heat(pixels, rel, what, saturates=False):
+    """A heat map of a relative error rel(x) constant down each column, on the
+    documented scale 1e-3..1 (zero error black): black where rel <= 5e-4,
+    not black where rel >= 1e-2, the colour never darker (luminance, 1/255
+    slack) as the error grows along a row; with saturates, every pixel where
+    rel >= 2 has the same colour (the top of the scale, 1/255), the brightest
+    of the panel.  The factor-2 margins cover how exactly "relative" is
+    defined (|L - R| / |R|, or with a small guard in the denominator)."""
+    h, w = len(pixels), len(pixels[0])
+    for y in range(h):
+        for x in range(w):
+            p = pixels[y][x]
+            if rel(x) <= 5e-4:
+                assert p == (0, 0, 0), f"{what}: pixel ({x},{y}) relative error {rel(x):.2g} shows {p}, not black"
+            if rel(x) >= 1e-2:
+                assert max(p) > 0, f"{what}: pixel ({x},{y}) relative error {rel(x):.2g} is black"
+            if x:
+                assert luminance(p) >= luminance(pixels[y][x - 1]) - 1, \
+                    f"{what}: row {y}: error {rel(x - 1):.2g} -> {rel(x):.2g} gets darker {pixels[y][x - 1]} -> {p}"
+    if saturates:
+        top = [pixels[y][x] for y in range(h) for x in range(w) if rel(x) >= 2]
+        assert top, "no saturated column"
+        assert all(max(abs(a - b) for a, b in zip(p, top[0])) <= 1 for p in top), \
+            f"{what}: errors >= 2 do not all show the top colour {top[0]}: {sorted(set(top))[:6]}"
+        brightest = max(luminance(p) for row in pixels for p in row)
+        assert luminance(top[0]) >= brightest - 1, f"{what}: the top colour {top[0]} is not the brightest"
+
+
+def same_pixels(a, b, what):
+    for y, (ra, rb) in enumerate(zip(a, b)):
+        for x, (p, q) in enumerate(zip(ra, rb)):
+            assert max(abs(u - v) for u, v in zip(p, q)) <= 1, f"{what}: pixel ({x},{y}) {p} vs {q}"
+
+
+def check_tonemapped(pixels, img, what):
+    for y, row in enumerate(pixels):
+        for x, got in enumerate(row):
+            expected = [tonemap(v) for v in img.at(x, y)]
+            assert max(abs(e - g) for e, g in zip(expected, got)) <= 1, \
+                f"{what}: pixel ({x},{y}) shows {got}, tone-mapped input is {expected}"
+
+
+def test_window_heat_map_and_reference_keys(ctx):
+    """Panels R, X, R (heat_inputs: X off R by a relative error e growing
+    along x), each image at scale 1, `P` after each step:
+    `1 D`  panel 1 (the reference) its plain tone map (1/255), panel 3 all
+           black (an input against itself: zero error), panel 2 the heat map
+           of e (check_heat: black for e <= 5e-4, lit for e >= 1e-2, never
+           darker along a row, one top colour for e >= 2);
+    `2`    panel 2 the reference: its plain tone map; panels 1 and 3 (both R
+           against X, relative error e / (1 + e)) identical (1/255) and a
+           heat map of that error (so panel 3 is no longer black);
+    `3`    panel 3 the reference: its plain tone map, panel 1 now all black,
+           panel 2 the same picture (1/255) as with reference 1 (R = R);
+    `D`    the heat map off: the plain grid (check_grid, 1/255)."""
+    inputs, err = heat_inputs(ctx)
+    w, h, n = 96, 64, 3
+    r_img, x_img = lib.read_pfm(inputs[0]), lib.read_pfm(inputs[1])
+    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
+    with WindowSession(ctx, "--size", size, *inputs) as s:
+        s.xdo("mousemove", "--window", s.window, 5, 5)
+        png, after = shoot(s, ctx, ["1", "d"], 1, 0)
+        p1, p2, p3 = (panel_pixels(png, i, n, w, h) for i in range(n))
+        check_tonemapped(p1, r_img, "1 D: the reference panel 1")
+        assert all(p == (0, 0, 0) for row in p3 for p in row), \
+            "1 D: panel 3 equals the reference panel 1 and must be black (zero error)"
+        check_heat(p2, err, "1 D: panel 2 (X against R)", saturates=True)
+        heat_x_vs_r = p2
+
+        png, after = shoot(s, ctx, ["2"], 2, after)
+        p1, p2, p3 = (panel_pixels(png, i, n, w, h) for i in range(n))
+        check_tonemapped(p2, x_img, "2: the reference panel 2")
+        same_pixels(p1, p3, "2: panels 1 and 3 (the same R against the reference X)")
+        check_heat(p1, lambda x: err(x) / (1 + err(x)), "2: panel 1 (R against X)")
+
+        png, after = shoot(s, ctx, ["3"], 3, after)
+        p1, p2, p3 = (panel_pixels(png, i, n, w, h) for i in range(n))
+        check_tonemapped(p3, r_img, "3: the reference panel 3")
+        assert all(p == (0, 0, 0) for row in p1 for p in row), \
+            "3: panel 1 equals the reference panel 3 and must be black (zero error)"
+        same_pixels(p2, heat_x_vs_r, "3: panel 2 against panel 3 (= R) vs against panel 1 (= R)")
+
+        png, after = shoot(s, ctx, ["d"], 4, after)
+        try:
+            check_grid(png, inputs)
+        except AssertionError as e:
+            raise AssertionError(f"D again (heat map off): {e}") from None
+        status = s.finish("q")
+    assert status == 0, f"Q: exit {status}\n{s.describe()}"
+
+
+def channel_inputs(ctx, w=96, h=64):
+    """Four PFMs: red, green, blue (panel k lit only in channel k) and grey
+    (all three equal), each with a pattern that differs between any two
+    neighbouring pixels: which panel and which pixel of it a window pixel
+    shows is never ambiguous."""
+    paths = []
+    for k, name in enumerate(("red", "green", "blue", "grey")):
+        def pixel(x, y, k=k):
+            v = 0.05 + 0.9 * ((5 * x + 3 * y) % 17) / 16
+            return (v, v, v) if k == 3 else tuple(v if c == k else 0.0 for c in range(3))
+        paths.append(ctx.path(f"{name}.pfm"))
+        write_pfm(paths[-1], w, h, pixel)
+    return paths
+
+
+def check_split(png, images, a, b, position, what):
+    """The split view: one panel filling the window below its label band,
+    panel a left of the slider column lround(width * position), panel b right
+    of it (each placed as documented, compared as check_image_in, 1/255), the
+    slider column itself one uniform line.  a, b: 0-based panel indices."""
+    width, height = png[0], png[1]
+    split_x = math.floor(width * position + 0.5)  # lround, position >= 0
+    area = panel_area(0, 1, width, height)
+    tm_a, tm_b = images[a], images[b]
+    iw = len(tm_a[0])
+    s, ox, oy = placement(area, iw, len(tm_a))
+    left = check_image_in(png, area, tm_a, s, ox, oy, f"{what}: left of the slider at x={split_x}, panel {a + 1}",
+                          columns=lambda px: px < split_x)
+    right = check_image_in(png, area, tm_b, s, ox, oy, f"{what}: right of the slider at x={split_x}, panel {b + 1}",
+                           columns=lambda px: px > split_x)
+    image_columns = range(max(ox, 0), min(ox + round(s * iw), width))
+    expect_left = sum(1 for px in image_columns if px < split_x)
+    expect_right = sum(1 for px in image_columns if px > split_x)
+    assert (left > 0) == (expect_left > 0) and (right > 0) == (expect_right > 0), \
+        f"{what}: {left} pixels compared left, {right} right of x={split_x}"
+    if 0 <= split_x < width:
+        line = {rgb_at(png, split_x, y) for y in range(area[1], area[1] + area[3])}
+        assert len(line) == 1, f"{what}: column {split_x} is not the slider line: {sorted(line)[:4]}"
+
+
+def test_window_split_keys(ctx):
+    """Panels red, green, blue, grey (channel_inputs), window 200 x 162: in the
+    split view the image is at scale 2 and 2 % of the width is 4 pixels.  `P`
+    after each step, checked by check_split (1/255; the slider column must be
+    a uniform line):
+    `S`          split: reference 1 left | B = 2 right, slider at 0.5 (x 100);
+    `. . .`      0.56 (x 112);  `, , , , ,`  0.46 (x 92);
+    `Tab` x 3    B = 3, 4, then 2 (wraps, skipping the reference 1);
+    `3`          reference 3 left | 2 right;
+    `Tab` x 2    B = 4 (skips the reference 3), then 1 (wraps);
+    `.` x 30     clamped at 1 (all panel 3);  `, , ,`  0.94 (x 188);
+    `,` x 60     clamped at 0 (all panel 1);  `. . .`  0.06 (x 12);
+    `1`          reference 1, which was B: B becomes the next one, 2;
+    `S`          the grid again: every panel its own image, placed as
+                 documented at its fit scale (check_view).
+    Slider positions are stepped here by the documented 0.02 with the same
+    double arithmetic and clamping, so no rounding is left to chance."""
+    inputs = channel_inputs(ctx)
+    images = [tonemapped(lib.read_pfm(p)) for p in inputs]
+    width, height = 200, 2 * 64 + LABEL_BAND
+    position = 0.5
+    steps = (  # keys, (reference, B) 0-based, slider column
+        (["s"], (0, 1), 100),
+        (["period"] * 3, (0, 1), 112),
+        (["comma"] * 5, (0, 1), 92),
+        (["Tab"], (0, 2), 92),
+        (["Tab"], (0, 3), 92),
+        (["Tab"], (0, 1), 92),
+        (["3"], (2, 1), 92),
+        (["Tab"], (2, 3), 92),
+        (["Tab"], (2, 0), 92),
+        (["period"] * 30, (2, 0), 200),
+        (["comma"] * 3, (2, 0), 188),
+        (["comma"] * 60, (2, 0), 0),
+        (["period"] * 3, (2, 0), 12),
+        (["1"], (0, 1), 12))
+    with WindowSession(ctx, "--size", f"{width}x{height}", *inputs) as s:
+        s.xdo("mousemove", "--window", s.window, 5, 5)
+        after = 0
+        for n, (keys, (a, b), x) in enumerate(steps, 1):
+            for key in keys:
+                if key == "period":
+                    position = min(1.0, position + SPLIT_STEP)
+                elif key == "comma":
+                    position = max(0.0, position - SPLIT_STEP)
+            assert math.floor(width * position + 0.5) == x  # the test's own arithmetic
+            png, after = shoot(s, ctx, keys, n, after)
+            assert (png[0], png[1]) == (width, height), f"screenshot {png[0]}x{png[1]}"
+            check_split(png, images, a, b, position,
+                        f"after {' '.join(keys[:3])}{' ...' if len(keys) > 3 else ''} (step {n}: "
+                        f"[{a + 1}] | [{b + 1}] at {position:.2f})")
+        png, after = shoot(s, ctx, ["s"], len(steps) + 1, after)
+        check_view(png, images, what="S again (split off)")
+        status = s.finish("q")
+    assert status == 0, f"Q: exit {status}\n{s.describe()}"
 
 
 # ---- the GLSL raster against chapter 1 --------------------------------------------------------------
