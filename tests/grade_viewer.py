@@ -678,13 +678,23 @@ def test_window_zoom_pan_fit_keys(ctx):
     `Z` zoom 1.25, `Z` 1.5625, `X` 1.25, `F` fit, `X` 0.8 (the image smaller
     than its area); `F Z Left` zoom 1.25 and the image 40 window pixels
     (not 40 image pixels) to the right, `Up` 40 down, `Right Right Down Down`
-    40 left and 40 up of the centred place; `F` the plain grid again.  The
-    window centre lies on no image here, so Z / X keep the image point at the
-    panel centres (zoom about the centre of every panel, as --zoom)."""
+    40 left and 40 up of the centred place; `F` the plain grid again.
+    Z / X keep the image point at the panel centres (zoom about the centre of
+    every panel, as --zoom).  Then the zoom keys again with two panels side by
+    side, where the window centre lies on the edge of panel 2: zooming about
+    that window point would hold every image's left edge still."""
     inputs, w, h = synthetic_inputs(ctx)
     images = [tonemapped(lib.read_pfm(p)) for p in inputs]
     size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
     z = ZOOM_STEP
+    with WindowSession(ctx, "--size", f"{2 * w}x{h + LABEL_BAND}", *inputs[:2]) as s:
+        s.xdo("mousemove", "--window", s.window, 5, 5)
+        after = 0
+        for n, (keys, zoom) in enumerate(((["z"], z), (["z"], z * z), (["x", "x", "x"], 1 / z)), 1):
+            png, after = shoot(s, ctx, keys, n, after)
+            check_view(png, images[:2], zoom, (0, 0), f"two panels, after {' '.join(keys)} (zoom {zoom:g})")
+        status = s.finish("q")
+    assert status == 0, f"Q: exit {status}\n{s.describe()}"
     shots = ((["z"], z, (0, 0)),
              (["z"], z * z, (0, 0)),
              (["x"], z, (0, 0)),

@@ -836,11 +836,22 @@ static void dolly(double factor)
     log_camera("dolly");
 }
 
+static double zoomed(double factor) { return fmin(fmax(V.zoom * factor, 0.05), 512.0); }
+
+/* Z / X: about the shared centre (V.cx, V.cy), which sits at every panel's
+ * centre, so each panel zooms about its own middle (as --zoom does). */
+static void zoom_about_centre(double factor)
+{
+    V.zoom = zoomed(factor);
+    V.redraw = true;
+}
+
+/* The wheel: about the image point under the cursor. */
 static void zoom_at(double factor, double x, double y)
 {
     double u, v;
     int index = panel_at(x, y, &u, &v);
-    double new_zoom = fmin(fmax(V.zoom * factor, 0.05), 512.0);
+    double new_zoom = zoomed(factor);
     if (index >= 0) {
         /* keep the image point under the cursor where it is */
         V.cx = u + (V.cx - u) * V.zoom / new_zoom;
@@ -881,8 +892,8 @@ static void on_key(GLFWwindow *w, int key, int scancode, int action, int mods)
     case GLFW_KEY_KP_SUBTRACT: V.exposure -= 0.5; break;
     case GLFW_KEY_0:
     case GLFW_KEY_KP_0: V.exposure = 0.0; break;
-    case GLFW_KEY_Z: zoom_at(1.25, V.width / 2.0, V.height / 2.0); break;
-    case GLFW_KEY_X: zoom_at(0.8, V.width / 2.0, V.height / 2.0); break;
+    case GLFW_KEY_Z: zoom_about_centre(1.25); break;
+    case GLFW_KEY_X: zoom_about_centre(0.8); break;
     case GLFW_KEY_F: V.zoom = 1.0, V.cx = V.cy = 0.5; break;
     case GLFW_KEY_D: V.diff = !V.diff; break;
     case GLFW_KEY_S:
