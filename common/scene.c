@@ -1414,15 +1414,10 @@ camera_frame camera_frame_make(const camera *c, int width, int height)
     double half_height = tan(0.5 * c->fov_degrees * M_PI / 180.0);
     vec3 up = v3_cross(right, forward);
     double half_width = half_height * (double)width / (double)height;
+    /* The image plane at distance 1 spans [-half_width, half_width] along
+     * right and [-half_height, half_height] along up; image y grows downward. */
     return (camera_frame){
         .eye = c->eye,
-        .forward = forward,
-        .right = right,
-        .up = up,
-        .half_width = half_width,
-        .half_height = half_height,
-        .width = width,
-        .height = height,
         .top_left = v3_add(forward, v3_sub(v3_scale(up, half_height), v3_scale(right, half_width))),
         .step_x = v3_scale(right, 2.0 * half_width / width),
         .step_y = v3_scale(up, -2.0 * half_height / height),

@@ -191,15 +191,11 @@ int scene_find_surface(const scene *s, const char *name);
  * corner of the image, y down.  Direction is unit. */
 ray camera_ray(const camera *c, int width, int height, double px, double py);
 
-/* The same, with the camera's frame (orthonormal basis, tan of the field of
- * view) computed once per image rather than once per ray. */
+/* The same, with the camera's frame worked out once per image rather than
+ * once per ray: the unnormalised direction through image position (px, py)
+ * is top_left + px * step_x + py * step_y (no division per ray). */
 typedef struct {
-    vec3 eye, forward, right, up;
-    double half_width, half_height;
-    int width, height;
-    /* The unnormalised direction through image position (px, py) is
-     * top_left + px * step_x + py * step_y: no division per ray. */
-    vec3 top_left, step_x, step_y;
+    vec3 eye, top_left, step_x, step_y;
 } camera_frame;
 camera_frame camera_frame_make(const camera *c, int width, int height);
 ray camera_frame_ray(const camera_frame *f, double px, double py);
