@@ -6,77 +6,203 @@
  *
  *   (R1)  L_r(x, w_r) = L_e(x, w_r) + f(x, w_i, w_r) * I / r^2 * cos(theta_i)
  *
- * and an area light is the same sum taken over points y on the emitter,
- * written with the geometry term of the area form (R7, R8):
+ * summed over the lights.  An area light is the same sum taken over points
+ * y on the emitter, written with the geometry term of the area form (R8):
  *
  *   L_r = L_e + Int_{emitters} L_e(y) f(x, w_i, w_r) cos(theta_i) cos(theta_y) / |x - y|^2 V(x, y) dA_y
  *
  * estimated by sampling --light-samples points per emitter (soft shadows).
  *
- * The BRDFs (Lambert, Phong, Blinn-Phong, classic and energy-normalised)
- * and the sum over the lights are in common/local_model.c (chapter 2 uses
- * them too).
+ * In the Neumann series (R6) of the rendering equation, emission seen
+ * directly is E, this sum over the lights is KE, and the ambient term is
+ * the stand-in for K^2 E + K^3 E + ...: --bounces 0:0 shows E, 1:1 the
+ * direct light, 2: the ambient term alone (it is kept only when the window
+ * keeps all of K^2 E, K^3 E, ..., as in chapter 2; 2:2 shows nothing).
  *
- * Sections: state and options · radiance along a camera ray (R1) · probes · main.
+ * Chapter 2 shades its non-specular hits with the same BRDFs and the same
+ * sum (declared in local_model.h; the Makefile links this file into it).
+ *
+ * Sections: the BRDFs · the sum over the lights (R1) · radiance along a
+ * camera ray · probes · options and main.
  */
-#include <stdlib.h>
-#include <string.h>
+#include <stddef.h>
 
 #include "local_model.h"
 #include "render.h"
 
-/* ---- state and options ------------------------------------------------------------ */
+/* ---- the BRDFs ------------------------------------------------------------------------ */
 
-/* The local model itself (the BRDFs and the sum over lights of (R1)) lives
- * in common/local_model.c, because chapter 2 shades its diffuse and glossy
- * hits with exactly the same model.  Read it next to this file:
- *   reflected_fraction()  f(w_i, w_o) cos(theta_i): Lambert, Phong, Blinn-Phong
- *   direct_light()        (R1) for point lights, the area form for emitters */
-typedef struct {
-    local_model local;  /* --model --normalised --ambient --light-samples --no-shadows */
-    int probe_samples;  /* points per emitter for a probe's irradiance */
-} local_state;
-
-static int warned_specular_materials; /* warn_once flag */
-
-static int parse_option(void *state_pointer, int argc, char **argv, int *i, char *err, size_t err_size)
+/* Returned as f(w_i, w_o) * cos(theta_i) (all directions pointing away from
+ * the surface):
+ *
+ *  Lambert:              f = kd / pi
+ *  Phong, classic:       ks (R.V)^n          per unit perpendicular irradiance
+ *  Blinn-Phong, classic: ks (N.H)^n          (the textbook I = ks (R.V)^n I_light)
+ *  Phong, normalised:    f = ks (n + 2) / (2 pi) (R.V)^n       (Lafortune & Willems 1994)
+ *  Blinn, normalised:    f = ks (n + 8) / (8 pi) (N.H)^n       (Akenine-Moller et al., RTR)
+ *
+ * The classic forms are what OpenGL's fixed pipeline computed: their
+ * highlight does not fade with cos(theta_i) and they can reflect more
+ * light than arrives.  The normalised forms conserve energy (for ks <= 1),
+ * which is what a physically based renderer needs. */
+vec3 reflected_fraction(const local_model *lm, const material *m, vec3 n, vec3 w_i, vec3 w_o)
 {
-    local_state *state = state_pointer;
-    if (!strcmp(argv[*i], "--probe-samples"))
-        return parse_int_option(argc, argv, i, 1, 1 << 26, &state->probe_samples, err, err_size);
-    return local_model_parse_option(&state->local, argc, argv, i, err, err_size);
+    double cos_i = v3_dot(n, w_i);
+    if (cos_i <= 0.0 || v3_dot(n, w_o) <= 0.0)
+        return v3_splat(0.0);
+    vec3 result = v3_scale(m->albedo, cos_i / M_PI);
+    if (m->kind != MATERIAL_PHONG)
+        return result;
+
+    double cos_lobe, normalisation;
+    if (lm->model == SPECULAR_PHONG) {
+        vec3 mirrored = v3_reflect(v3_neg(w_i), n); /* R: w_i mirrored about n */
+        cos_lobe = v3_dot(mirrored, w_o);
+        normalisation = (m->exponent + 2.0) / (2.0 * M_PI);
+    } else {
+        vec3 halfway = v3_normalize(v3_add(w_i, w_o)); /* H */
+        cos_lobe = v3_dot(n, halfway);
+        normalisation = (m->exponent + 8.0) / (8.0 * M_PI);
+    }
+    if (cos_lobe <= 0.0)
+        return result;
+    double lobe = pow(cos_lobe, m->exponent);
+    double specular = lm->normalised ? normalisation * lobe * cos_i : lobe;
+    return v3_add(result, v3_scale(m->specular, specular));
 }
 
-/* ---- radiance along a camera ray (R1) -------------------------------------------------------- */
+/* ---- the sum over the lights (R1) ---------------------------------------------------------- */
 
-/* Emission seen directly, plus the light of every source reflected once
- * (R1), plus the ambient stand-in for all the other bounces. */
+/* V(x, y) of (R9) for opaque occluders: one shadow ray. */
+static vec3 visibility(const local_model *lm, const scene *s, vec3 x, vec3 y, render_counters *counters)
+{
+    if (lm->no_shadows)
+        return v3_splat(1.0);
+    if (lm->transmittance)
+        return lm->transmittance(lm->transmittance_context, s, x, y, counters);
+    counters->value[COUNT_SHADOW_RAYS]++;
+    return v3_splat(scene_occluded(s, x, y) ? 0.0 : 1.0);
+}
+
+/* (R1) for every point light: f cos(theta_i) I / r^2, where the light is visible. */
+static vec3 point_lights(const local_model *lm, const scene *s, vec3 x, vec3 n, vec3 w_o, const material *m,
+                         render_counters *counters)
+{
+    vec3 total = v3_splat(0.0);
+    for (int l = 0; l < s->light_count; l++) {
+        const point_light *light = &s->lights[l];
+        vec3 to_light = v3_sub(light->position, x);
+        double r2 = v3_dot(to_light, to_light);
+        vec3 w_i = v3_scale(to_light, 1.0 / sqrt(r2));
+        double cos_i = v3_dot(n, w_i);
+        if (cos_i <= 0.0)
+            continue;
+        counters->value[COUNT_POINT_LIGHT_SAMPLES]++;
+        vec3 visible = visibility(lm, s, x, light->position, counters);
+        if (v3_max_component(visible) <= 0.0)
+            continue;
+        vec3 factor = m ? reflected_fraction(lm, m, n, w_i, w_o) : v3_splat(cos_i);
+        total = v3_add(total, v3_mul(v3_mul(factor, visible), v3_scale(light->intensity, 1.0 / r2))); /* (R1) */
+    }
+    return total;
+}
+
+/* The area form for one emitter: the mean over `samples` points y, uniform
+ * on its area A (pdf 1/A), of L_e f cos(theta_i) cos(theta_y) / r^2 V. */
+static vec3 area_light(const local_model *lm, const scene *s, int emitter_surface, vec3 x, vec3 n, vec3 w_o,
+                       const material *m, int samples, rng *g, render_counters *counters)
+{
+    const surface *emitter = &s->surfaces[emitter_surface];
+    vec3 sum = v3_splat(0.0);
+    for (int k = 0; k < samples; k++) {
+        vec3 y, n_y;
+        double u1 = rng_uniform(g), u2 = rng_uniform(g), u3 = rng_uniform(g);
+        surface_sample_point(s, emitter_surface, u1, u2, u3, &y, &n_y);
+        counters->value[COUNT_AREA_LIGHT_SAMPLES]++;
+        vec3 to_light = v3_sub(y, x);
+        double r2 = v3_dot(to_light, to_light);
+        if (r2 <= 0.0)
+            continue;
+        vec3 w_i = v3_scale(to_light, 1.0 / sqrt(r2));
+        double cos_i = v3_dot(n, w_i), cos_y = -v3_dot(n_y, w_i); /* emitters shine from their front */
+        if (cos_i <= 0.0 || cos_y <= 0.0)
+            continue;
+        vec3 visible = visibility(lm, s, x, y, counters);
+        if (v3_max_component(visible) <= 0.0)
+            continue;
+        vec3 factor = m ? reflected_fraction(lm, m, n, w_i, w_o) : v3_splat(cos_i);
+        /* geometry term without cos_i (it is inside factor): cos_y / r^2 (R8);
+         * dividing by the pdf 1/A multiplies by the emitter's area. */
+        sum = v3_add(sum, v3_scale(v3_mul(factor, visible), cos_y / r2 * emitter->area));
+    }
+    vec3 radiance = s->materials[emitter->material].emission;
+    return v3_mul(radiance, v3_scale(sum, 1.0 / samples));
+}
+
+vec3 direct_light(const local_model *lm, const scene *s, vec3 x, vec3 n, vec3 w_o, const material *m,
+                  int samples_per_emitter, rng *g, render_counters *counters)
+{
+    vec3 total = point_lights(lm, s, x, n, w_o, m, counters);
+    for (int e = 0; e < s->emitter_count; e++)
+        total = v3_add(total, area_light(lm, s, s->emitters[e], x, n, w_o, m, samples_per_emitter, g, counters));
+    return total;
+}
+
+/* ---- radiance along a camera ray ---------------------------------------------------------- */
+
+typedef struct {
+    local_model local;          /* --model --normalised --ambient --light-samples --no-shadows */
+    int probe_samples;          /* points per emitter for a probe's irradiance */
+    int bounce_min, bounce_max; /* --bounces A:B, copied from the driver in prepare() */
+} local_state;
+
+static int warned_specular_materials, warned_no_light; /* warn_once flags */
+
+/* Is Neumann term k (R6) inside the --bounces window? */
+static bool keep(const local_state *state, int k) { return k >= state->bounce_min && k <= state->bounce_max; }
+
+/* Emission seen directly (E), plus the light of every source reflected once
+ * (R1, the term KE), plus the ambient stand-in for all the other bounces
+ * (K^2 E and beyond). */
 static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, render_counters *counters)
 {
     const local_state *state = state_pointer;
     hit h;
     if (!scene_intersect(s, r, INFINITY, &h))
-        return s->background;
+        return keep(state, 0) ? s->background : v3_splat(0.0);
 
     const material *m = &s->materials[s->surfaces[h.surface].material];
     vec3 w_o = v3_neg(r.direction);
     bool front = v3_dot(h.normal, w_o) > 0.0;
-    vec3 emitted = m->kind == MATERIAL_EMITTER && front ? m->emission : v3_splat(0.0);
-
-    if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS)
+    material shaded = *m;
+    if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS) {
         warn_once(&warned_specular_materials,
                   "01_local: mirrors and glass need reflected and refracted rays (chapter 2); "
                   "here they are shaded as diffuse surfaces of their colour");
-    material shaded = *m;
-    if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS)
         shaded.albedo = m->specular;
+    }
+    vec3 n = front ? h.normal : v3_neg(h.normal); /* shade both sides: the normal toward the viewer */
 
-    /* Shade both sides: turn the normal toward the viewer. */
-    vec3 n = front ? h.normal : v3_neg(h.normal);
-    vec3 ambient = ambient_light(&state->local, &shaded); /* rho * La */
-    vec3 direct = direct_light(&state->local, s, h.point, n, w_o, &shaded, state->local.light_samples, g,
-                               counters); /* (R1) */
+    vec3 zero = v3_splat(0.0);
+    vec3 emitted = keep(state, 0) && m->kind == MATERIAL_EMITTER && front ? m->emission : zero; /* E */
+    vec3 direct = keep(state, 1) ? direct_light(&state->local, s, h.point, n, w_o, &shaded,
+                                                state->local.light_samples, g, counters)
+                                 : zero;                                         /* KE (R1) */
+    bool keep_all_from_2 = state->bounce_min <= 2 && state->bounce_max == RENDER_BOUNCES_UNLIMITED;
+    vec3 ambient = keep_all_from_2 ? ambient_light(&state->local, &shaded) : zero; /* rho La */
     return v3_add(emitted, v3_add(ambient, direct));
+}
+
+static int prepare(void *state_pointer, const scene *s, const render_options *o, char *err, size_t err_size)
+{
+    local_state *state = state_pointer;
+    (void)err, (void)err_size;
+    state->bounce_min = o->bounce_min;
+    state->bounce_max = o->bounce_max;
+    if (s->light_count == 0 && s->emitter_count == 0)
+        warn_once(&warned_no_light, "01_local: the scene has no light (no point light, no emitter): "
+                                    "only the ambient term and the background are seen");
+    return 0;
 }
 
 /* ---- probes ------------------------------------------------------------------------------- */
@@ -85,7 +211,7 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
  * the latter by probe_samples points per emitter; the standard error is
  * estimated from 32 independent batches of the samples. */
 static probe_result probe_irradiance(const void *state_pointer, const scene *s, const probe *p, uint64_t seed,
-                          render_counters *counters)
+                                     render_counters *counters)
 {
     const local_state *state = state_pointer;
     enum { BATCHES = 32 };
@@ -98,47 +224,56 @@ static probe_result probe_irradiance(const void *state_pointer, const scene *s, 
         render_counters ignored = {{0}};
         batch[b] = direct_light(&state->local, s, p->position, p->normal, p->normal, NULL, per_batch, &g, &ignored);
     }
-    vec3 sum = v3_splat(0.0), sum_squares = v3_splat(0.0);
-    for (int b = 0; b < BATCHES; b++) {
-        sum = v3_add(sum, batch[b]);
-        sum_squares = v3_add(sum_squares, v3_mul(batch[b], batch[b]));
-    }
     (void)counters;
-    vec3 mean = v3_scale(sum, 1.0 / BATCHES);
-    vec3 variance = v3_sub(v3_scale(sum_squares, 1.0 / BATCHES), v3_mul(mean, mean));
-    vec3 standard_error = v3(sqrt(fmax(0.0, variance.x) / (BATCHES - 1)), sqrt(fmax(0.0, variance.y) / (BATCHES - 1)),
-                             sqrt(fmax(0.0, variance.z) / (BATCHES - 1)));
+    probe_result result = batch_mean_and_error(batch, BATCHES);
     if (s->emitter_count == 0)
-        standard_error = v3_splat(0.0); /* point lights alone are exact */
-    return (probe_result){.irradiance = mean, .standard_error = standard_error};
+        result.standard_error = v3_splat(0.0); /* point lights alone are exact */
+    return result;
 }
 
-/* ---- main --------------------------------------------------------------------------------- */
+/* ---- options and main --------------------------------------------------------------------- */
 
 static void write_stats(const void *state_pointer, FILE *json)
 {
     const local_state *state = state_pointer;
     fprintf(json, ",\n  \"model\": \"%s\",\n  \"normalised\": %s,\n  \"shadows\": %s,\n  \"light_samples\": %d",
             state->local.model == SPECULAR_PHONG ? "phong" : "blinn", state->local.normalised ? "true" : "false",
-            state->local.shadows ? "true" : "false", state->local.light_samples);
+            state->local.no_shadows ? "false" : "true", state->local.light_samples);
     fprintf(json, ",\n  \"ambient\": ");
-    json_vec3(json, state->local.ambient);
+    json_vec3(json, v3_splat(state->local.ambient));
 }
+
+#define MODEL(field) offsetof(local_model, field)
+const option LOCAL_MODEL_OPTIONS[] = {
+    {"--model", NULL, OPTION_CHOICE, MODEL(model), .choices = "phong|blinn", .default_text = "blinn",
+     .help = "specular lobe"},
+    {"--normalised", NULL, OPTION_FLAG, MODEL(normalised), .help = "energy-normalised lobes instead of the classic ones"},
+    {"--normalized", NULL, OPTION_FLAG, 0, .alias_of = "--normalised"},
+    {"--ambient", "LA", OPTION_DOUBLE, MODEL(ambient), .min = 0.0, .max = 1e6, .default_text = "0",
+     .help = "constant ambient radiance standing in for K^2 E and beyond"},
+    {"--light-samples", "N", OPTION_INT, MODEL(light_samples), .min = 1, .max = 1 << 20, .default_text = "16",
+     .help = "points sampled per emitter per pixel sample"},
+    {"--no-shadows", NULL, OPTION_FLAG, MODEL(no_shadows), .help = "skip the shadow rays (every light visible)"},
+    {0},
+};
+#undef MODEL
+
+static const option LOCAL_OPTIONS[] = {
+    {"--probe-samples", "N", OPTION_INT, offsetof(local_state, probe_samples), .min = 1, .max = 1 << 26,
+     .default_text = "65536", .help = "points per emitter for probe irradiance"},
+    {0},
+};
 
 int main(int argc, char **argv)
 {
-    local_state state = {
-        .local = local_model_defaults(), /* classic Blinn-Phong, no ambient, 16 light samples, shadows */
-        .probe_samples = 1 << 16,
-    };
+    local_state state = {0};
     const chapter local_illumination = {
         .name = "01_local",
         .description = "local illumination: point and area lights (R1), Phong / Blinn-Phong, ambient, shadows",
-        .options_help = LOCAL_MODEL_OPTIONS_HELP
-                        "  --probe-samples N      points per emitter for probe irradiance (default 65536)\n",
+        .options = {{LOCAL_MODEL_OPTIONS, &state.local}, {LOCAL_OPTIONS, &state}},
         .default_spp = 1,
         .counter_names = {"shadow_rays", "point_light_samples", "area_light_samples", NULL},
-        .parse_option = parse_option,
+        .prepare = prepare,
         .radiance = radiance,
         .probe = probe_irradiance,
         .write_stats = write_stats,

@@ -25,8 +25,8 @@
  * Sections: state and options · the interface (Snell, Fresnel, Beer-Lambert) ·
  * shadow rays through glass · the ray tree · statistics · main.
  */
+#include <stddef.h>
 #include <stdlib.h>
-#include <string.h>
 
 #include "local_model.h"
 #include "optics.h"
@@ -34,14 +34,15 @@
 
 /* ---- state and options ------------------------------------------------------------ */
 
-typedef enum { FRESNEL_EXACT, FRESNEL_SCHLICK } fresnel_formula;
+typedef enum { FRESNEL_EXACT, FRESNEL_SCHLICK } fresnel_formula; /* the order of --fresnel's choices */
+typedef enum { GLASS_FILTERS, GLASS_OPAQUE } glass_shadows;        /* the order of --shadows' choices */
 
 enum { MAX_DEPTH_LIMIT = 64 };
 
 typedef struct {
     local_model local;        /* the shading at non-specular hits, as in chapter 1 */
-    fresnel_formula fresnel;  /* --fresnel exact|schlick */
-    bool opaque_glass;        /* --shadows opaque: glass blocks shadow rays like stone */
+    int fresnel;              /* fresnel_formula: --fresnel exact|schlick */
+    int glass_shadows;        /* glass_shadows: --shadows opaque = glass blocks shadow rays like stone */
     int max_depth;            /* --max-depth: deepest ray of the tree (camera ray = 0) */
     double min_weight;        /* --min-weight: prune branches weighing less (Hall & Greenberg 1983) */
     double absorption_distance; /* --absorption D: > 0 turns a glass tint into Beer-Lambert absorption */
@@ -60,32 +61,6 @@ enum {
     COUNT_PRUNED_BRANCHES,        /* weight below --min-weight */
     COUNT_DEPTH_LIMITED_BRANCHES, /* would be deeper than --max-depth */
 };
-
-static int parse_option(void *state_pointer, int argc, char **argv, int *i, char *err, size_t err_size)
-{
-    whitted_state *state = state_pointer;
-    const char *a = argv[*i];
-    if (!strcmp(a, "--fresnel") || !strcmp(a, "--shadows")) {
-        const char *v = *i + 1 < argc ? argv[++*i] : "";
-        if (!strcmp(a, "--fresnel") && (!strcmp(v, "exact") || !strcmp(v, "schlick")))
-            state->fresnel = !strcmp(v, "exact") ? FRESNEL_EXACT : FRESNEL_SCHLICK;
-        else if (!strcmp(a, "--shadows") && (!strcmp(v, "filtered") || !strcmp(v, "opaque")))
-            state->opaque_glass = !strcmp(v, "opaque");
-        else {
-            snprintf(err, err_size, "argv:%d: %s wants %s, not '%s'", *i, a,
-                     !strcmp(a, "--fresnel") ? "exact or schlick" : "filtered or opaque", v);
-            return 2;
-        }
-        return 1;
-    }
-    if (!strcmp(a, "--max-depth"))
-        return parse_int_option(argc, argv, i, 0, MAX_DEPTH_LIMIT, &state->max_depth, err, err_size);
-    if (!strcmp(a, "--min-weight"))
-        return parse_double_option(argc, argv, i, 0.0, 1.0, &state->min_weight, err, err_size);
-    if (!strcmp(a, "--absorption"))
-        return parse_double_option(argc, argv, i, 1e-300, 1e300, &state->absorption_distance, err, err_size);
-    return local_model_parse_option(&state->local, argc, argv, i, err, err_size);
-}
 
 /* ---- the interface: Snell, Fresnel, Beer-Lambert ------------------------------------------ */
 
@@ -182,7 +157,7 @@ static vec3 shadow_transmittance(const void *context, const scene *s, vec3 x, ve
         if (!scene_intersect(s, r, remaining, &h))
             return transmitted;
         const material *m = &s->materials[s->surfaces[h.surface].material];
-        if (m->kind != MATERIAL_GLASS || state->opaque_glass || crossing == MAX_GLASS_CROSSINGS)
+        if (m->kind != MATERIAL_GLASS || state->glass_shadows == GLASS_OPAQUE || crossing == MAX_GLASS_CROSSINGS)
             return v3_splat(0.0);
         interface at = interface_at(m, h.normal, direction);
         double n_thin = fmin(at.n_i, at.n_t), n_dense = fmax(at.n_i, at.n_t);
@@ -333,17 +308,21 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
     return L;
 }
 
+static int warned_no_light; /* warn_once flag */
+
 /* ---- statistics --------------------------------------------------------------------------- */
 
 static int prepare(void *state_pointer, const scene *s, const render_options *o, char *err, size_t err_size)
 {
     whitted_state *state = state_pointer;
-    (void)s;
+    if (s->light_count == 0 && s->emitter_count == 0)
+        warn_once(&warned_no_light, "02_whitted: the scene has no light (no point light, no emitter): "
+                                    "the image shows only the ambient term and the background");
     state->bounce_min = o->bounce_min;
     state->bounce_max = o->bounce_max;
     state->depth_histogram = calloc((size_t)state->max_depth + 1, sizeof *state->depth_histogram);
     if (!state->depth_histogram) {
-        snprintf(err, err_size, "argv:0: out of memory");
+        snprintf(err, err_size, "argv:%d: out of memory for the depth histogram", o->scene_argv);
         return 2;
     }
     return 0;
@@ -353,15 +332,15 @@ static void write_stats(const void *state_pointer, FILE *json)
 {
     const whitted_state *state = state_pointer;
     fprintf(json, ",\n  \"fresnel\": \"%s\",\n  \"glass_shadows\": \"%s\",\n  \"max_depth\": %d,\n  \"min_weight\": ",
-            state->fresnel == FRESNEL_EXACT ? "exact" : "schlick", state->opaque_glass ? "opaque" : "filtered",
+            state->fresnel == FRESNEL_EXACT ? "exact" : "schlick", state->glass_shadows == GLASS_OPAQUE ? "opaque" : "filtered",
             state->max_depth);
     json_number(json, state->min_weight);
     json_field_number(json, "absorption_distance", state->absorption_distance);
     fprintf(json, ",\n  \"model\": \"%s\",\n  \"normalised\": %s,\n  \"shadows\": %s,\n  \"light_samples\": %d",
             state->local.model == SPECULAR_PHONG ? "phong" : "blinn", state->local.normalised ? "true" : "false",
-            state->local.shadows ? "true" : "false", state->local.light_samples);
+            state->local.no_shadows ? "false" : "true", state->local.light_samples);
     fprintf(json, ",\n  \"ambient\": ");
-    json_vec3(json, state->local.ambient);
+    json_vec3(json, v3_splat(state->local.ambient));
     /* depth_histogram[k]: camera samples whose deepest ray was at depth k */
     fprintf(json, ",\n  \"depth_histogram\": [");
     for (int k = 0; k <= state->max_depth; k++)
@@ -378,34 +357,36 @@ static void finish(void *state_pointer)
 
 /* ---- main --------------------------------------------------------------------------------- */
 
+#define WHITTED(field) offsetof(whitted_state, field)
+static const option WHITTED_OPTIONS[] = {
+    {"--fresnel", NULL, OPTION_CHOICE, WHITTED(fresnel), .choices = "exact|schlick", .default_text = "exact",
+     .help = "reflectance of glass"},
+    {"--shadows", NULL, OPTION_CHOICE, WHITTED(glass_shadows), .choices = "filtered|opaque", .default_text = "filtered",
+     .help = "shadow rays pass glass dimmed by Fresnel and tint, or glass blocks light"},
+    {"--max-depth", "N", OPTION_INT, WHITTED(max_depth), .min = 0, .max = MAX_DEPTH_LIMIT, .default_text = "10",
+     .help = "deepest reflected/refracted ray"},
+    {"--min-weight", "W", OPTION_DOUBLE, WHITTED(min_weight), .min = 0.0, .max = 1.0, .default_text = "0",
+     .help = "prune branches whose weight is below W (0: the full tree)"},
+    {"--absorption", "D", OPTION_DOUBLE, WHITTED(absorption_distance), .min = 1e-300, .max = 1e300,
+     .help = "Beer-Lambert: a glass tint is what is left after a path of length D (scene units); "
+             "not given: the tint filters once on entry"},
+    {0},
+};
+#undef WHITTED
+
 int main(int argc, char **argv)
 {
-    whitted_state state = {
-        .local = local_model_defaults(),
-        .fresnel = FRESNEL_EXACT,
-        .opaque_glass = false,
-        .max_depth = 10,
-        .min_weight = 0.0,
-        .absorption_distance = 0.0,
-    };
+    whitted_state state = {0};
     state.local.transmittance = shadow_transmittance; /* V(x, y) lets light through glass */
     state.local.transmittance_context = &state;
     const chapter whitted = {
         .name = "02_whitted",
         .description = "Whitted ray tracing: local model (R1) + mirror reflection + refraction with Fresnel",
-        .options_help = LOCAL_MODEL_OPTIONS_HELP
-                        "  --fresnel exact|schlick  reflectance of glass (default exact)\n"
-                        "  --shadows filtered|opaque  shadow rays pass glass, dimmed by Fresnel and tint (default),\n"
-                        "                         or glass blocks light\n"
-                        "  --max-depth N          deepest reflected/refracted ray, 0..64 (default 10)\n"
-                        "  --min-weight W         prune branches whose weight is below W (default 0: full tree)\n"
-                        "  --absorption D         Beer-Lambert: a glass tint is what is left after a path of\n"
-                        "                         length D (scene units); default: the tint filters once on entry\n",
+        .options = {{LOCAL_MODEL_OPTIONS, &state.local}, {WHITTED_OPTIONS, &state}},
         .default_spp = 1,
         .counter_names = {"shadow_rays", "point_light_samples", "area_light_samples", "reflected_rays",
                           "refracted_rays", "total_internal_reflections", "pruned_branches",
                           "depth_limited_branches", NULL},
-        .parse_option = parse_option,
         .prepare = prepare,
         .radiance = radiance,
         .write_stats = write_stats,

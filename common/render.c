@@ -36,6 +36,20 @@ void warn_once(int *flag, const char *format, ...)
     va_end(args);
 }
 
+probe_result batch_mean_and_error(const vec3 *batch, int count)
+{
+    vec3 sum = v3_splat(0.0), sum_squares = v3_splat(0.0);
+    for (int b = 0; b < count; b++) {
+        sum = v3_add(sum, batch[b]);
+        sum_squares = v3_add(sum_squares, v3_mul(batch[b], batch[b]));
+    }
+    vec3 mean = v3_scale(sum, 1.0 / count);
+    vec3 variance = v3_sub(v3_scale(sum_squares, 1.0 / count), v3_mul(mean, mean));
+    vec3 standard_error = v3(sqrt(fmax(0.0, variance.x) / (count - 1)), sqrt(fmax(0.0, variance.y) / (count - 1)),
+                             sqrt(fmax(0.0, variance.z) / (count - 1)));
+    return (probe_result){.irradiance = mean, .standard_error = standard_error};
+}
+
 /* --- JSON ---------------------------------------------------------------------- */
 
 void json_string(FILE *f, const char *s)
@@ -80,7 +94,7 @@ void json_vec3(FILE *f, vec3 v)
 
 /* --- command line ---------------------------------------------------------------- */
 
-static const char *value_of(int argc, char **argv, int *i, char *err, size_t err_size)
+static const char *value_of(int argc, char **argv, int *i, char *err, size_t err_size) /* LEGACY */
 {
     if (*i + 1 >= argc) {
         snprintf(err, err_size, "argv:%d: %s needs a value (see --help)", *i, argv[*i]);
@@ -124,137 +138,184 @@ int parse_double_option(int argc, char **argv, int *i, double lo, double hi, dou
     return 1;
 }
 
-static void print_help(const chapter *ch, const char *program)
+/* The options every chapter shares (DESIGN.md's contract), one row each. */
+static int parse_out(void *state, const char *value, int argv_index, char *why, size_t why_size)
 {
-    printf("%s — %s\n\n"
-           "usage: %s [scene] [--out FILE.pfm|.png ...] [--size WxH] [--spp N] [--time SECONDS]\n"
-           "          [--seed N] [--threads N] [--ref REF.pfm] [--stats FILE.json] [--bounces A:B]\n"
-           "          [--exposure STOPS] [--quiet] [--help]%s\n\n"
-           "  scene            a .scene file (default scenes/cornell.scene)\n"
-           "  --out FILE       write the image; .pfm = linear radiance, .png = tone-mapped sRGB;\n"
-           "                   may be given several times (default out/<scene>-%s.png)\n"
-           "  --size WxH       image size (default: the scene's `image` statement)\n"
-           "  --spp N          samples per pixel (default %d; a cap when --time is given)\n"
-           "  --time SECONDS   render progressive passes until the budget is spent\n"
-           "  --seed N         random seed; the image depends only on it, not on --threads\n"
-           "  --threads N      OpenMP threads (default: all cores)\n"
-           "  --ref REF.pfm    print RMSE, relative MSE, PSNR, SSIM against a reference\n"
-           "  --stats FILE     write statistics as one JSON object\n"
-           "  --bounces A:B    keep only the Neumann terms K^A E .. K^B E (R6); 'A:' = A and up\n"
-           "  --exposure S     PNG exposure in stops (default 0)\n"
-           "  --eye X,Y,Z  --look X,Y,Z  --up X,Y,Z  --fov DEG\n"
-           "                   override the scene's camera (the viewer's live mode uses these)\n"
-           "  --quiet          no progress bar\n",
-           ch->name, ch->description, program, ch->options_help ? "\n          [chapter options below]" : "",
-           ch->name, ch->default_spp);
-    if (ch->options_help)
-        printf("\n%s options:\n%s", ch->name, ch->options_help);
+    render_options *o = state;
+    if (o->output_count == RENDER_MAX_OUTPUTS) {
+        snprintf(why, why_size, "may be given at most %d times", RENDER_MAX_OUTPUTS);
+        return 2;
+    }
+    o->output_argv[o->output_count] = argv_index;
+    o->outputs[o->output_count++] = value;
+    return 0;
 }
 
-static int parse_bounces(const char *text, render_options *o)
+static int parse_size(void *state, const char *value, int argv_index, char *why, size_t why_size)
+{
+    render_options *o = state;
+    char *end;
+    long w = strtol(value, &end, 10), h = 0;
+    o->size_argv = argv_index;
+    if (*end == 'x' || *end == 'X')
+        h = strtol(end + 1, &end, 10);
+    if (*end || w < 1 || h < 1 || w > 16384 || h > 16384) {
+        snprintf(why, why_size, "wants WxH with 1 <= W, H <= 16384, not '%s'", value);
+        return 2;
+    }
+    o->width = (int)w, o->height = (int)h;
+    return 0;
+}
+
+static int parse_seed(void *state, const char *value, int argv_index, char *why, size_t why_size)
 {
     char *end;
-    long a = strtol(text, &end, 10), b = a;
-    if (end == text || a < 0)
+    errno = 0;
+    long seed = strtol(value, &end, 10);
+    (void)argv_index;
+    if (errno || end == value || *end || seed < 0 || seed > INT_MAX) {
+        snprintf(why, why_size, "wants a whole number in [0, %d], not '%s'", INT_MAX, value);
         return 2;
-    if (*end == ':') {
+    }
+    ((render_options *)state)->seed = (uint64_t)seed;
+    return 0;
+}
+
+/* --eye, --look, --up: X,Y,Z; each sets its bit of camera_override. */
+static int parse_point(const char *value, vec3 *p, char *why, size_t why_size)
+{
+    char tail;
+    if (sscanf(value, "%lf,%lf,%lf%c", &p->x, &p->y, &p->z, &tail) != 3 || !v3_is_finite(*p)) {
+        snprintf(why, why_size, "wants X,Y,Z (three numbers, commas, no spaces), not '%s'", value);
+        return 2;
+    }
+    return 0;
+}
+static int parse_eye(void *state, const char *value, int argv_index, char *why, size_t why_size)
+{
+    render_options *o = state;
+    o->camera_argv = argv_index;
+    o->camera_override |= CAMERA_EYE;
+    return parse_point(value, &o->camera_eye, why, why_size);
+}
+static int parse_look(void *state, const char *value, int argv_index, char *why, size_t why_size)
+{
+    render_options *o = state;
+    o->camera_argv = argv_index;
+    o->camera_override |= CAMERA_LOOK;
+    return parse_point(value, &o->camera_look, why, why_size);
+}
+static int parse_up(void *state, const char *value, int argv_index, char *why, size_t why_size)
+{
+    render_options *o = state;
+    o->camera_argv = argv_index;
+    o->camera_override |= CAMERA_UP;
+    return parse_point(value, &o->camera_up, why, why_size);
+}
+
+/* --bounces A:B, A: or A (R6). */
+static int parse_bounces(void *state, const char *value, int argv_index, char *why, size_t why_size)
+{
+    render_options *o = state;
+    char *end;
+    long a = strtol(value, &end, 10), b = a;
+    bool ok = end != value && a >= 0;
+    (void)argv_index;
+    if (ok && *end == ':') {
         const char *rest = end + 1;
         if (*rest == '\0')
             b = RENDER_BOUNCES_UNLIMITED;
         else {
             b = strtol(rest, &end, 10);
-            if (end == rest || *end)
-                return 2;
+            ok = end != rest && !*end;
         }
     } else if (*end)
+        ok = false;
+    if (!ok || b < a || b > RENDER_BOUNCES_UNLIMITED) {
+        snprintf(why, why_size, "wants A:B, A: or A with 0 <= A <= B, not '%s'", value);
         return 2;
-    if (b < a || b > RENDER_BOUNCES_UNLIMITED)
-        return 2;
+    }
     o->bounce_min = (int)a, o->bounce_max = (int)b, o->bounces_given = true;
     return 0;
+}
+
+#define DRIVER(field) offsetof(render_options, field)
+static const option DRIVER_OPTIONS[] = {
+    {"--out", "FILE", OPTION_CUSTOM, 0, .parse = parse_out,
+     .help = "write the image: .pfm linear radiance, .png tone-mapped sRGB; may be given several times; "
+             "default out/<scene>-<chapter>.png"},
+    {"--size", "WxH", OPTION_CUSTOM, 0, .parse = parse_size, .help = "image size; default: the scene's `image` statement"},
+    {"--spp", "N", OPTION_INT, DRIVER(spp), .min = 1, .max = 1 << 24,
+     .help = "samples per pixel; a cap when --time is given"},
+    {"--time", "SECONDS", OPTION_DOUBLE, DRIVER(time_budget), .min = 1e-3, .max = 1e6,
+     .help = "render progressive passes until the budget is spent"},
+    {"--seed", "N", OPTION_CUSTOM, 0, .parse = parse_seed, .default_text = "1",
+     .help = "random seed; the image depends only on it, not on --threads"},
+    {"--threads", "N", OPTION_INT, DRIVER(threads), .min = 1, .max = 1024,
+     .help = "OpenMP threads; default: all cores"},
+    {"--ref", "REF.pfm", OPTION_STRING, DRIVER(reference_path),
+     .help = "print RMSE, relative MSE, PSNR, SSIM against a reference"},
+    {"--stats", "FILE.json", OPTION_STRING, DRIVER(stats_path), .help = "write statistics as one JSON object"},
+    {"--bounces", "A:B", OPTION_CUSTOM, 0, .parse = parse_bounces, .default_text = "0:",
+     .help = "keep only the Neumann terms K^A E .. K^B E (R6); 'A:' = A and up"},
+    {"--exposure", "STOPS", OPTION_DOUBLE, DRIVER(exposure), .min = -64, .max = 64, .default_text = "0",
+     .help = "PNG exposure in stops"},
+    {"--eye", "X,Y,Z", OPTION_CUSTOM, 0, .parse = parse_eye, .help = "camera position (overrides the scene's)"},
+    {"--look", "X,Y,Z", OPTION_CUSTOM, 0, .parse = parse_look, .help = "the point the camera looks at"},
+    {"--up", "X,Y,Z", OPTION_CUSTOM, 0, .parse = parse_up, .help = "the camera's up direction"},
+    {"--fov", "DEG", OPTION_DOUBLE, DRIVER(camera_fov), .min = 1e-3, .max = 179.0,
+     .help = "vertical field of view in degrees"},
+    {"--quiet", NULL, OPTION_FLAG, DRIVER(quiet), .help = "no progress bar"},
+    {0},
+};
+#undef DRIVER
+
+static void print_help(const chapter *ch, const char *program)
+{
+    printf("%s — %s\n\n"
+           "usage: %s [scene] [options]\n\n"
+           "  %-24s %s\n"
+           "  %-24s %s\n",
+           ch->name, ch->description, program, "scene", "a .scene file (default scenes/cornell.scene)",
+           "--help", "this text");
+    /* The default of --spp is the chapter's: shown here, applied after parsing. */
+    option driver[sizeof DRIVER_OPTIONS / sizeof DRIVER_OPTIONS[0]];
+    char default_spp[16];
+    snprintf(default_spp, sizeof default_spp, "%d", ch->default_spp);
+    memcpy(driver, DRIVER_OPTIONS, sizeof driver);
+    for (option *row = driver; row->name; row++)
+        if (!strcmp(row->name, "--spp"))
+            row->default_text = default_spp;
+    options_print_help(stdout, driver);
+    printf("\n%s options:\n", ch->name);
+    for (int g = 0; g < OPTION_MAX_GROUPS && ch->options[g].table; g++)
+        options_print_help(stdout, ch->options[g].table);
+    if (ch->options_help)
+        printf("%s", ch->options_help);
 }
 
 static int parse_command_line(int argc, char **argv, const chapter *ch, void *state, render_options *o, bool *help,
                               char *err, size_t err_size)
 {
-    *o = (render_options){.spp = ch->default_spp, .seed = 1, .bounce_min = 0,
-                          .bounce_max = RENDER_BOUNCES_UNLIMITED};
+    *o = (render_options){0};
+    option_group groups[OPTION_MAX_GROUPS + 1] = {{DRIVER_OPTIONS, o}};
+    int group_count = 1;
+    while (group_count <= OPTION_MAX_GROUPS && ch->options[group_count - 1].table) {
+        groups[group_count] = ch->options[group_count - 1];
+        group_count++;
+    }
+    if (options_set_defaults(groups, group_count, err, err_size))
+        return 2;
     for (int i = 1; i < argc; i++) {
         const char *a = argv[i];
-        const char *v;
         int status;
         if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
             *help = true;
             return 0;
-        } else if (!strcmp(a, "--quiet")) {
-            o->quiet = true;
-        } else if (!strcmp(a, "--out")) {
-            if (!(v = value_of(argc, argv, &i, err, err_size)))
-                return 2;
-            if (o->output_count == RENDER_MAX_OUTPUTS) {
-                snprintf(err, err_size, "argv:%d: at most %d --out files", i, RENDER_MAX_OUTPUTS);
-                return 2;
-            }
-            o->outputs[o->output_count++] = v;
-        } else if (!strcmp(a, "--size")) {
-            if (!(v = value_of(argc, argv, &i, err, err_size)))
-                return 2;
-            char *end;
-            long w = strtol(v, &end, 10), h = 0;
-            if (*end == 'x' || *end == 'X')
-                h = strtol(end + 1, &end, 10);
-            if (*end || w < 1 || h < 1 || w > 16384 || h > 16384) {
-                snprintf(err, err_size, "argv:%d: --size wants WxH with 1 <= W, H <= 16384, not '%s'", i, v);
-                return 2;
-            }
-            o->width = (int)w, o->height = (int)h;
-        } else if (!strcmp(a, "--spp")) {
-            if ((status = parse_int_option(argc, argv, &i, 1, 1 << 24, &o->spp, err, err_size)) != 1)
+        } else if ((status = options_parse_one(groups, group_count, argc, argv, &i, err, err_size)) != 0) {
+            if (status != 1)
                 return status;
-            o->spp_given = true;
-        } else if (!strcmp(a, "--time")) {
-            if ((status = parse_double_option(argc, argv, &i, 1e-3, 1e6, &o->time_budget, err, err_size)) != 1)
-                return status;
-        } else if (!strcmp(a, "--seed")) {
-            int seed;
-            if ((status = parse_int_option(argc, argv, &i, 0, INT_MAX, &seed, err, err_size)) != 1)
-                return status;
-            o->seed = (uint64_t)seed;
-        } else if (!strcmp(a, "--threads")) {
-            if ((status = parse_int_option(argc, argv, &i, 1, 1024, &o->threads, err, err_size)) != 1)
-                return status;
-        } else if (!strcmp(a, "--ref")) {
-            if (!(o->reference_path = value_of(argc, argv, &i, err, err_size)))
-                return 2;
-        } else if (!strcmp(a, "--stats")) {
-            if (!(o->stats_path = value_of(argc, argv, &i, err, err_size)))
-                return 2;
-        } else if (!strcmp(a, "--exposure")) {
-            if ((status = parse_double_option(argc, argv, &i, -64, 64, &o->exposure, err, err_size)) != 1)
-                return status;
-        } else if (!strcmp(a, "--eye") || !strcmp(a, "--look") || !strcmp(a, "--up")) {
-            if (!(v = value_of(argc, argv, &i, err, err_size)))
-                return 2;
-            vec3 p;
-            char tail;
-            if (sscanf(v, "%lf,%lf,%lf%c", &p.x, &p.y, &p.z, &tail) != 3 || !v3_is_finite(p)) {
-                snprintf(err, err_size, "argv:%d: %s wants X,Y,Z (three numbers, commas, no spaces), not '%s'", i, a, v);
-                return 2;
-            }
-            *(a[2] == 'e' ? &o->camera_eye : a[2] == 'l' ? &o->camera_look : &o->camera_up) = p;
-            o->camera_override |= a[2] == 'e' ? 1 : a[2] == 'l' ? 2 : 4;
-        } else if (!strcmp(a, "--fov")) {
-            if ((status = parse_double_option(argc, argv, &i, 1e-3, 179.0, &o->camera_fov, err, err_size)) != 1)
-                return status;
-            o->camera_override |= 8;
-        } else if (!strcmp(a, "--bounces")) {
-            if (!(v = value_of(argc, argv, &i, err, err_size)))
-                return 2;
-            if (parse_bounces(v, o)) {
-                snprintf(err, err_size, "argv:%d: --bounces wants A:B, A: or A with 0 <= A <= B, not '%s'", i, v);
-                return 2;
-            }
-        } else if (ch->parse_option && (status = ch->parse_option(state, argc, argv, &i, err, err_size)) != 0) {
+        } else if (ch->parse_option && (status = ch->parse_option(state, argc, argv, &i, err, err_size))) {
             if (status != 1)
                 return status;
         } else if (a[0] == '-' && a[1] != '\0') {
@@ -265,8 +326,14 @@ static int parse_command_line(int argc, char **argv, const chapter *ch, void *st
             return 2;
         } else {
             o->scene_path = a;
+            o->scene_argv = i;
         }
     }
+    o->spp_given = o->spp > 0;
+    if (!o->spp_given)
+        o->spp = ch->default_spp;
+    if (o->camera_fov > 0.0)
+        o->camera_override |= CAMERA_FOV;
     if (!o->scene_path)
         o->scene_path = "scenes/cornell.scene";
     return 0;
@@ -492,7 +559,7 @@ static int check_outputs(const chapter *ch, const render_options *o, char *err, 
     for (int k = 0; k < o->output_count; k++) {
         const char *p = o->outputs[k];
         if (!is_image_path(p) && !(ch->write_output && path_has_extension(p, ".ply"))) {
-            snprintf(err, err_size, "argv:0: --out '%s': unknown format (use .pfm or .png%s)", p,
+            snprintf(err, err_size, "argv:%d: --out '%s': unknown format (use .pfm or .png%s)", o->output_argv[k], p,
                      ch->write_output ? " or .ply" : "");
             return 2;
         }
@@ -526,13 +593,17 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
         return 2;
     if (o.camera_override) {
         camera c = s.camera;
-        if (o.camera_override & 1) c.eye = o.camera_eye;
-        if (o.camera_override & 2) c.look = o.camera_look;
-        if (o.camera_override & 4) c.up = o.camera_up;
-        if (o.camera_override & 8) c.fov_degrees = o.camera_fov;
+        if (o.camera_override & CAMERA_EYE)
+            c.eye = o.camera_eye;
+        if (o.camera_override & CAMERA_LOOK)
+            c.look = o.camera_look;
+        if (o.camera_override & CAMERA_UP)
+            c.up = o.camera_up;
+        if (o.camera_override & CAMERA_FOV)
+            c.fov_degrees = o.camera_fov;
         vec3 view = v3_sub(c.look, c.eye);
         if (v3_length(view) == 0.0 || v3_length(v3_cross(view, c.up)) <= 1e-9 * v3_length(view) * v3_length(c.up)) {
-            snprintf(err, err_size, "argv:0: the camera given by --eye/--look/--up is degenerate");
+            snprintf(err, err_size, "argv:%d: the camera given by --eye/--look/--up is degenerate", o.camera_argv);
             scene_free(&s);
             return 2;
         }
@@ -574,7 +645,8 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
     acc.sum = calloc(3 * (size_t)width * (size_t)height, sizeof(double));
     acc.pass = calloc(3 * (size_t)width * (size_t)height, sizeof(double));
     if (!img.pixels || !acc.sum || !acc.pass) {
-        snprintf(err, err_size, "argv:0: out of memory for a %dx%d image", width, height);
+        snprintf(err, err_size, "argv:%d: out of memory for a %dx%d image", o.size_argv ? o.size_argv : o.scene_argv,
+                 width, height);
         goto done;
     }
 
@@ -621,7 +693,7 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
     if (ch->probe && s.probe_count && !interrupted) {
         probes = calloc((size_t)s.probe_count, sizeof *probes);
         if (!probes) {
-            snprintf(err, err_size, "argv:0: out of memory");
+            snprintf(err, err_size, "argv:%d: out of memory for the scene's %d probes", o.scene_argv, s.probe_count);
             goto done;
         }
         for (int p = 0; p < s.probe_count; p++)

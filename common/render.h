@@ -16,17 +16,21 @@
 #include <stdio.h>
 
 #include "image.h"
+#include "options.h"
 #include "rng.h"
 #include "scene.h"
 #include "vec.h"
 
 enum { RENDER_MAX_OUTPUTS = 16, RENDER_MAX_COUNTERS = 16 };
+enum { CAMERA_EYE = 1, CAMERA_LOOK = 2, CAMERA_UP = 4, CAMERA_FOV = 8 };
 /* --bounces A: (no upper end) */
 #define RENDER_BOUNCES_UNLIMITED 1000000
 
 typedef struct {
     const char *scene_path;
+    int scene_argv, size_argv, camera_argv; /* their positions in argv (0: not given), for messages */
     const char *outputs[RENDER_MAX_OUTPUTS];
+    int output_argv[RENDER_MAX_OUTPUTS]; /* where each --out stood on the command line (for messages) */
     int output_count;
     int width, height;  /* --size, or the scene's `image` */
     int spp;            /* samples per pixel (a cap when --time is given) */
@@ -41,7 +45,7 @@ typedef struct {
     double exposure;    /* PNG exposure in stops (--exposure) */
     vec3 camera_eye, camera_look, camera_up; /* --eye --look --up --fov override the scene's camera */
     double camera_fov;
-    int camera_override; /* bits: 1 eye, 2 look, 4 up, 8 fov */
+    int camera_override; /* which of them were given: CAMERA_EYE | CAMERA_LOOK | ... */
     bool quiet;
 } render_options;
 
@@ -54,7 +58,10 @@ typedef struct { vec3 irradiance, standard_error; } probe_result;
 typedef struct chapter {
     const char *name;         /* "01_local": the executable and the stats' "chapter" */
     const char *description;  /* one line for --help */
-    const char *options_help; /* the chapter's own options, for --help (may be NULL) */
+    /* The chapter's own options: tables and the state each one's offsets
+     * are relative to, ended by an empty group (see options.h). */
+    option_group options[OPTION_MAX_GROUPS];
+    const char *options_help; /* legacy: extra --help text for parse_option (may be NULL) */
     int default_spp;
     /* Names of the counters the chapter increments, NULL-terminated. */
     const char *counter_names[RENDER_MAX_COUNTERS + 1];
@@ -87,6 +94,10 @@ int render_main(int argc, char **argv, const chapter *ch, void *state);
 
 /* Is bounce count k inside the --bounces window (R6)? */
 static inline bool bounces_keep(const render_options *o, int k) { return k >= o->bounce_min && k <= o->bounce_max; }
+
+/* The mean of `count` independent batch estimates and its standard error
+ * (the batches' standard deviation over sqrt(count)). */
+probe_result batch_mean_and_error(const vec3 *batch, int count);
 
 /* Print a warning once per process (chapters use it for "cannot model X"). */
 void warn_once(int *flag, const char *format, ...);

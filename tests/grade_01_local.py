@@ -161,6 +161,30 @@ def test_cornell_image_finite_and_light_exact(ctx):
     assert probe(stats, "floor_left_front")["irradiance"][0] > 0.0, "a probe in view of the light gets no light"
 
 
+def test_bounces_window_splits_the_neumann_terms(ctx):
+    """--bounces in chapter 1 (R6): 0:0 is the emission seen directly (E), 1:1 the
+    direct light of (R1) (KE), 2: the ambient term standing in for K^2 E and
+    beyond (rho La), 2:2 nothing; and the three windows add up to the full image."""
+    scene = ctx.write("bounces.scene", FLOOR_SCENE.format(
+        floor_material="diffuse 0.25 0.5 0.75",
+        extra="light lamp point 0 3 0  4 4 4\nmaterial glow emitter 2 3 4\nquad glow glow "
+              "-1 0.01 -1  -1 0.01 1  1 0.01 1  1 0.01 -1\n"))
+    windows = {w: ctx.render(CHAPTER, scene, "--ambient", 2.0, "--bounces", w, name=w.replace(":", "_"))[0]
+               for w in ("0:", "0:0", "1:1", "2:", "2:2")}
+    centre, edge = windows["0:"].at(4, 4), (4, 0)  # the emitter's centre; the floor beside it
+    assert windows["0:0"].at(4, 4) == (2.0, 3.0, 4.0), "0:0 must be exactly the emitter's radiance"
+    assert windows["0:0"].at(*edge) == (0.0, 0.0, 0.0), "0:0: the floor emits nothing"
+    direct = windows["1:1"].at(*edge)
+    assert direct[0] > 0 and abs(direct[0] / direct[2] - 0.25 / 0.75) < 1e-6, f"1:1: no direct light, or not rho-coloured: {direct}"
+    assert all(abs(windows["2:"].at(*edge)[c] - 2.0 * rho) < 1e-6 for c, rho in enumerate((0.25, 0.5, 0.75))), \
+        "2: must be the ambient term rho La alone"
+    assert all(p == (0.0, 0.0, 0.0) for p in windows["2:2"].pixels), "2:2 must be black (ambient stands for 2 and up)"
+    for k in range(len(windows["0:"].pixels)):
+        parts = [windows[w].pixels[k] for w in ("0:0", "1:1", "2:")]
+        assert all(abs(sum(p[c] for p in parts) - windows["0:"].pixels[k][c]) <= 1e-5 * (1 + abs(centre[c]))
+                   for c in range(3)), f"pixel {k}: E + KE + ambient differs from the full image"
+
+
 def test_threads_give_identical_bytes(ctx):
     """The per-pixel generator makes the image independent of the thread count."""
     check_thread_independence(ctx, CHAPTER, "scenes/cornell.scene", "--size", "48x48", "--spp", 4)
