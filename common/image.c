@@ -225,13 +225,16 @@ int image_write(const image *img, const char *path, double exposure_stops, char 
 
 /* --- metrics ----------------------------------------------------------------- */
 
+/* A channel as the PNG shows it at exposure 0: clamped to [0, 1] and
+ * sRGB-encoded, so that 1 is the brightest a display can show. */
+static double display_value(float linear) { return srgb_encode(fmin(fmax(linear, 0.0), 1.0)); }
+
 /* Luminance after tone mapping to [0, 1] at exposure 0: SSIM is a
  * perceptual measure, so it compares what a person would see. */
 static double display_luminance(const image *img, size_t pixel)
 {
     const float *p = img->pixels + 3 * pixel;
-    vec3 c = v3(fmin(fmax(p[0], 0.0), 1.0), fmin(fmax(p[1], 0.0), 1.0), fmin(fmax(p[2], 0.0), 1.0));
-    return v3_luminance(v3(srgb_encode(c.x), srgb_encode(c.y), srgb_encode(c.z)));
+    return v3_luminance(v3(display_value(p[0]), display_value(p[1]), display_value(p[2])));
 }
 
 static double mean_ssim(const image *a, const image *b)
@@ -261,19 +264,19 @@ static double mean_ssim(const image *a, const image *b)
 image_metrics image_compare(const image *test, const image *reference)
 {
     size_t n = (size_t)test->width * (size_t)test->height * 3;
-    double squared = 0.0, relative = 0.0, peak = 0.0;
+    double squared = 0.0, relative = 0.0, display_squared = 0.0;
     for (size_t i = 0; i < n; i++) {
         double t = test->pixels[i], r = reference->pixels[i];
-        double d = t - r;
+        double d = t - r, shown = display_value(test->pixels[i]) - display_value(reference->pixels[i]);
         squared += d * d;
         relative += d * d / (r * r + 0.01);
-        peak = fmax(peak, r);
+        display_squared += shown * shown;
     }
-    double mse = squared / (double)n;
+    double mse = squared / (double)n, display_mse = display_squared / (double)n;
     return (image_metrics){
         .rmse = sqrt(mse),
         .relmse = relative / (double)n,
-        .psnr = mse > 0.0 ? 10.0 * log10(peak * peak / mse) : INFINITY,
+        .psnr = display_mse > 0.0 ? 10.0 * log10(1.0 / display_mse) : INFINITY,
         .ssim = mean_ssim(test, reference),
     };
 }

@@ -70,7 +70,9 @@ double srgb_encode(double linear01);
  * rmse: sqrt(mean over pixels and channels of (t - r)^2).
  * relmse: mean of (t - r)^2 / (r^2 + 0.01), the relative MSE used in
  *         rendering papers (the 0.01 keeps black pixels from dominating).
- * psnr: 10 log10(peak^2 / mse) with peak = the reference's maximum.
+ * psnr: 10 log10(1 / mse) of the displayed values (clamped to [0, 1] and
+ *       sRGB-encoded, as the PNG at exposure 0), peak 1: a peak taken from
+ *       HDR radiance (a light of 1700) would make a bad image score high.
  * ssim: mean SSIM (Wang et al. 2004) of the tone-mapped luminance,
  *       8x8 windows, stride 4, constants K1 = 0.01, K2 = 0.03. */
 typedef struct { double rmse, relmse, psnr, ssim; } image_metrics;

@@ -254,7 +254,8 @@ static const option DRIVER_OPTIONS[] = {
     {"--threads", "N", OPTION_INT, DRIVER(threads), .min = 1, .max = 1024,
      .help = "OpenMP threads; default: all cores"},
     {"--ref", "REF.pfm", OPTION_STRING, DRIVER(reference_path),
-     .help = "print RMSE, relative MSE, PSNR, SSIM against a reference"},
+     .help = "print error metrics against a reference: RMSE; relative MSE, the mean of (t - r)^2 / (r^2 + 0.01); "
+             "PSNR of the displayed image (clamped to [0, 1], sRGB; peak 1); SSIM of its luminance"},
     {"--stats", "FILE.json", OPTION_STRING, DRIVER(stats_path), .help = "write statistics as one JSON object"},
     {"--bounces", "A:B", OPTION_CUSTOM, 0, .parse = parse_bounces, .default_text = "0:",
      .help = "keep only the Neumann terms K^A E .. K^B E (R6); 'A:' = A and up"},

@@ -1,7 +1,11 @@
 #!/usr/bin/python3
 """The test runner behind `make test`.
 
-usage: tests/run.py BUILD_DIR [BUILD_DIR ...]   (e.g. build build/asan)
+usage: tests/run.py [-k TEXT] BUILD_DIR [BUILD_DIR ...]   (e.g. build build/asan)
+
+  -k TEXT     run only the grading tests whose full name contains TEXT
+              (BUILD:grade_MODULE:test_NAME); the C unit tests are skipped
+  -h, --help  this text
 
 For every build directory it runs
   1. the C unit tests build/tests/test_*  (lines "ok   name" / "FAIL name: ...")
@@ -72,6 +76,13 @@ def run_grading_tests(build, report, only):
 
 def main():
     args = sys.argv[1:]
+    if "-h" in args or "--help" in args:
+        print(__doc__.strip())
+        return
+    unknown = [a for a in args if a.startswith("-") and a != "-k"]
+    if unknown or args[-1:] == ["-k"]:
+        print(f"tests/run.py: bad arguments {' '.join(unknown) or '-k without TEXT'} (see --help)", file=sys.stderr)
+        sys.exit(2)
     only = None
     if "-k" in args:
         i = args.index("-k")

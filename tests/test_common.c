@@ -240,6 +240,27 @@ static void test_metrics(void)
     image_free(&b);
 }
 
+/* PSNR must not reward a bright light in the reference: an image whose
+ * displayed pixels are all far off scores lower than one slightly off,
+ * however bright the first reference's one light pixel is. */
+static void test_psnr_is_not_fooled_by_a_bright_light(void)
+{
+    image bright_reference = image_new(16, 16), noisy = image_new(16, 16);
+    image dim_reference = image_new(16, 16), close = image_new(16, 16);
+    for (int i = 0; i < 16 * 16 * 3; i++) {
+        bright_reference.pixels[i] = dim_reference.pixels[i] = 0.2f;
+        noisy.pixels[i] = i % 2 ? 0.0f : 0.6f;  /* every pixel far off */
+        close.pixels[i] = 0.21f;                /* every pixel slightly off */
+    }
+    bright_reference.pixels[0] = noisy.pixels[0] = 1700.0f; /* the light, right in both */
+    image_metrics worse = image_compare(&noisy, &bright_reference), better = image_compare(&close, &dim_reference);
+    CHECK(worse.psnr < better.psnr, "PSNR %.1f dB of the far-off image >= %.1f dB of the close one", worse.psnr,
+          better.psnr);
+    double shown = srgb_encode(0.21) - srgb_encode(0.2);
+    CHECK_NEAR(better.psnr, 10.0 * log10(1.0 / (shown * shown)), 1e-4, "PSNR of a uniform display offset");
+    image_free(&bright_reference), image_free(&noisy), image_free(&dim_reference), image_free(&close);
+}
+
 int main(void)
 {
     RUN_TEST(test_vector_algebra);
@@ -253,5 +274,6 @@ int main(void)
     RUN_TEST(test_png_and_tone_mapping);
     RUN_TEST(test_failed_write_leaves_nothing);
     RUN_TEST(test_metrics);
+    RUN_TEST(test_psnr_is_not_fooled_by_a_bright_light);
     return CHECK_EXIT_STATUS();
 }
