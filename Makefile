@@ -68,26 +68,48 @@ $(BUILD)/tests/%: tests/%.c $(COMMON_OBJ)
 	$(CC) $(CFLAGS) -Icommon $< $(COMMON_OBJ) -o $@ $(LDFLAGS) $(LDLIBS)
 
 # --- set-up ---------------------------------------------------------------
-DEBIAN_PACKAGES := build-essential clang libpng-dev libomp-dev python3 valgrind
-# Parts of the build that own their rules (the viewer) add packages and targets here.
+# Debian 12 packages, by what needs them; each target installs only its own
+# groups (`make demo` no browser, no valgrind), .ci/run and `make deps` all.
+BUILD_PACKAGES := build-essential libpng-dev python3
+# The viewer's (VIEWER_PACKAGES), the slides' and the sweep's are set by the
+# files that own those rules:
 -include viewer/viewer.mk
 -include slides/slides.mk
 -include tradeoff/tradeoff.mk
+# make test: valgrind (tests/grade_extremes.py), Xvfb and xdotool (the viewer's
+# window tests), clang and its OpenMP (make fuzz, CC=clang), clang-format (the
+# style check), and what the slide and sweep tests need.
+TEST_PACKAGES := valgrind clang libomp-dev clang-format xvfb xauth xdotool
+DEBIAN_PACKAGES := $(sort $(BUILD_PACKAGES) $(VIEWER_PACKAGES) $(SLIDES_PACKAGES) $(TRADEOFF_PACKAGES) \
+                          $(TEST_PACKAGES))
 print-deps:
 	@echo $(DEBIAN_PACKAGES)
 
-deps:
-	@$(PYTHON) --version >/dev/null 2>&1 && dpkg -s $(DEBIAN_PACKAGES) >/dev/null 2>&1 && exit 0; \
+# $(call install_packages,LIST): nothing when all are installed; apt-get as
+# root; otherwise print the command to run.
+define install_packages
+	@dpkg -s $(1) >/dev/null 2>&1 && exit 0; \
 	if [ "$$(id -u)" = 0 ]; then \
-	  apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y $(DEBIAN_PACKAGES); \
+	  apt-get update && DEBIAN_FRONTEND=noninteractive apt-get install -y $(1); \
 	else \
-	  echo "missing packages; run:  sudo apt-get install -y $(DEBIAN_PACKAGES)"; exit 1; \
+	  echo "missing packages; run:  sudo apt-get install -y $(1)"; exit 1; \
 	fi
+endef
+.PHONY: deps deps-demo deps-slides deps-tradeoff
+deps:
+	$(call install_packages,$(DEBIAN_PACKAGES))
+deps-demo:
+	$(call install_packages,$(BUILD_PACKAGES) $(VIEWER_PACKAGES))
+deps-slides:
+	$(call install_packages,$(BUILD_PACKAGES) $(VIEWER_PACKAGES) $(SLIDES_PACKAGES))
+deps-tradeoff:
+	$(call install_packages,$(BUILD_PACKAGES) $(VIEWER_PACKAGES) $(TRADEOFF_PACKAGES))
 
 # --- the two commands -------------------------------------------------------
 # Renders the Cornell box with every chapter into out/demo/, then opens the
 # viewer side by side (or, with no display, writes out/demo/cornell-side-by-side.png).
-demo: deps all
+demo: deps-demo
+	$(MAKE) --no-print-directory all
 	viewer/demo.sh $(BUILD)
 
 test: deps
@@ -98,7 +120,8 @@ test: deps
 test-plain: all tests
 	$(PYTHON) tests/run.py build
 
-bench: deps all
+bench: deps-demo
+	$(MAKE) --no-print-directory all
 	$(PYTHON) bench/bench.py build
 
 # libFuzzer on the scene parser (clang), time-boxed; crashing inputs land in

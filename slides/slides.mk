@@ -12,11 +12,13 @@
 
 # npm only when no npm is on the PATH: Debian 12's nodejs (18) comes without it, but a
 # NodeSource nodejs bundles its own npm and conflicts with Debian's npm package.
-DEBIAN_PACKAGES += nodejs $(if $(shell command -v npm 2>/dev/null),,npm) gnuplot-nox chromium fonts-dejavu-core
+SLIDES_PACKAGES := nodejs $(if $(shell command -v npm 2>/dev/null),,npm) gnuplot-nox chromium fonts-dejavu-core
 
 .PHONY: slides slides-html
-slides: deps all
+slides: deps-slides
+	$(MAKE) --no-print-directory all
 	$(PYTHON) slides/build.py --build $(BUILD)
 
-slides-html: deps all
+slides-html: deps-slides
+	$(MAKE) --no-print-directory all
 	$(PYTHON) slides/build.py --build $(BUILD) --no-pdf

@@ -10,9 +10,10 @@
 # Overrides (environment or make variables): SIZE, REF_SPP, PT_MAX_SPP, REPEATS, CAP, AA_SPP,
 # OUT, REUSE_REF=1 (see tradeoff/tradeoff.py).
 
-DEBIAN_PACKAGES += gnuplot-nox
+TRADEOFF_PACKAGES := gnuplot-nox
 
 QUICK ?=
 .PHONY: tradeoff
-tradeoff: all
+tradeoff: deps-tradeoff
+	$(MAKE) --no-print-directory all
 	QUICK=$(QUICK) BUILD=$(BUILD) $(PYTHON) tradeoff/tradeoff.py

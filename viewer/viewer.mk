@@ -7,7 +7,7 @@
 # GLFW is linked; EGL and OSMesa are dlopen()ed at run time by
 # viewer/backend.c, so libGL and libOSMesa never meet in one link line.
 
-DEBIAN_PACKAGES += libglfw3-dev libegl-dev libegl1-mesa-dev libgl-dev libosmesa6-dev python3-glad xvfb xauth xdotool
+VIEWER_PACKAGES := libglfw3-dev libegl-dev libegl1-mesa-dev libgl-dev libosmesa6-dev python3-glad
 
 VIEWER_SRC  := $(wildcard viewer/*.c)
 VIEWER_OBJ  := $(VIEWER_SRC:viewer/%.c=$(BUILD)/viewer-obj/%.o)
