@@ -4,8 +4,8 @@
 #   names  (their titles, quoted words), styles (line style per curve, see below)
 #   t0, e0 (a point the N^-1/2 guide passes through), refrmse (the reference's own RMSE)
 #   tmin, tmax, emin, emax (axis ranges)
-if (term eq 'png') { set terminal pngcairo size 1100,760 font 'DejaVu Sans,10' noenhanced } \
-else { set terminal svg size 1100,760 font 'DejaVu Sans,10' noenhanced dynamic }
+if (term eq 'png') { set terminal pngcairo size 1000,900 font 'DejaVu Sans,11' noenhanced } \
+else { set terminal svg size 1000,900 font 'DejaVu Sans,11' noenhanced dynamic }
 set output out
 set title title
 set logscale xy
@@ -18,7 +18,9 @@ set format y '%g'
 set xlabel 'time (s): prepare_s + render_s, median of repeats'
 set ylabel 'RMSE against the reference'
 set grid xtics ytics mxtics mytics lc rgb '#dddddd'
-set key outside right top box opaque
+# The legend below the plot, in columns, so the plot keeps the full width.
+set key outside below center horizontal maxcols 2 Left reverse samplen 2 box
+set xlabel offset 0,-0.3
 
 # 1-4 path tracing estimators, 5-8 radiosity solvers, 9-10 Whitted, 11 local
 set style line 1  lc rgb '#9467bd' lw 2 pt 7  ps 0.9

@@ -14,7 +14,9 @@ set format y '%g'
 set xlabel 'iterations K (--tol 0; shooting: K x patches shots)'
 set ylabel 'RMSE against the reference'
 set grid xtics ytics mxtics mytics lc rgb '#dddddd'
-set key outside right top box opaque
+# The legend below the plot, so the plot keeps the full width.
+set key outside below center horizontal maxcols 2 Left reverse samplen 2 box
+set xlabel offset 0,-0.3
 array palette[8] = ['#1f77b4', '#ff7f0e', '#2ca02c', '#d62728', '#9467bd', '#8c564b', '#e377c2', '#17becf']
 plot for [i=1:words(files)] word(files, i) using 1:2 with linespoints \
          lc rgb palette[int(word(colors, i))] dt int(word(dashes, i)) lw 2 pt int(word(dashes, i)) + 5 ps 0.9 \
