@@ -3,12 +3,18 @@
 
 usage: slides/build.py [--build DIR] [--out DIR] [--work DIR] [--no-pdf] [--only DECK]
 
-Standard-library Python plus node (KaTeX, server-side) and gnuplot.
+Standard-library Python plus node and gnuplot. The Markdown is CommonMark
+with pipe tables and raw HTML, rendered by markdown-it (npm, pinned in
+slides/package-lock.json) at build time, with the math by KaTeX (npm), both in
+one run of slides/markdown_render.cjs for every slide of every deck. This file
+keeps only what is the course's own: it turns the directives below into HTML
+(and the math into placeholders, so Markdown never sees TeX), checks them with
+deck:line, and hands each slide's Markdown to node.
 
 What a deck may contain besides Markdown (headings, paragraphs, lists,
-**bold**, *italic*, `code`, [links](..), pipe tables, raw HTML lines):
+**bold**, *italic*, `code`, [links](..), ![images](path), pipe tables, raw HTML):
 
-  $...$, $$...$$            KaTeX math, rendered here at build time (\\tag{R4})
+  $...$, $$...$$            KaTeX math, rendered at build time (\\tag{R4}: R1 .. R10 only)
   ---                       a line on its own: next slide
   ::: cols / ::: col / :::  <div class="..."> blocks (e.g. code left, figure right)
   Note: ...                 speaker notes (to the end of the slide)
@@ -22,6 +28,7 @@ What a deck may contain besides Markdown (headings, paragraphs, lists,
   caption | CHAPTER ARGS...
   ```                       a grid of images rendered now by build/CHAPTER ARGS
   {{plot NAME}}             a plot made now by running the chapters (see PLOTS)
+  {{fact NAME}}             in text: a number such a plot computed (see FACT_PLOTS)
   {{tradeoff}}              out/tradeoff*.png of `make tradeoff` when
                             out/tradeoff.csv exists, else a plot of our own sweep
 
@@ -511,31 +518,60 @@ PLOTS = {
 }
 
 
-# ---- Markdown -> HTML ----------------------------------------------------------------------------
+# ---- Markdown -> HTML: our directives here, the Markdown itself by markdown-it -------------------
 
-class Math:
-    """Collects TeX for one KaTeX run; placeholders are substituted afterwards."""
+# Placeholders for what markdown-it must not see (math, figures, captions): private-use characters,
+# which it passes through as ordinary text. The kind letter says what the number refers to.
+PLACEHOLDER = re.compile("(?:<!--)?\ue000([DIBM])(\\d+)\ue001(?:-->)?")
+INLINE_MATH = re.compile(r"(?<![\\$])\$(?=\S)([^$\n]+?)(?<=\S)\$(?!\d)")
+
+
+class Markup:
+    """Everything of all decks that node renders, collected for one run of
+    slides/markdown_render.cjs: slides as Markdown (D), inline Markdown (I,
+    captions) and TeX (M); plus the HTML made here (B), kept from Markdown."""
 
     def __init__(self):
-        self.jobs = []  # (tex, display, where)
+        self.jobs = {"D": [], "I": [], "M": [], "B": []}
+        self.where = []  # deck:line of each formula, for KaTeX's errors
+        self.done = None
 
-    def add(self, tex, display, where):
-        self.jobs.append((tex, display, where))
-        return f"\x00M{len(self.jobs) - 1}\x00"
+    def add(self, kind, value):
+        self.jobs[kind].append(value)
+        return f"\ue000{kind}{len(self.jobs[kind]) - 1}\ue001"
+
+    def math(self, tex, display, where):
+        self.where.append(where)
+        return self.add("M", {"tex": tex, "display": display})
+
+    def block(self, html_text):
+        """HTML made here, as a line of its own that markdown-it keeps (an HTML comment)."""
+        return f"<!--{self.add('B', html_text)}-->"
 
     def render(self, node, node_modules):
-        if not self.jobs:
-            return []
-        script = os.path.join(SLIDES, "katex_render.cjs")
-        payload = json.dumps([{"tex": t, "display": d} for t, d, _ in self.jobs])
+        script = os.path.join(SLIDES, "markdown_render.cjs")
+        payload = json.dumps({"blocks": self.jobs["D"], "inline": self.jobs["I"], "math": self.jobs["M"]})
         result = subprocess.run([node, script, node_modules], input=payload, capture_output=True, text=True)
         if result.returncode != 0:
-            raise BuildError(f"slides/katex_render.cjs failed: {result.stderr.strip()[-1500:]}")
-        rendered = json.loads(result.stdout)
-        errors = [f"{self.jobs[i][2]}: KaTeX: {r['error']}" for i, r in enumerate(rendered) if "error" in r]
+            raise BuildError(f"slides/markdown_render.cjs failed: {result.stderr.strip()[-1500:]}")
+        out = json.loads(result.stdout)
+        errors = [f"{self.where[i]}: KaTeX: {r['error']}" for i, r in enumerate(out["math"]) if "error" in r]
         if errors:
             raise BuildError("\n".join(errors))
-        return [r["html"] for r in rendered]
+        self.done = {"D": out["blocks"], "I": out["inline"], "M": [r["html"] for r in out["math"]],
+                     "B": self.jobs["B"]}
+
+    def expand(self, text, keep_math=False):
+        """Placeholders -> their HTML (those inside included, until none is left)."""
+        def one(m):
+            if keep_math and m.group(1) == "M":
+                return m.group(0)
+            return self.done[m.group(1)][int(m.group(2))]
+        while True:
+            new = PLACEHOLDER.sub(one, text)
+            if new == text:
+                return text
+            text = new
 
 
 class Deck:
@@ -545,33 +581,21 @@ class Deck:
         self.tags = set()          # labels stated with \tag{Rn}
         self.code_labels = []      # (where, labels) of every code block
         self.title = self.name
+        self.title_slide = ""      # placeholder of the first slide's HTML (set_title reads its <h1>)
+        self.in_column = False
 
     def where(self, line):
         return f"{rel(self.path)}:{line}"
 
-    # inline: code spans, math, links, images, bold, italic
     def inline(self, text, line):
-        stash = []
-
-        def keep(s):
-            stash.append(s)
-            return f"\x00S{len(stash) - 1}\x00"
-
-        text = re.sub(r"`([^`]+)`", lambda m: keep(f"<code>{html.escape(m.group(1))}</code>"), text)
-        text = re.sub(r"\{\{fact\s+(\w+)\}\}", lambda m: keep(self.fact(m.group(1), line)), text)
-        text = re.sub(r"(?<![\\$])\$(?=\S)([^$\n]+?)(?<=\S)\$(?!\d)",
-                      lambda m: keep(self.math(m.group(1), False, line)), text)
-        text = re.sub(r"<[A-Za-z/][^>]*>|&(?:[A-Za-z]+|#\d+);", lambda m: keep(m.group(0)), text)  # HTML stays
-        text = html.escape(text, quote=False)
-        text = re.sub(r"!\[([^\]]*)\]\(([^)\s]+)\)",
-                      lambda m: keep(f'<img src="{self.asset(m.group(2), line)}" alt="{m.group(1)}">'), text)
-        text = re.sub(r"\[([^\]]+)\]\(([^)\s]+)\)", r'<a href="\2">\1</a>', text)
-        text = re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", text)
-        text = re.sub(r"(?<![\w*])\*(?!\s)(.+?)(?<!\s)\*(?![\w*])", r"<em>\1</em>", text)
-        text = text.replace("\\$", "$")
-        while "\x00S" in text:
-            text = re.sub(r"\x00S(\d+)\x00", lambda m: stash[int(m.group(1))], text)
-        return text
+        """A line of Markdown with its math, {{fact}}s and image paths replaced (code spans untouched)."""
+        spans = []
+        text = re.sub(r"`[^`]+`", lambda m: spans.append(m.group(0)) or f"\ue002{len(spans) - 1}\ue003", text)
+        text = re.sub(r"\{\{fact\s+(\w+)\}\}", lambda m: self.fact(m.group(1), line), text)
+        text = INLINE_MATH.sub(lambda m: self.math(m.group(1), False, line), text)
+        text = re.sub(r"!\[([^\]]*)\]\(([^)\s]+)\)", lambda m: f"![{m.group(1)}]({self.asset(m.group(2), line)})",
+                      text)
+        return re.sub("\ue002(\\d+)\ue003", lambda m: spans[int(m.group(1))], text)
 
     def math(self, tex, display, line):
         for m in re.finditer(r"\\tag\*?\{([^}]*)\}", tex):
@@ -579,7 +603,7 @@ class Deck:
             if not re.fullmatch(r"R(\d+)", label) or int(label[1:]) not in LABEL_RANGE:
                 fail(self.where(line), f"\\tag{{{label}}}: equations are labelled R1 .. R10 as in the lecture")
             self.tags.add(int(label[1:]))
-        return self.ctx.math.add(tex, display, self.where(line))
+        return self.ctx.markup.math(tex, display, self.where(line))
 
     def asset(self, src, line):
         """An image path in the deck: copied next to the decks under fig/."""
@@ -591,6 +615,7 @@ class Deck:
         return self.ctx.publish(path)
 
     def convert(self):
+        """The deck's <section>s, with placeholders for what node renders (see Markup)."""
         with open(self.path) as f:
             lines = f.read().split("\n")
         slides, current, start = [], [], 1
@@ -606,13 +631,14 @@ class Deck:
         slides.append((start, current))
         sections = []
         for index, (start, body) in enumerate(slides):
-            html_body = self.blocks(body)
-            classes = "title-slide" if index == 0 else ""
+            text, notes = self.markdown(body)
+            content = self.ctx.markup.add("D", text)
             if index == 0:
-                m = re.search(r"<h1>(.*?)</h1>", html_body, re.S)
-                if m:
-                    self.title = re.sub(r"<[^>]+>|\x00M\d+\x00", "", m.group(1)).strip()
-            sections.append(f'<section class="{classes}" data-source="{self.where(start)}">\n{html_body}\n</section>')
+                self.title_slide = content
+            if notes is not None:
+                content += '\n<aside class="notes">' + self.ctx.markup.add("D", notes) + "</aside>"
+            classes = "title-slide" if index == 0 else ""
+            sections.append(f'<section class="{classes}" data-source="{self.where(start)}">\n{content}\n</section>')
         # every label the shown code cites is stated on a slide of the deck
         for where, labels in self.code_labels:
             missing = sorted(labels - self.tags)
@@ -621,46 +647,36 @@ class Deck:
                      f" but no slide of {os.path.basename(self.path)} states it (\\tag{{R{missing[0]}}})")
         return sections
 
-    def blocks(self, body):
-        out, i = [], 0
-        paragraph, list_stack, notes = [], [], None
+    def set_title(self):
+        """The deck's title: the first slide's <h1>, as text (once node has rendered it)."""
+        m = re.search(r"<h1>(.*?)</h1>", self.ctx.markup.expand(self.title_slide, keep_math=True), re.S)
+        if m:
+            self.title = html.unescape(re.sub(r"<[^>]+>|\ue000M\d+\ue001", "", m.group(1))).strip()
+
+    def markdown(self, body):
+        """One slide's lines -> (its Markdown, the Markdown of its speaker notes or None). The
+        directives, ``` render blocks, $$ math and ::: blocks become HTML here, each on lines of
+        its own between blank lines, so Markdown ends a paragraph or list before them as before."""
+        out, notes, div_stack = [], None, []
         target = out
-
-        def flush_paragraph():
-            if paragraph:
-                text = " ".join(t.strip() for _, t in paragraph)
-                target.append(f"<p>{self.inline(text, paragraph[0][0])}</p>")
-                paragraph.clear()
-
-        def close_lists(level=0):
-            while len(list_stack) > level:
-                kind = list_stack.pop()
-                target.append(f"</li></{kind}>")
-
-        div_stack = []
-        self.in_column = False
+        i = 0
         while i < len(body):
             number, text = body[i]
             stripped = text.strip()
-            # fenced blocks: render grids, or literal code
-            if stripped.startswith("```"):
-                flush_paragraph(), close_lists()
-                info = stripped[3:].strip()
-                block, j = [], i + 1
+            if stripped.startswith("```"):  # render grids here; literal code to markdown-it as it is
+                j = i + 1
                 while j < len(body) and not body[j][1].strip().startswith("```"):
-                    block.append(body[j])
                     j += 1
                 if j >= len(body):
                     fail(self.where(number), "unclosed ``` block")
-                if info.split()[:1] == ["render"]:
-                    target.append(self.render_grid(number, info, block))
+                if stripped[3:].split()[:1] == ["render"]:
+                    target += ["", self.ctx.markup.block(self.render_grid(number, stripped[3:].strip(),
+                                                                          body[i + 1:j])), ""]
                 else:
-                    target.append(f'<pre class="plain"><code>{html.escape(chr(10).join(t for _, t in block))}'
-                                  f'</code></pre>')
+                    target += [t for _, t in body[i:j + 1]]
                 i = j + 1
                 continue
             if stripped.startswith("$$"):
-                flush_paragraph(), close_lists()
                 tex, j = stripped[2:], i
                 while not (tex.rstrip().endswith("$$") and (j > i or len(stripped) > 2)):
                     j += 1
@@ -668,100 +684,33 @@ class Deck:
                         fail(self.where(number), "unclosed $$")
                     tex += "\n" + body[j][1]
                 tex = tex.rstrip()[:-2]
-                target.append(f'<div class="eq">{self.math(tex.strip(), True, number)}</div>')
+                target += ["", f'<div class="eq">{self.math(tex.strip(), True, number)}</div>', ""]
                 i = j + 1
                 continue
             m = re.fullmatch(r"\{\{(\w+)\s*(.*?)\}\}", stripped)
-            if m:
-                flush_paragraph(), close_lists()
-                target.append(self.directive(number, m.group(1), m.group(2)))
-                i += 1
-                continue
-            if stripped.startswith(":::"):
-                flush_paragraph(), close_lists()
+            if m and m.group(1) != "fact":
+                target += ["", self.ctx.markup.block(self.directive(number, m.group(1), m.group(2))), ""]
+            elif stripped.startswith(":::"):
                 classes = stripped[3:].strip()
                 if classes:
-                    target.append(f'<div class="{html.escape(classes)}">')
+                    target += ["", f'<div class="{html.escape(classes)}">', ""]
                     div_stack.append(classes.split())
                 else:
                     if not div_stack:
                         fail(self.where(number), "::: closes nothing")
-                    target.append("</div>")
+                    target += ["", "</div>", ""]
                     div_stack.pop()
                 self.in_column = any("col" in c for c in div_stack)
-                i += 1
-                continue
-            if stripped.startswith("Note:"):
-                flush_paragraph(), close_lists()
+            elif stripped.startswith("Note:"):
                 notes = []
                 target = notes
-                rest = stripped[5:].strip()
-                if rest:
-                    paragraph.append((number, rest))
-                i += 1
-                continue
-            if not stripped:
-                flush_paragraph()
-                if list_stack and not (i + 1 < len(body) and re.match(r"\s*([-*]|\d+\.)\s", body[i + 1][1])):
-                    close_lists()
-                i += 1
-                continue
-            h = re.match(r"(#{1,4})\s+(.*)", stripped)
-            if h:
-                flush_paragraph(), close_lists()
-                level = len(h.group(1))
-                target.append(f"<h{level}>{self.inline(h.group(2), number)}</h{level}>")
-                i += 1
-                continue
-            li = re.match(r"(\s*)([-*]|\d+\.)\s+(.*)", text)
-            if li:
-                flush_paragraph()
-                level = len(li.group(1)) // 2 + 1
-                kind = "ol" if li.group(2)[0].isdigit() else "ul"
-                if level > len(list_stack):
-                    while len(list_stack) < level:
-                        target.append(f"<{kind}><li>")
-                        list_stack.append(kind)
-                else:
-                    close_lists(level)
-                    target.append("</li><li>")
-                item = [li.group(3)]
-                while i + 1 < len(body) and body[i + 1][1].startswith("  " * level) and body[i + 1][1].strip() \
-                        and not re.match(r"\s*([-*]|\d+\.)\s", body[i + 1][1]):
-                    i += 1
-                    item.append(body[i][1].strip())
-                target.append(self.inline(" ".join(item), number))
-                i += 1
-                continue
-            if stripped.startswith("|") and i + 1 < len(body) and re.fullmatch(r"\|?[\s:|-]+\|?", body[i + 1][1].strip()):
-                flush_paragraph(), close_lists()
-                rows, j = [], i
-                while j < len(body) and body[j][1].strip().startswith("|"):
-                    rows.append((body[j][0], [c.strip() for c in body[j][1].strip().strip("|").split("|")]))
-                    j += 1
-                head = "".join(f"<th>{self.inline(c, rows[0][0])}</th>" for c in rows[0][1])
-                trs = "".join("<tr>" + "".join(f"<td>{self.inline(c, n)}</td>" for c in cells) + "</tr>"
-                              for n, cells in rows[2:])
-                target.append(f"<table><thead><tr>{head}</tr></thead><tbody>{trs}</tbody></table>")
-                i = j
-                continue
-            if stripped.startswith("<") and not paragraph:
-                close_lists()
-                # raw HTML stays as it is, but its $math$ is rendered like everywhere else
-                target.append(re.sub(r"(?<![\\$])\$(?=\S)([^$\n]+?)(?<=\S)\$(?!\d)",
-                                     lambda m: self.math(m.group(1), False, number), text))
-                i += 1
-                continue
-            if list_stack:
-                close_lists()
-            paragraph.append((number, text))
+                target.append(self.inline(stripped[5:].strip(), number))
+            else:
+                target.append(self.inline(text, number))
             i += 1
-        flush_paragraph(), close_lists()
         if div_stack:
             fail(self.where(body[-1][0] if body else 0), "a ::: block is not closed on this slide")
-        if notes is not None:
-            out.append('<aside class="notes">' + "\n".join(notes) + "</aside>")
-        return "\n".join(out)
+        return "\n".join(out), None if notes is None else "\n".join(notes)
 
     def directive(self, number, name, argument):
         where = self.where(number)
@@ -862,8 +811,9 @@ class Deck:
             result = self.ctx.renderer.render(self.where(line_number), words[0], args)
             src = self.ctx.publish(result["png"])
             caption = self.stats_fields(self.where(line_number), caption, result["json"])
+            caption = self.ctx.markup.add("I", self.inline(caption.strip(), line_number))  # Markdown, by node
             cells.append(f'<figure><img src="{src}" alt="{html.escape(" ".join(words + args))}">'
-                         f'<figcaption>{self.inline(caption.strip(), line_number)}</figcaption></figure>')
+                         f'<figcaption>{caption}</figcaption></figure>')
         cols = int(options.get("cols", min(len(cells), 4)))
         shown = min(260, int(1.4 * int(size.split("x")[0]))) if re.fullmatch(r"\d+x\d+", size) else 260
         return (f'<div class="grid" style="grid-template-columns: repeat({cols}, 1fr); --img-max: {shown}px">'
@@ -913,7 +863,7 @@ class Context:
         self.build = args.build
         self.out = os.path.abspath(args.out)
         self.work = os.path.abspath(args.work)
-        self.math = Math()
+        self.markup = Markup()
         self.renderer = Renderer(args.build, self.work, self.log)
         self.published = {}
         self.plots_done = set()
@@ -1042,11 +992,12 @@ def main():
             deck = Deck(ctx, path)
             ctx.log(f"slides: {rel(path)}")
             decks.append((deck, deck.convert()))
-        rendered = ctx.math.render(node, modules)
+        ctx.markup.render(node, modules)  # the Markdown and math of every deck in one node run
         copy_libraries(modules, ctx.out)
         for deck, sections in decks:
+            deck.set_title()
             page = TEMPLATE.format(title=html.escape(deck.title), sections="\n".join(sections))
-            page = re.sub(r"\x00M(\d+)\x00", lambda m: rendered[int(m.group(1))], page)
+            page = ctx.markup.expand(page)
             target = os.path.join(ctx.out, deck.name + ".html")
             with open(target + ".tmp", "w") as f:
                 f.write(page)
@@ -1067,7 +1018,7 @@ def main():
             with open(os.path.join(ctx.out, "index.html"), "w") as f:
                 f.write(INDEX.format(when=time.strftime("%Y-%m-%d %H:%M"), build=html.escape(args.build),
                                      items=items))
-        ctx.log(f"slides: {len(decks)} decks in {rel(ctx.out)}/, {len(ctx.math.jobs)} formulas, "
+        ctx.log(f"slides: {len(decks)} decks in {rel(ctx.out)}/, {len(ctx.markup.jobs['M'])} formulas, "
                 f"{ctx.renderer.fresh} fresh renders ({ctx.renderer.seconds:.1f} s)"
                 + (f", trade-off plot: {ctx.tradeoff_source}" if ctx.tradeoff_source else ""))
         if not args.no_pdf:

@@ -6,8 +6,9 @@
 # slides/build.py renders every figure with the chapters in $(BUILD)/ (cached in
 # build/slides/cache by executable, scene and arguments), pulls the code shown
 # on the slides out of chapters/ and common/ by function name (a missing
-# function fails the build with deck:line), renders the math with KaTeX at
-# build time and installs reveal.js, KaTeX and playwright-core (for the test)
+# function fails the build with deck:line), renders the Markdown with markdown-it
+# and the math with KaTeX at build time (one node run, slides/markdown_render.cjs)
+# and installs reveal.js, markdown-it, KaTeX and playwright-core (for the test)
 # from slides/package-lock.json into build/slides/node_modules.
 
 # npm only when no npm is on the PATH: Debian 12's nodejs (18) comes without it, but a

@@ -101,7 +101,29 @@ def test_decks_build_with_rendered_figures(ctx):
         html = open(os.path.join(OUT, deck + ".html")).read()
         assert re.search(r'<figure class="code"[^>]*><figcaption>(chapters|common)/\w+\.[ch]:\d+', html), \
             f"{deck}: no code pulled from the chapters"
-        assert "\x00" not in html, f"{deck}: an unexpanded placeholder"
+        assert "\x00" not in html and "\ue000" not in html, f"{deck}: an unexpanded placeholder"
+
+
+def test_markdown_by_markdown_it(ctx):
+    """The Markdown is markdown-it's (slides/markdown_render.cjs); math, directives and notes are ours."""
+    result = _deck_build(ctx, "# T *one*\n\n---\n\n## Two $x^2$\n\n- item `a $b$ c`\n  - nested, $y$\n\n"
+                              "```\nliteral $z$ <tag>\n```\n\n| h |\n|---|\n| $w$ |\n\n"
+                              "::: cols\n::: col\n- before math\n$$\nE = mc^2\n$$\n:::\n:::\n\n"
+                              "Note: say *this*\n\n- a list in the notes\n")
+    assert result.returncode == 0, result.stderr
+    page = open(ctx.path("out/deck.html")).read()
+    assert "<title>T one</title>" in page, "the title is the first slide's <h1> as text"
+    assert page.count('class="katex"') == 4 and page.count('class="katex-display"') == 1, "math: $x^2$ $y$ $w$ $$E$$"
+    assert "<code>a $b$ c</code>" in page, "no math inside code spans"
+    assert '<pre class="plain"><code>literal $z$ &lt;tag&gt;</code></pre>' in page, "a ``` block stays literal"
+    assert re.search(r"<li>item <code>.*?</code>\s*<ul>\s*<li>nested, <span class=\"katex\">", page, re.S), \
+        "nested list"
+    assert re.search(r'<div class="col">\s*<ul>\s*<li>before math</li>\s*</ul>\s*'
+                     r'<div class="eq"><span class="katex-display">', page), \
+        "$$ after a list item ends the list, inside the column"
+    assert re.search(r'<aside class="notes"><p>say <em>this</em></p>\s*<ul>\s*<li>a list in the notes</li>', page), \
+        "speaker notes are Markdown too"
+    assert "\ue000" not in page and "\x00" not in page, "an unexpanded placeholder"
 
 
 def test_missing_function_fails_with_deck_line(ctx):
