@@ -114,7 +114,8 @@ def test_every_scene_statement_has_a_section(ctx):
     headings = [line.lstrip("#").strip() for line in text.splitlines() if re.match(r"#{2,4} ", line)]
     missing = sorted(k for k in statements
                      if not any(re.search(r"(^|[\s`])%s($|[\s`])" % re.escape(k), h) for h in headings))
-    assert not missing, f"statements the parser accepts without a section (### KEYWORD) in docs/scene-format.md: {missing}"
+    assert not missing, "statements the parser accepts without a section (### KEYWORD) in " \
+                        f"docs/scene-format.md: {missing}"
     # each kind with its usage line: `material NAME KIND ...` and `light NAME KIND ...`
     usages = [" ".join(item.split()) for item in re.findall(r"`([^`]+)`", text)] + \
              [" ".join(line.split()) for line in text.splitlines() if line.startswith("    ")]
