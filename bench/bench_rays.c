@@ -126,7 +126,7 @@ int main(int argc, char **argv)
     }
     int max_threads = omp_get_max_threads();
     printf("scene %s: %d triangles, %d spheres, %d BVH nodes, %ld rays%s\n", path, s.triangle_count, s.sphere_count,
-           s.node_count, n, sorted ? ", sorted by direction and origin (coherent)" : "");
+           s.bvh.node_count, n, sorted ? ", sorted by direction and origin (coherent)" : "");
     for (int threads = 1; threads <= max_threads; threads = threads == max_threads ? threads + 1 : max_threads) {
         long hits, blocked;
         double t_closest = run_closest(&s, rays, n, threads, &hits);

@@ -84,12 +84,29 @@ typedef struct {
 } aabb;
 
 /* BVH node: a leaf when count > 0 (primitives first .. first+count-1 of
- * scene.primitive_order), otherwise an inner node whose children are
+ * scene.bvh.primitive_order), otherwise an inner node whose children are
  * node index + 1 and `second_child`. */
 typedef struct {
     aabb bounds;
     int first, count, second_child, axis;
 } bvh_node;
+
+/* What traversal reads (defined in bvh.h, private to the BVH code). */
+typedef struct trace_node trace_node;
+typedef struct leaf_primitive leaf_primitive;
+
+/* The BVH over the primitives (common/bvh.c).  build_nodes and
+ * primitive_order are the tree as built (the tests and tools look at them);
+ * traversal reads trace_nodes and leaf_primitives, a copy laid out for speed.
+ * Each array is its own allocation. */
+typedef struct {
+    int *primitive_order;            /* leaf order: primitive indices */
+    bvh_node *build_nodes;           /* node_count of them, depth-first */
+    int node_count;                  /* 0 when the scene has no primitives */
+    trace_node *trace_nodes;         /* trace_node_count of them, 64-byte aligned */
+    int trace_node_count;
+    leaf_primitive *leaf_primitives; /* the primitives in leaf order, 64-byte aligned */
+} scene_bvh;
 
 typedef struct scene {
     char path[1024];
@@ -117,9 +134,11 @@ typedef struct scene {
      * is the sphere surface sphere_surfaces[i - triangle_count]. */
     int *sphere_surfaces;
     int sphere_count;
-    int *primitive_order; /* BVH leaf order */
-    bvh_node *nodes;
-    int node_count;
+    scene_bvh bvh;
+
+    /* Per triangle: the area of its surface's triangles up to and including
+     * it (the last one's is the surface's area), for surface_sample_point. */
+    double *triangle_area_cdf;
 
     aabb bounds;    /* of all geometry */
     /* Scene-relative self-intersection offset.  A hit point computed in

@@ -216,18 +216,18 @@ static void test_parse_cornell(void)
     /* Structure of the BVH: every primitive once, leaves of at most 4. */
     int seen[64] = {0};
     int leaf_total = 0;
-    for (int i = 0; i < s.node_count; i++) {
-        const bvh_node *n = &s.nodes[i];
+    for (int i = 0; i < s.bvh.node_count; i++) {
+        const bvh_node *n = &s.bvh.build_nodes[i];
         if (n->count > 0) {
             CHECK(n->count <= 4, "leaf of %d", n->count);
             leaf_total += n->count;
         }
     }
-    for (int i = 0; i < s.triangle_count; i++) seen[s.primitive_order[i]]++;
+    for (int i = 0; i < s.triangle_count; i++) seen[s.bvh.primitive_order[i]]++;
     for (int i = 0; i < s.triangle_count; i++) CHECK(seen[i] == 1, "primitive %d appears %d times", i, seen[i]);
     CHECK(leaf_total == s.triangle_count, "leaves hold %d primitives", leaf_total);
     scene_free(&s);
-    CHECK(s.surfaces == NULL && s.nodes == NULL, "scene_free clears the scene");
+    CHECK(s.surfaces == NULL && s.bvh.build_nodes == NULL, "scene_free clears the scene");
 }
 
 static void test_parse_syntax_variants(void)
@@ -380,7 +380,7 @@ static void test_bad_corpus(void)
               expected);
         CHECK(strlen(err) > strlen(expected) + 5, "no message after the location: '%.200s'", err);
         CHECK(strchr(err, '\n') == NULL, "%.120s: error has more than one line", path);
-        CHECK(s.materials == NULL && s.surfaces == NULL && s.triangles == NULL && s.nodes == NULL,
+        CHECK(s.materials == NULL && s.surfaces == NULL && s.triangles == NULL && s.bvh.build_nodes == NULL,
               "%.120s: a failed load must free everything", path);
         if (status == 0) scene_free(&s);
         files++;
