@@ -55,7 +55,8 @@ static aabb sphere_bounds(const surface *sphere)
 
 static aabb primitive_bounds(const scene *s, int primitive)
 {
-    if (primitive < s->triangle_count) return triangle_bounds(&s->triangles[primitive]);
+    if (primitive < s->triangle_count)
+        return triangle_bounds(&s->triangles[primitive]);
     return sphere_bounds(&s->surfaces[s->sphere_surfaces[primitive - s->triangle_count]]);
 }
 
@@ -65,8 +66,8 @@ static aabb primitive_bounds(const scene *s, int primitive)
 
 typedef struct {
     scene *s;
-    aabb *bounds;     /* per primitive */
-    vec3 *centroids;  /* per primitive */
+    aabb *bounds;    /* per primitive */
+    vec3 *centroids; /* per primitive */
 } bvh_builder;
 
 /* Which of BVH_BINS bins along `axis` a centroid falls into. */
@@ -101,17 +102,20 @@ static int bvh_partition(bvh_builder *b, int first, int count, int depth, int *a
     vec3 extent = v3_sub(centroid_box.hi, centroid_box.lo);
     *axis_out = extent.x >= extent.y && extent.x >= extent.z ? 0 : extent.y >= extent.z ? 1 : 2;
     /* A pathological tree: split the list in half. */
-    if (depth >= BVH_SAH_MAX_DEPTH) return count <= BVH_LEAF_SIZE ? 0 : count / 2;
+    if (depth >= BVH_SAH_MAX_DEPTH)
+        return count <= BVH_LEAF_SIZE ? 0 : count / 2;
 
     double best_cost = INFINITY, best_lo = 0.0, best_scale = 0.0;
     int best_split = -1, best_axis = -1;
     for (int axis = 0; axis < 3; axis++) {
         double lo = v3_get(centroid_box.lo, axis), width = v3_get(extent, axis);
-        if (!(width > 0.0)) continue; /* all centroids in one plane across this axis */
+        if (!(width > 0.0))
+            continue; /* all centroids in one plane across this axis */
         double scale = BVH_BINS / width * (1.0 - 1e-9);
         int bin_count[BVH_BINS] = {0};
         aabb bin_box[BVH_BINS];
-        for (int k = 0; k < BVH_BINS; k++) bin_box[k] = aabb_empty();
+        for (int k = 0; k < BVH_BINS; k++)
+            bin_box[k] = aabb_empty();
         for (int i = first; i < first + count; i++) {
             int k = bin_of(b->centroids[order[i]], axis, lo, scale);
             bin_count[k]++;
@@ -131,7 +135,8 @@ static int bvh_partition(bvh_builder *b, int first, int count, int depth, int *a
         for (int k = BVH_BINS - 1; k > 0; k--) {
             box = aabb_union(box, bin_box[k]);
             n += bin_count[k];
-            if (n == 0 || n == count) continue;
+            if (n == 0 || n == count)
+                continue;
             double cost = left_cost[k - 1] + aabb_half_area(box) * n;
             if (cost < best_cost) {
                 best_cost = cost;
@@ -142,11 +147,13 @@ static int bvh_partition(bvh_builder *b, int first, int count, int depth, int *a
             }
         }
     }
-    if (best_split < 0) return count <= BVH_LEAF_SIZE ? 0 : count / 2;
+    if (best_split < 0)
+        return count <= BVH_LEAF_SIZE ? 0 : count / 2;
     /* Leaf or split?  Both in units of one primitive test per unit area. */
     double area = aabb_half_area(node_box);
     double split_cost = SAH_TRAVERSAL_COST + SAH_PRIMITIVE_COST * best_cost / area;
-    if (count <= BVH_LEAF_SIZE && !(split_cost < SAH_PRIMITIVE_COST * count)) return 0;
+    if (count <= BVH_LEAF_SIZE && !(split_cost < SAH_PRIMITIVE_COST * count))
+        return 0;
     *axis_out = best_axis;
 
     /* Move the primitives of bins < best_split to the front. */
@@ -196,7 +203,8 @@ static leaf_primitive triangle_transform(const triangle *t, int primitive, doubl
     double inv = 1.0 / v3_dot(n, n);
     leaf_primitive p = {.row = {v3_scale(v3_cross(t->e2, n), inv), v3_scale(v3_cross(n, t->e1), inv), v3_scale(n, inv)},
                         .primitive = primitive};
-    for (int i = 0; i < 3; i++) p.offset[i] = -v3_dot(p.row[i], t->p0);
+    for (int i = 0; i < 3; i++)
+        p.offset[i] = -v3_dot(p.row[i], t->p0);
     double tolerance_per_length = tolerance / v3_length(n);
     p.u_min = -tolerance_per_length * v3_length(t->e2);
     p.v_min = -tolerance_per_length * v3_length(t->e1);
@@ -206,19 +214,21 @@ static leaf_primitive triangle_transform(const triangle *t, int primitive, doubl
 
 static leaf_primitive make_leaf_primitive(const scene *s, int primitive)
 {
-    if (primitive < s->triangle_count) return triangle_transform(&s->triangles[primitive], primitive, EDGE_MARGIN * s->epsilon);
+    if (primitive < s->triangle_count)
+        return triangle_transform(&s->triangles[primitive], primitive, EDGE_MARGIN * s->epsilon);
     const surface *sphere = &s->surfaces[s->sphere_surfaces[primitive - s->triangle_count]];
-    return (leaf_primitive){.row = {sphere->center}, .offset = {sphere->radius}, .primitive = primitive, .is_sphere = 1};
+    return (leaf_primitive){
+        .row = {sphere->center}, .offset = {sphere->radius}, .primitive = primitive, .is_sphere = 1};
 }
 
 /* Child k of trace node `out` becomes BVH node `index` (recursively). */
-static void trace_set_child(const bvh_node *build_nodes, trace_node *nodes, int *trace_count, int out, int k,
-                            int index)
+static void trace_set_child(const bvh_node *build_nodes, trace_node *nodes, int *trace_count, int out, int k, int index)
 {
     const bvh_node *node = &build_nodes[index];
     const double faces[6] = {node->bounds.lo.x, node->bounds.lo.y, node->bounds.lo.z,
                              node->bounds.hi.x, node->bounds.hi.y, node->bounds.hi.z};
-    for (int f = 0; f < 6; f++) nodes[out].bounds[2 * f + k] = faces[f];
+    for (int f = 0; f < 6; f++)
+        nodes[out].bounds[2 * f + k] = faces[f];
     nodes[out].count[k] = node->count;
     if (node->count > 0) {
         nodes[out].child[k] = node->first;
@@ -266,7 +276,8 @@ static void bvh_build_node(bvh_builder *b, int first, int count, int depth);
 static aabb bvh_primitive_bounds(const scene *s, int primitive)
 {
     aabb b = primitive_bounds(s, primitive);
-    if (primitive >= s->triangle_count) return b;
+    if (primitive >= s->triangle_count)
+        return b;
     vec3 n = s->triangles[primitive].normal;
     vec3 pad = v3(sqrt(fmax(1.0 - n.x * n.x, 0.0)), sqrt(fmax(1.0 - n.y * n.y, 0.0)), sqrt(fmax(1.0 - n.z * n.z, 0.0)));
     pad = v3_scale(pad, EDGE_MARGIN * s->epsilon);
@@ -333,7 +344,8 @@ static void bvh_build_node(bvh_builder *b, int first, int count, int depth)
     int index = bvh->node_count++;
     bvh_node *node = &bvh->build_nodes[index];
     node->bounds = aabb_empty();
-    for (int i = first; i < first + count; i++) node->bounds = aabb_union(node->bounds, b->bounds[bvh->primitive_order[i]]);
+    for (int i = first; i < first + count; i++)
+        node->bounds = aabb_union(node->bounds, b->bounds[bvh->primitive_order[i]]);
     node->first = first;
     node->axis = 0;
     node->second_child = -1;
@@ -345,7 +357,7 @@ static void bvh_build_node(bvh_builder *b, int first, int count, int depth)
     }
     node->count = 0;
     node->axis = axis;
-    bvh_build_node(b, first, left, depth + 1);         /* becomes index + 1 */
+    bvh_build_node(b, first, left, depth + 1); /* becomes index + 1 */
     bvh->build_nodes[index].second_child = bvh->node_count;
     bvh_build_node(b, first + left, count - left, depth + 1);
 }
@@ -365,7 +377,8 @@ static inline double triangle_hit(const leaf_primitive *p, vec3 origin, vec3 dir
     double w_o = v3_dot(p->row[2], origin) + p->offset[2];
     double w_d = v3_dot(p->row[2], direction);
     double t = -w_o / w_d;
-    if (!(t > 0.0 && t < t_max)) return INFINITY;
+    if (!(t > 0.0 && t < t_max))
+        return INFINITY;
     vec3 h = v3_madd(origin, direction, t);
     double u = v3_dot(p->row[0], h) + p->offset[0];
     double v = v3_dot(p->row[1], h) + p->offset[1];
@@ -397,17 +410,21 @@ static inline double sphere_hit(vec3 center, double radius, vec3 origin, vec3 di
     double c = v3_dot(f, f) - radius * radius;
     vec3 l = v3_madd(f, direction, -b / a); /* f minus its component along d */
     double disc = a * (radius * radius - v3_dot(l, l));
-    if (!(disc >= 0.0)) return INFINITY;
+    if (!(disc >= 0.0))
+        return INFINITY;
     double q = -(b + copysign(sqrt(disc), b));
-    if (q == 0.0) return INFINITY; /* ray starts on the sphere and grazes it */
+    if (q == 0.0)
+        return INFINITY; /* ray starts on the sphere and grazes it */
     double t0 = c / q, t1 = q / a;
     if (t0 > t1) {
         double tmp = t0;
         t0 = t1;
         t1 = tmp;
     }
-    if (t0 > 0.0) return t0;
-    if (t1 > 0.0) return t1;
+    if (t0 > 0.0)
+        return t0;
+    if (t1 > 0.0)
+        return t1;
     return INFINITY;
 }
 
@@ -416,7 +433,8 @@ double intersect_sphere(vec3 center, double radius, ray r) { return sphere_hit(c
 /* Hit distance of a leaf primitive if it is below t_max, else INFINITY. */
 static inline double primitive_hit(const leaf_primitive *p, vec3 origin, vec3 direction, double t_max)
 {
-    if (!p->is_sphere) return triangle_hit(p, origin, direction, t_max);
+    if (!p->is_sphere)
+        return triangle_hit(p, origin, direction, t_max);
     double t = sphere_hit(p->row[0], p->offset[0], origin, direction);
     return t < t_max ? t : INFINITY;
 }
@@ -456,13 +474,23 @@ static inline ray_setup setup_ray(vec3 origin, vec3 direction)
     vec3 inv_dir = v3(1.0 / direction.x, 1.0 / direction.y, 1.0 / direction.z);
     ptrdiff_t neg_x = inv_dir.x < 0.0, neg_y = inv_dir.y < 0.0, neg_z = inv_dir.z < 0.0;
     /* face f (lo x, y, z = 0, 1, 2; hi x, y, z = 3, 4, 5) starts at double 2 f */
-    return (ray_setup){origin, inv_dir, 2 * (3 * neg_x), 2 * (1 + 3 * neg_y), 2 * (2 + 3 * neg_z),
-                       2 * (3 - 3 * neg_x), 2 * (4 - 3 * neg_y), 2 * (5 - 3 * neg_z),
+    ray_setup r = {.origin = origin,
+                   .inv_dir = inv_dir,
+                   .near_x = 2 * (3 * neg_x),
+                   .near_y = 2 * (1 + 3 * neg_y),
+                   .near_z = 2 * (2 + 3 * neg_z),
+                   .far_x = 2 * (3 - 3 * neg_x),
+                   .far_y = 2 * (4 - 3 * neg_y),
+                   .far_z = 2 * (5 - 3 * neg_z)};
 #ifdef __SSE2__
-                       _mm_set1_pd(origin.x), _mm_set1_pd(origin.y), _mm_set1_pd(origin.z),
-                       _mm_set1_pd(inv_dir.x), _mm_set1_pd(inv_dir.y), _mm_set1_pd(inv_dir.z),
+    r.origin_x2 = _mm_set1_pd(origin.x);
+    r.origin_y2 = _mm_set1_pd(origin.y);
+    r.origin_z2 = _mm_set1_pd(origin.z);
+    r.inv_dir_x2 = _mm_set1_pd(inv_dir.x);
+    r.inv_dir_y2 = _mm_set1_pd(inv_dir.y);
+    r.inv_dir_z2 = _mm_set1_pd(inv_dir.z);
 #endif
-    };
+    return r;
 }
 
 /* Slab test (Kay & Kajiya) against both child boxes of a node: entry[k] is
@@ -536,8 +564,8 @@ static inline void box_entries(const trace_node *node, const ray_setup *r, doubl
  * at the first hit found (shadow rays need no nearest).  What is visited
  * next is a trace node (count == 0, index = trace node) or a leaf (count
  * primitives from leaf_primitive index). */
-static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, double t_max, int any_hit,
-                                  double *t_out, int *primitive_out)
+static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, double t_max, int any_hit, double *t_out,
+                                  int *primitive_out)
 {
     if (s->bvh.node_count == 0)
         return 0;
@@ -557,7 +585,8 @@ static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, d
                 if (t < nearest) {
                     nearest = t;
                     found = p->primitive;
-                    if (any_hit) goto done;
+                    if (any_hit)
+                        goto done;
                 }
             }
         } else {
@@ -593,15 +622,18 @@ static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, d
         }
         /* Pop, skipping boxes that start beyond the nearest hit found since. */
         for (;;) {
-            if (top == 0) goto done;
+            if (top == 0)
+                goto done;
             top--;
-            if (stack_entry[top] < nearest) break;
+            if (stack_entry[top] < nearest)
+                break;
         }
         index = stack_index[top];
         count = stack_count[top];
     }
 done:
-    if (found < 0) return 0;
+    if (found < 0)
+        return 0;
     *t_out = nearest;
     *primitive_out = found;
     return 1;
@@ -611,7 +643,8 @@ int scene_intersect(const scene *s, ray r, double t_max, hit *out)
 {
     double t;
     int primitive;
-    if (!traverse(s, r.origin, r.direction, t_max, 0, &t, &primitive)) return 0;
+    if (!traverse(s, r.origin, r.direction, t_max, 0, &t, &primitive))
+        return 0;
     fill_hit(s, r, t, primitive, out);
     return 1;
 }
@@ -633,7 +666,8 @@ int scene_intersect_brute_force(const scene *s, ray r, double t_max, hit *out)
             found = prims[i].primitive;
         }
     }
-    if (found < 0) return 0;
+    if (found < 0)
+        return 0;
     fill_hit(s, r, nearest, found, out);
     return 1;
 }
@@ -642,7 +676,8 @@ int scene_occluded(const scene *s, vec3 a, vec3 b)
 {
     vec3 d = v3_sub(b, a);
     double distance = v3_length(d);
-    if (!(distance > 2.0 * s->epsilon)) return 0;
+    if (!(distance > 2.0 * s->epsilon))
+        return 0;
     /* Ray from a + epsilon toward b, ending epsilon short of b:
      * t = epsilon / distance .. 1 - epsilon / distance along d. */
     double step = s->epsilon / distance;

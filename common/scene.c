@@ -106,8 +106,7 @@ void scene_free(scene *s)
 /* ------------------------------------------------------------------------ */
 /* Sampling, lookup, camera                                                  */
 
-void surface_sample_point(const scene *s, int surface_index, double u1, double u2, double u3, vec3 *point,
-                          vec3 *normal)
+void surface_sample_point(const scene *s, int surface_index, double u1, double u2, double u3, vec3 *point, vec3 *normal)
 {
     const surface *surf = &s->surfaces[surface_index];
     if (surf->kind == SURFACE_SPHERE) {
@@ -145,7 +144,8 @@ void surface_sample_point(const scene *s, int surface_index, double u1, double u
 int scene_find_surface(const scene *s, const char *name)
 {
     for (int i = 0; i < s->surface_count; i++)
-        if (strcmp(s->surfaces[i].name, name) == 0) return i;
+        if (strcmp(s->surfaces[i].name, name) == 0)
+            return i;
     return -1;
 }
 

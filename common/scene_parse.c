@@ -46,7 +46,8 @@ typedef struct {
  * bad input), so callers can write `return fail(...)`. */
 static int fail(const error_context *ctx, const char *format, ...)
 {
-    if (ctx->err == NULL || ctx->err_size == 0) return 2;
+    if (ctx->err == NULL || ctx->err_size == 0)
+        return 2;
     int n = snprintf(ctx->err, ctx->err_size, "%s:%d: ", ctx->path, ctx->line);
     if (n >= 0 && (size_t)n < ctx->err_size) {
         va_list args;
@@ -56,7 +57,8 @@ static int fail(const error_context *ctx, const char *format, ...)
     }
     /* One line, whatever the message contains (names come from the file). */
     for (char *c = ctx->err; *c; c++)
-        if (*c == '\n' || *c == '\r') *c = ' ';
+        if (*c == '\n' || *c == '\r')
+            *c = ' ';
     return 2;
 }
 
@@ -67,11 +69,14 @@ static int fail(const error_context *ctx, const char *format, ...)
  * allocated).  Returns 0 on success, -1 when out of memory. */
 static int reserve_one(void **array, int *capacity, int count, size_t element_size)
 {
-    if (count < *capacity) return 0;
-    if (*capacity > INT_MAX / 2) return -1;
+    if (count < *capacity)
+        return 0;
+    if (*capacity > INT_MAX / 2)
+        return -1;
     int new_capacity = *capacity ? 2 * *capacity : 16;
     void *grown = realloc(*array, (size_t)new_capacity * element_size);
-    if (grown == NULL) return -1;
+    if (grown == NULL)
+        return -1;
     *array = grown;
     *capacity = new_capacity;
     return 0;
@@ -88,12 +93,14 @@ static line_status read_line(FILE *file, char *buffer, size_t capacity)
 {
     size_t length = 0;
     int c = getc(file);
-    if (c == EOF) return LINE_END;
+    if (c == EOF)
+        return LINE_END;
     while (c != EOF && c != '\n') {
         unsigned char byte = (unsigned char)c;
         if ((byte < 0x20 && byte != '\t' && byte != '\r' && byte != '\f' && byte != '\v') || byte == 0x7f)
             return LINE_BINARY;
-        if (length + 1 >= capacity) return LINE_TOO_LONG;
+        if (length + 1 >= capacity)
+            return LINE_TOO_LONG;
         buffer[length++] = (char)c;
         c = getc(file);
     }
@@ -103,7 +110,8 @@ static line_status read_line(FILE *file, char *buffer, size_t capacity)
 
 static int fail_line(const error_context *ctx, line_status status)
 {
-    if (status == LINE_TOO_LONG) return fail(ctx, "line longer than %d characters", LINE_CAPACITY - 1);
+    if (status == LINE_TOO_LONG)
+        return fail(ctx, "line longer than %d characters", LINE_CAPACITY - 1);
     return fail(ctx, "binary data (control character or NUL byte): not a text file");
 }
 
@@ -119,14 +127,19 @@ static void split_fields(char *line, fields *f)
 {
     f->count = 0;
     char *comment = strchr(line, '#');
-    if (comment) *comment = '\0';
+    if (comment)
+        *comment = '\0';
     char *c = line;
     for (;;) {
-        while (is_blank(*c)) c++;
-        if (*c == '\0') break;
+        while (is_blank(*c))
+            c++;
+        if (*c == '\0')
+            break;
         f->field[f->count++] = c; /* cannot overflow: fields are separated by blanks */
-        while (*c && !is_blank(*c)) c++;
-        if (*c == '\0') break;
+        while (*c && !is_blank(*c))
+            c++;
+        if (*c == '\0')
+            break;
         *c++ = '\0';
     }
 }
@@ -138,7 +151,8 @@ static int parse_number(const error_context *ctx, const char *text, const char *
     *out = 0.0; /* defined even on error */
     errno = 0;
     double value = strtod(text, &end);
-    if (end == text || *end != '\0') return fail(ctx, "%s: '%s' is not a number", what, text);
+    if (end == text || *end != '\0')
+        return fail(ctx, "%s: '%s' is not a number", what, text);
     if (!isfinite(value) || (errno == ERANGE && fabs(value) > 1.0))
         return fail(ctx, "%s: '%s' is not a finite number", what, text);
     *out = value;
@@ -158,7 +172,8 @@ static int parse_vec3(const error_context *ctx, char **text, const char *what, v
 /* A colour whose channels must lie in [0, 1] (reflectances). */
 static int parse_reflectance(const error_context *ctx, char **text, const char *what, vec3 *out)
 {
-    if (parse_vec3(ctx, text, what, out)) return 2;
+    if (parse_vec3(ctx, text, what, out))
+        return 2;
     if (v3_min_component(*out) < 0.0 || v3_max_component(*out) > 1.0)
         return fail(ctx, "%s %g %g %g: each channel must be in [0, 1]", what, out->x, out->y, out->z);
     return 0;
@@ -167,7 +182,8 @@ static int parse_reflectance(const error_context *ctx, char **text, const char *
 /* A colour whose channels must be >= 0 (radiance, intensity). */
 static int parse_nonnegative(const error_context *ctx, char **text, const char *what, vec3 *out)
 {
-    if (parse_vec3(ctx, text, what, out)) return 2;
+    if (parse_vec3(ctx, text, what, out))
+        return 2;
     if (v3_min_component(*out) < 0.0)
         return fail(ctx, "%s %g %g %g: must not be negative", what, out->x, out->y, out->z);
     return 0;
@@ -175,15 +191,17 @@ static int parse_nonnegative(const error_context *ctx, char **text, const char *
 
 static int expect_keyword(const error_context *ctx, const char *text, const char *keyword, const char *usage)
 {
-    if (strcmp(text, keyword) != 0) return fail(ctx, "expected '%s' but found '%s'; usage: %s", keyword, text, usage);
+    if (strcmp(text, keyword) != 0)
+        return fail(ctx, "expected '%s' but found '%s'; usage: %s", keyword, text, usage);
     return 0;
 }
 
 static int expect_field_count(const error_context *ctx, const fields *f, int expected, const char *usage)
 {
     if (f->count != expected)
-        return fail(ctx, "%s field%s (%d after '%s', expected %d); usage: %s", f->count < expected ? "missing" : "extra",
-                    abs(f->count - expected) == 1 ? "" : "s", f->count - 1, f->field[0], expected - 1, usage);
+        return fail(ctx, "%s field%s (%d after '%s', expected %d); usage: %s",
+                    f->count < expected ? "missing" : "extra", abs(f->count - expected) == 1 ? "" : "s", f->count - 1,
+                    f->field[0], expected - 1, usage);
     return 0;
 }
 
@@ -202,33 +220,40 @@ static int out_of_memory(parser *p) { return fail(&p->ctx, "out of memory"); }
 
 static int check_name(parser *p, const char *name)
 {
-    if (strlen(name) >= SCENE_NAME_MAX) return fail(&p->ctx, "name '%.20s...' longer than %d characters", name, SCENE_NAME_MAX - 1);
+    if (strlen(name) >= SCENE_NAME_MAX)
+        return fail(&p->ctx, "name '%.20s...' longer than %d characters", name, SCENE_NAME_MAX - 1);
     return 0;
 }
 
 static int find_material(const scene *s, const char *name)
 {
     for (int i = 0; i < s->material_count; i++)
-        if (strcmp(s->materials[i].name, name) == 0) return i;
+        if (strcmp(s->materials[i].name, name) == 0)
+            return i;
     return -1;
 }
 
 /* Surfaces, lights and probes share one namespace: graders ask by name. */
 static int check_object_name(parser *p, const char *name)
 {
-    if (check_name(p, name)) return 2;
+    if (check_name(p, name))
+        return 2;
     const scene *s = p->s;
     int taken = scene_find_surface(s, name) >= 0;
-    for (int i = 0; i < s->light_count && !taken; i++) taken = strcmp(s->lights[i].name, name) == 0;
-    for (int i = 0; i < s->probe_count && !taken; i++) taken = strcmp(s->probes[i].name, name) == 0;
-    if (taken) return fail(&p->ctx, "duplicate name '%s' (surfaces, lights and probes need distinct names)", name);
+    for (int i = 0; i < s->light_count && !taken; i++)
+        taken = strcmp(s->lights[i].name, name) == 0;
+    for (int i = 0; i < s->probe_count && !taken; i++)
+        taken = strcmp(s->probes[i].name, name) == 0;
+    if (taken)
+        return fail(&p->ctx, "duplicate name '%s' (surfaces, lights and probes need distinct names)", name);
     return 0;
 }
 
 static int material_reference(parser *p, const char *name, int *index)
 {
     *index = find_material(p->s, name);
-    if (*index < 0) return fail(&p->ctx, "unknown material '%s' (materials must be defined before use)", name);
+    if (*index < 0)
+        return fail(&p->ctx, "unknown material '%s' (materials must be defined before use)", name);
     return 0;
 }
 
@@ -239,8 +264,10 @@ static int parse_camera(parser *p, fields *f)
 {
     static const char usage[] = "camera eye X Y Z look X Y Z up X Y Z fov DEGREES";
     const error_context *ctx = &p->ctx;
-    if (p->has_camera) return fail(ctx, "second camera statement (a scene has one camera)");
-    if (expect_field_count(ctx, f, 15, usage)) return 2;
+    if (p->has_camera)
+        return fail(ctx, "second camera statement (a scene has one camera)");
+    if (expect_field_count(ctx, f, 15, usage))
+        return 2;
     camera c;
     if (expect_keyword(ctx, f->field[1], "eye", usage) || parse_vec3(ctx, f->field + 2, "camera eye", &c.eye) ||
         expect_keyword(ctx, f->field[5], "look", usage) || parse_vec3(ctx, f->field + 6, "camera look", &c.look) ||
@@ -250,8 +277,10 @@ static int parse_camera(parser *p, fields *f)
         return 2;
     vec3 view = v3_sub(c.look, c.eye);
     double view_length = v3_length(view), up_length = v3_length(c.up);
-    if (!(view_length > 0.0)) return fail(ctx, "camera eye and look are the same point");
-    if (!(up_length > 0.0)) return fail(ctx, "camera up is the zero vector");
+    if (!(view_length > 0.0))
+        return fail(ctx, "camera eye and look are the same point");
+    if (!(up_length > 0.0))
+        return fail(ctx, "camera up is the zero vector");
     /* sin of the angle between view and up; near 0 leaves "right" undefined. */
     if (v3_length(v3_cross(view, c.up)) <= 1e-9 * view_length * up_length)
         return fail(ctx, "camera up is parallel to the view direction");
@@ -267,15 +296,18 @@ static int parse_image_size(const error_context *ctx, const char *text, int *out
     char *end;
     errno = 0;
     long value = strtol(text, &end, 10);
-    if (end == text || *end != '\0') return fail(ctx, "image size '%s' is not an integer", text);
-    if (errno == ERANGE || value < 1 || value > 65536) return fail(ctx, "image size '%s' must be in 1..65536", text);
+    if (end == text || *end != '\0')
+        return fail(ctx, "image size '%s' is not an integer", text);
+    if (errno == ERANGE || value < 1 || value > 65536)
+        return fail(ctx, "image size '%s' must be in 1..65536", text);
     *out = (int)value;
     return 0;
 }
 
 static int parse_image(parser *p, fields *f)
 {
-    if (expect_field_count(&p->ctx, f, 3, "image WIDTH HEIGHT")) return 2;
+    if (expect_field_count(&p->ctx, f, 3, "image WIDTH HEIGHT"))
+        return 2;
     if (parse_image_size(&p->ctx, f->field[1], &p->s->width) || parse_image_size(&p->ctx, f->field[2], &p->s->height))
         return 2;
     return 0;
@@ -283,7 +315,8 @@ static int parse_image(parser *p, fields *f)
 
 static int parse_background(parser *p, fields *f)
 {
-    if (expect_field_count(&p->ctx, f, 4, "background R G B")) return 2;
+    if (expect_field_count(&p->ctx, f, 4, "background R G B"))
+        return 2;
     return parse_nonnegative(&p->ctx, f->field + 1, "background", &p->s->background);
 }
 
@@ -291,10 +324,13 @@ static int parse_material(parser *p, fields *f)
 {
     const error_context *ctx = &p->ctx;
     scene *s = p->s;
-    if (f->count < 3) return fail(ctx, "missing fields; usage: material NAME diffuse|phong|mirror|glass|emitter ...");
+    if (f->count < 3)
+        return fail(ctx, "missing fields; usage: material NAME diffuse|phong|mirror|glass|emitter ...");
     const char *name = f->field[1], *kind = f->field[2];
-    if (check_name(p, name)) return 2;
-    if (find_material(s, name) >= 0) return fail(ctx, "duplicate material name '%s'", name);
+    if (check_name(p, name))
+        return 2;
+    if (find_material(s, name) >= 0)
+        return fail(ctx, "duplicate material name '%s'", name);
 
     material m = {.specular = v3_splat(0.0), .ior = 1.0};
     snprintf(m.name, sizeof m.name, "%s", name);
@@ -313,7 +349,8 @@ static int parse_material(parser *p, fields *f)
             expect_keyword(ctx, f->field[11], "exp", usage) ||
             parse_number(ctx, f->field[12], "phong exponent", &m.exponent))
             return 2;
-        if (m.exponent < 0.0) return fail(ctx, "phong exponent %g must not be negative", m.exponent);
+        if (m.exponent < 0.0)
+            return fail(ctx, "phong exponent %g must not be negative", m.exponent);
     } else if (strcmp(kind, "mirror") == 0) {
         m.kind = MATERIAL_MIRROR;
         if (expect_field_count(ctx, f, 6, "material NAME mirror R G B") ||
@@ -322,15 +359,21 @@ static int parse_material(parser *p, fields *f)
     } else if (strcmp(kind, "glass") == 0) {
         m.kind = MATERIAL_GLASS;
         m.specular = v3_splat(1.0);
-        if (f->count != 4 && expect_field_count(ctx, f, 7, "material NAME glass IOR [R G B]")) return 2;
-        if (parse_number(ctx, f->field[3], "glass IOR", &m.ior)) return 2;
-        if (!(m.ior > 0.0)) return fail(ctx, "glass IOR %g must be positive", m.ior);
-        if (f->count == 7 && parse_reflectance(ctx, f->field + 4, "glass tint", &m.specular)) return 2;
+        if (f->count != 4 && expect_field_count(ctx, f, 7, "material NAME glass IOR [R G B]"))
+            return 2;
+        if (parse_number(ctx, f->field[3], "glass IOR", &m.ior))
+            return 2;
+        if (!(m.ior > 0.0))
+            return fail(ctx, "glass IOR %g must be positive", m.ior);
+        if (f->count == 7 && parse_reflectance(ctx, f->field + 4, "glass tint", &m.specular))
+            return 2;
     } else if (strcmp(kind, "emitter") == 0) {
         static const char usage[] = "material NAME emitter R G B [diffuse R G B]";
         m.kind = MATERIAL_EMITTER;
-        if (f->count != 6 && expect_field_count(ctx, f, 10, usage)) return 2;
-        if (parse_nonnegative(ctx, f->field + 3, "emitter radiance", &m.emission)) return 2;
+        if (f->count != 6 && expect_field_count(ctx, f, 10, usage))
+            return 2;
+        if (parse_nonnegative(ctx, f->field + 3, "emitter radiance", &m.emission))
+            return 2;
         if (f->count == 10 && (expect_keyword(ctx, f->field[6], "diffuse", usage) ||
                                parse_reflectance(ctx, f->field + 7, "emitter diffuse albedo", &m.albedo)))
             return 2;
@@ -365,7 +408,8 @@ static int is_degenerate_triangle(vec3 a, vec3 b, vec3 c)
 static int add_triangle(parser *p, vec3 a, vec3 b, vec3 c, int surface)
 {
     scene *s = p->s;
-    if (reserve_one((void **)&s->triangles, &p->triangle_capacity, s->triangle_count, sizeof *s->triangles)) return -1;
+    if (reserve_one((void **)&s->triangles, &p->triangle_capacity, s->triangle_count, sizeof *s->triangles))
+        return -1;
     triangle t;
     t.p0 = a;
     t.e1 = v3_sub(b, a);
@@ -383,7 +427,8 @@ static int begin_surface(parser *p, fields *f, surface_kind kind, surface **out)
 {
     scene *s = p->s;
     int material_index;
-    if (check_object_name(p, f->field[1]) || material_reference(p, f->field[2], &material_index)) return 2;
+    if (check_object_name(p, f->field[1]) || material_reference(p, f->field[2], &material_index))
+        return 2;
     if (reserve_one((void **)&s->surfaces, &p->surface_capacity, s->surface_count, sizeof *s->surfaces))
         return out_of_memory(p);
     surface *surf = &s->surfaces[s->surface_count];
@@ -402,10 +447,12 @@ static int parse_polygon(parser *p, fields *f, int vertex_count)
     const error_context *ctx = &p->ctx;
     const char *usage = vertex_count == 4 ? "quad NAME MATERIAL X0 Y0 Z0 X1 Y1 Z1 X2 Y2 Z2 X3 Y3 Z3"
                                           : "triangle NAME MATERIAL X0 Y0 Z0 X1 Y1 Z1 X2 Y2 Z2";
-    if (expect_field_count(ctx, f, 3 + 3 * vertex_count, usage)) return 2;
+    if (expect_field_count(ctx, f, 3 + 3 * vertex_count, usage))
+        return 2;
     vec3 v[4];
     for (int i = 0; i < vertex_count; i++)
-        if (parse_vec3(ctx, f->field + 3 + 3 * i, "vertex coordinate", &v[i])) return 2;
+        if (parse_vec3(ctx, f->field + 3 + 3 * i, "vertex coordinate", &v[i]))
+            return 2;
 
     if (vertex_count == 3 && is_degenerate_triangle(v[0], v[1], v[2]))
         return fail(ctx, "triangle '%s' has zero area (coincident or collinear vertices)", f->field[1]);
@@ -417,20 +464,25 @@ static int parse_polygon(parser *p, fields *f, int vertex_count)
         double off_plane = fabs(v3_dot(v3_sub(v[3], v[0]), n));
         double size = sqrt(bounding_box_diagonal_squared(v, 4));
         if (off_plane > PLANARITY_TOLERANCE * size)
-            return fail(ctx, "quad '%s' is not planar (4th vertex %g off the plane of the first three); "
-                             "split it into two triangles", f->field[1], off_plane);
+            return fail(ctx,
+                        "quad '%s' is not planar (4th vertex %g off the plane of the first three); "
+                        "split it into two triangles",
+                        f->field[1], off_plane);
         vec3 n2 = v3_cross(v3_sub(v[2], v[0]), v3_sub(v[3], v[0]));
         if (v3_dot(n, n2) <= 0.0)
             return fail(ctx, "quad '%s' crosses itself or is not convex; check the vertex order", f->field[1]);
     }
 
     surface *surf;
-    if (begin_surface(p, f, vertex_count == 4 ? SURFACE_QUAD : SURFACE_TRIANGLE, &surf)) return 2;
+    if (begin_surface(p, f, vertex_count == 4 ? SURFACE_QUAD : SURFACE_TRIANGLE, &surf))
+        return 2;
     int surface_index = p->s->surface_count;
-    for (int i = 0; i < vertex_count; i++) surf->vertex[i] = v[i];
+    for (int i = 0; i < vertex_count; i++)
+        surf->vertex[i] = v[i];
     surf->vertex_count = vertex_count;
     for (int i = 1; i + 1 < vertex_count; i++)
-        if (add_triangle(p, v[0], v[i], v[i + 1], surface_index)) return out_of_memory(p);
+        if (add_triangle(p, v[0], v[i], v[i + 1], surface_index))
+            return out_of_memory(p);
     surf->triangle_count = vertex_count - 2;
     surf->parallelogram = vertex_count == 4 && v3_length(v3_sub(v3_add(v[0], v[2]), v3_add(v[1], v[3]))) <=
                                                    1e-12 * sqrt(bounding_box_diagonal_squared(v, 4));
@@ -441,14 +493,18 @@ static int parse_polygon(parser *p, fields *f, int vertex_count)
 static int parse_sphere(parser *p, fields *f)
 {
     const error_context *ctx = &p->ctx;
-    if (expect_field_count(ctx, f, 7, "sphere NAME MATERIAL CX CY CZ RADIUS")) return 2;
+    if (expect_field_count(ctx, f, 7, "sphere NAME MATERIAL CX CY CZ RADIUS"))
+        return 2;
     vec3 center;
     double radius;
-    if (parse_vec3(ctx, f->field + 3, "sphere center", &center) || parse_number(ctx, f->field[6], "sphere radius", &radius))
+    if (parse_vec3(ctx, f->field + 3, "sphere center", &center) ||
+        parse_number(ctx, f->field[6], "sphere radius", &radius))
         return 2;
-    if (!(radius > 0.0)) return fail(ctx, "sphere '%s' radius %g must be positive", f->field[1], radius);
+    if (!(radius > 0.0))
+        return fail(ctx, "sphere '%s' radius %g must be positive", f->field[1], radius);
     surface *surf;
-    if (begin_surface(p, f, SURFACE_SPHERE, &surf)) return 2;
+    if (begin_surface(p, f, SURFACE_SPHERE, &surf))
+        return 2;
     surf->center = center;
     surf->radius = radius;
     p->s->surface_count++;
@@ -460,17 +516,21 @@ static int load_obj(parser *p, const char *obj_path, int surface_index);
 static int parse_mesh(parser *p, fields *f)
 {
     const error_context *ctx = &p->ctx;
-    if (expect_field_count(ctx, f, 4, "mesh NAME MATERIAL FILE.obj")) return 2;
+    if (expect_field_count(ctx, f, 4, "mesh NAME MATERIAL FILE.obj"))
+        return 2;
     const char *file = f->field[3];
     char obj_path[PATH_CAPACITY];
     int n = file[0] == '/' ? snprintf(obj_path, sizeof obj_path, "%s", file)
                            : snprintf(obj_path, sizeof obj_path, "%s%s", p->directory, file);
-    if (n < 0 || (size_t)n >= sizeof obj_path) return fail(ctx, "mesh path too long");
+    if (n < 0 || (size_t)n >= sizeof obj_path)
+        return fail(ctx, "mesh path too long");
     surface *mesh;
-    if (begin_surface(p, f, SURFACE_MESH, &mesh)) return 2;
+    if (begin_surface(p, f, SURFACE_MESH, &mesh))
+        return 2;
     int surface_index = p->s->surface_count++;
     /* The OBJ reader appends triangles (not surfaces), so `mesh` stays valid. */
-    if (load_obj(p, obj_path, surface_index)) return 2;
+    if (load_obj(p, obj_path, surface_index))
+        return 2;
     mesh->triangle_count = p->s->triangle_count - mesh->first_triangle;
     return 0;
 }
@@ -482,13 +542,15 @@ static int parse_light(parser *p, fields *f)
     static const char usage[] = "light NAME point X Y Z I_R I_G I_B";
     if (f->count >= 3 && strcmp(f->field[2], "point") != 0)
         return fail(ctx, "unknown light kind '%s' (only 'point'); usage: %s", f->field[2], usage);
-    if (expect_field_count(ctx, f, 9, usage)) return 2;
+    if (expect_field_count(ctx, f, 9, usage))
+        return 2;
     point_light light;
     if (check_object_name(p, f->field[1]) || parse_vec3(ctx, f->field + 3, "light position", &light.position) ||
         parse_nonnegative(ctx, f->field + 6, "light intensity", &light.intensity))
         return 2;
     snprintf(light.name, sizeof light.name, "%s", f->field[1]);
-    if (reserve_one((void **)&s->lights, &p->light_capacity, s->light_count, sizeof *s->lights)) return out_of_memory(p);
+    if (reserve_one((void **)&s->lights, &p->light_capacity, s->light_count, sizeof *s->lights))
+        return out_of_memory(p);
     s->lights[s->light_count++] = light;
     return 0;
 }
@@ -497,16 +559,19 @@ static int parse_probe(parser *p, fields *f)
 {
     const error_context *ctx = &p->ctx;
     scene *s = p->s;
-    if (expect_field_count(ctx, f, 8, "probe NAME X Y Z NX NY NZ")) return 2;
+    if (expect_field_count(ctx, f, 8, "probe NAME X Y Z NX NY NZ"))
+        return 2;
     probe pr;
     if (check_object_name(p, f->field[1]) || parse_vec3(ctx, f->field + 2, "probe position", &pr.position) ||
         parse_vec3(ctx, f->field + 5, "probe normal", &pr.normal))
         return 2;
     double length = v3_length(pr.normal);
-    if (!(length > 0.0) || !isfinite(length)) return fail(ctx, "probe '%s' normal must be a nonzero vector", f->field[1]);
+    if (!(length > 0.0) || !isfinite(length))
+        return fail(ctx, "probe '%s' normal must be a nonzero vector", f->field[1]);
     pr.normal = v3_scale(pr.normal, 1.0 / length);
     snprintf(pr.name, sizeof pr.name, "%s", f->field[1]);
-    if (reserve_one((void **)&s->probes, &p->probe_capacity, s->probe_count, sizeof *s->probes)) return out_of_memory(p);
+    if (reserve_one((void **)&s->probes, &p->probe_capacity, s->probe_count, sizeof *s->probes))
+        return out_of_memory(p);
     s->probes[s->probe_count++] = pr;
     return 0;
 }
@@ -514,16 +579,26 @@ static int parse_probe(parser *p, fields *f)
 static int parse_statement(parser *p, fields *f)
 {
     const char *keyword = f->field[0];
-    if (strcmp(keyword, "camera") == 0) return parse_camera(p, f);
-    if (strcmp(keyword, "image") == 0) return parse_image(p, f);
-    if (strcmp(keyword, "background") == 0) return parse_background(p, f);
-    if (strcmp(keyword, "material") == 0) return parse_material(p, f);
-    if (strcmp(keyword, "quad") == 0) return parse_polygon(p, f, 4);
-    if (strcmp(keyword, "triangle") == 0) return parse_polygon(p, f, 3);
-    if (strcmp(keyword, "sphere") == 0) return parse_sphere(p, f);
-    if (strcmp(keyword, "mesh") == 0) return parse_mesh(p, f);
-    if (strcmp(keyword, "light") == 0) return parse_light(p, f);
-    if (strcmp(keyword, "probe") == 0) return parse_probe(p, f);
+    if (strcmp(keyword, "camera") == 0)
+        return parse_camera(p, f);
+    if (strcmp(keyword, "image") == 0)
+        return parse_image(p, f);
+    if (strcmp(keyword, "background") == 0)
+        return parse_background(p, f);
+    if (strcmp(keyword, "material") == 0)
+        return parse_material(p, f);
+    if (strcmp(keyword, "quad") == 0)
+        return parse_polygon(p, f, 4);
+    if (strcmp(keyword, "triangle") == 0)
+        return parse_polygon(p, f, 3);
+    if (strcmp(keyword, "sphere") == 0)
+        return parse_sphere(p, f);
+    if (strcmp(keyword, "mesh") == 0)
+        return parse_mesh(p, f);
+    if (strcmp(keyword, "light") == 0)
+        return parse_light(p, f);
+    if (strcmp(keyword, "probe") == 0)
+        return parse_probe(p, f);
     return fail(&p->ctx, "unknown statement '%.40s'", keyword);
 }
 
@@ -537,24 +612,29 @@ static int parse_face_vertex(const error_context *ctx, const char *text, int ver
     char *end;
     errno = 0;
     long index = strtol(text, &end, 10);
-    if (end == text || (*end != '\0' && *end != '/')) return fail(ctx, "bad face vertex '%s'", text);
+    if (end == text || (*end != '\0' && *end != '/'))
+        return fail(ctx, "bad face vertex '%s'", text);
     if (*end == '/') {
         /* Texture and normal indices: optional integers, not used. */
         const char *c = end + 1;
         if (*c != '/' && *c != '\0') {
             (void)strtol(c, &end, 10);
-            if (end == c) return fail(ctx, "bad face vertex '%s'", text);
+            if (end == c)
+                return fail(ctx, "bad face vertex '%s'", text);
             c = end;
         }
         if (*c == '/') {
             c++;
             (void)strtol(c, &end, 10);
-            if (end == c) return fail(ctx, "bad face vertex '%s'", text);
+            if (end == c)
+                return fail(ctx, "bad face vertex '%s'", text);
             c = end;
         }
-        if (*c != '\0') return fail(ctx, "bad face vertex '%s'", text);
+        if (*c != '\0')
+            return fail(ctx, "bad face vertex '%s'", text);
     }
-    if (index == 0) return fail(ctx, "vertex index 0 in '%s' (OBJ indices start at 1)", text);
+    if (index == 0)
+        return fail(ctx, "vertex index 0 in '%s' (OBJ indices start at 1)", text);
     long resolved = index > 0 ? index - 1 : vertex_count + index;
     if (errno == ERANGE || resolved < 0 || resolved >= vertex_count)
         return fail(ctx, "vertex index %s out of range (%d vertices defined so far)", text, vertex_count);
@@ -567,55 +647,65 @@ typedef struct {
     int vertex_count, vertex_capacity;
 } obj_state;
 
-static int read_obj_lines(parser *p, FILE *file, error_context *ctx, obj_state *obj, int surface_index,
-                          int *face_count)
+static int read_obj_lines(parser *p, FILE *file, error_context *ctx, obj_state *obj, int surface_index, int *face_count)
 {
     char line[LINE_CAPACITY];
     fields f;
     line_status status;
     while ((status = read_line(file, line, sizeof line)) != LINE_END) {
         ctx->line++;
-        if (status != LINE_OK) return fail_line(ctx, status);
+        if (status != LINE_OK)
+            return fail_line(ctx, status);
         split_fields(line, &f);
-        if (f.count == 0) continue;
+        if (f.count == 0)
+            continue;
         if (strcmp(f.field[0], "v") == 0) {
             /* x y z, optionally followed by w or a vertex colour */
-            if (f.count < 4 || f.count > 7) return fail(ctx, "vertex needs 3 coordinates: v X Y Z");
+            if (f.count < 4 || f.count > 7)
+                return fail(ctx, "vertex needs 3 coordinates: v X Y Z");
             vec3 v;
-            if (parse_vec3(ctx, f.field + 1, "vertex coordinate", &v)) return 2;
+            if (parse_vec3(ctx, f.field + 1, "vertex coordinate", &v))
+                return 2;
             for (int i = 4; i < f.count; i++) {
                 double ignored;
-                if (parse_number(ctx, f.field[i], "vertex", &ignored)) return 2;
+                if (parse_number(ctx, f.field[i], "vertex", &ignored))
+                    return 2;
             }
             if (reserve_one((void **)&obj->vertices, &obj->vertex_capacity, obj->vertex_count, sizeof *obj->vertices))
                 return fail(ctx, "out of memory");
             obj->vertices[obj->vertex_count++] = v;
         } else if (strcmp(f.field[0], "f") == 0) {
             int corner_count = f.count - 1;
-            if (corner_count < 3) return fail(ctx, "face needs at least 3 vertices, has %d", corner_count);
+            if (corner_count < 3)
+                return fail(ctx, "face needs at least 3 vertices, has %d", corner_count);
             /* Fan triangulation (corner 0, i - 1, i); zero-area triangles are dropped. */
             int first, previous, current;
             if (parse_face_vertex(ctx, f.field[1], obj->vertex_count, &first) ||
                 parse_face_vertex(ctx, f.field[2], obj->vertex_count, &previous))
                 return 2;
             for (int i = 3; i <= corner_count; i++, previous = current) {
-                if (parse_face_vertex(ctx, f.field[i], obj->vertex_count, &current)) return 2;
+                if (parse_face_vertex(ctx, f.field[i], obj->vertex_count, &current))
+                    return 2;
                 vec3 a = obj->vertices[first], b = obj->vertices[previous], c = obj->vertices[current];
-                if (is_degenerate_triangle(a, b, c)) continue;
-                if (add_triangle(p, a, b, c, surface_index)) return fail(ctx, "out of memory");
+                if (is_degenerate_triangle(a, b, c))
+                    continue;
+                if (add_triangle(p, a, b, c, surface_index))
+                    return fail(ctx, "out of memory");
             }
             (*face_count)++;
         }
         /* Anything else (vn, vt, o, g, s, usemtl, mtllib, l, ...) is not geometry we use. */
     }
-    if (ferror(file)) return fail(ctx, "read error");
+    if (ferror(file))
+        return fail(ctx, "read error");
     return 0;
 }
 
 static int load_obj(parser *p, const char *obj_path, int surface_index)
 {
     FILE *file = fopen(obj_path, "rb");
-    if (file == NULL) return fail(&p->ctx, "cannot open mesh '%s': %s", obj_path, strerror(errno));
+    if (file == NULL)
+        return fail(&p->ctx, "cannot open mesh '%s': %s", obj_path, strerror(errno));
     error_context ctx = {.path = obj_path, .line = 0, .err = p->ctx.err, .err_size = p->ctx.err_size};
     obj_state obj = {0};
     int face_count = 0;
@@ -623,9 +713,12 @@ static int load_obj(parser *p, const char *obj_path, int surface_index)
     int status = read_obj_lines(p, file, &ctx, &obj, surface_index, &face_count);
     fclose(file);
     free(obj.vertices);
-    if (status) return status;
-    if (face_count == 0) return fail(&ctx, "no faces in mesh");
-    if (p->s->triangle_count == first_triangle) return fail(&ctx, "every face of the mesh has zero area");
+    if (status)
+        return status;
+    if (face_count == 0)
+        return fail(&ctx, "no faces in mesh");
+    if (p->s->triangle_count == first_triangle)
+        return fail(&ctx, "every face of the mesh has zero area");
     return 0;
 }
 
@@ -639,15 +732,21 @@ static int parse_file(parser *p, FILE *file)
     line_status status;
     while ((status = read_line(file, line, sizeof line)) != LINE_END) {
         p->ctx.line++;
-        if (status != LINE_OK) return fail_line(&p->ctx, status);
+        if (status != LINE_OK)
+            return fail_line(&p->ctx, status);
         split_fields(line, &f);
-        if (f.count == 0) continue;
-        if (parse_statement(p, &f)) return 2;
+        if (f.count == 0)
+            continue;
+        if (parse_statement(p, &f))
+            return 2;
     }
-    if (ferror(file)) return fail(&p->ctx, "read error");
+    if (ferror(file))
+        return fail(&p->ctx, "read error");
     /* Whole-file checks are reported at the last line. */
-    if (!p->has_camera) return fail(&p->ctx, "no camera statement");
-    if (p->s->surface_count == 0) return fail(&p->ctx, "no surfaces in the scene");
+    if (!p->has_camera)
+        return fail(&p->ctx, "no camera statement");
+    if (p->s->surface_count == 0)
+        return fail(&p->ctx, "no surfaces in the scene");
     return 0;
 }
 
