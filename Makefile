@@ -130,7 +130,7 @@ FUZZ_SECONDS ?= 60
 fuzz: deps
 	@mkdir -p build/fuzz/corpus tests/fuzz/findings
 	clang -std=c17 -g -O1 -fsanitize=fuzzer,address,undefined -D_POSIX_C_SOURCE=200809L -Icommon \
-	  tests/fuzz/fuzz_scene.c common/scene.c -lm -o build/fuzz/fuzz_scene
+	  tests/fuzz/fuzz_scene.c common/scene.c common/scene_parse.c common/bvh.c -lm -o build/fuzz/fuzz_scene
 	cp -n scenes/*.scene tests/bad/*.scene build/fuzz/corpus/ 2>/dev/null || true
 	cd tests/bad && ../../build/fuzz/fuzz_scene -max_total_time=$(FUZZ_SECONDS) -max_len=4096 \
 	  -artifact_prefix=../fuzz/findings/ ../../build/fuzz/corpus

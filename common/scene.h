@@ -42,16 +42,16 @@ typedef enum { SURFACE_QUAD, SURFACE_TRIANGLE, SURFACE_SPHERE, SURFACE_MESH } su
 typedef struct {
     char name[SCENE_NAME_MAX];
     surface_kind kind;
-    int material;        /* index into scene.materials */
-    vec3 vertex[4];      /* quad (4) or triangle (3) as written in the file */
-    int vertex_count;    /* 4, 3, or 0 for spheres and meshes */
-    vec3 center;         /* sphere */
-    double radius;       /* sphere */
-    int first_triangle;  /* this surface's triangles in scene.triangles */
-    int triangle_count;  /* 0 for spheres */
-    double area;         /* total surface area */
-    bool parallelogram;  /* a quad with vertex[0] + vertex[2] = vertex[1] + vertex[3]: sampled directly */
-    int line;            /* line of the statement in the scene file */
+    int material;       /* index into scene.materials */
+    vec3 vertex[4];     /* quad (4) or triangle (3) as written in the file */
+    int vertex_count;   /* 4, 3, or 0 for spheres and meshes */
+    vec3 center;        /* sphere */
+    double radius;      /* sphere */
+    int first_triangle; /* this surface's triangles in scene.triangles */
+    int triangle_count; /* 0 for spheres */
+    double area;        /* total surface area */
+    bool parallelogram; /* a quad with vertex[0] + vertex[2] = vertex[1] + vertex[3]: sampled directly */
+    int line;           /* line of the statement in the scene file */
 } surface;
 
 /* A triangle ready for intersection: p0, edges e1 = p1 - p0, e2 = p2 - p0,
@@ -84,18 +84,35 @@ typedef struct {
 } aabb;
 
 /* BVH node: a leaf when count > 0 (primitives first .. first+count-1 of
- * scene.primitive_order), otherwise an inner node whose children are
+ * scene.bvh.primitive_order), otherwise an inner node whose children are
  * node index + 1 and `second_child`. */
 typedef struct {
     aabb bounds;
     int first, count, second_child, axis;
 } bvh_node;
 
+/* What traversal reads (defined in bvh.h, private to the BVH code). */
+typedef struct trace_node trace_node;
+typedef struct leaf_primitive leaf_primitive;
+
+/* The BVH over the primitives (common/bvh.c).  build_nodes and
+ * primitive_order are the tree as built (the tests and tools look at them);
+ * traversal reads trace_nodes and leaf_primitives, a copy laid out for speed.
+ * Each array is its own allocation. */
+typedef struct {
+    int *primitive_order;            /* leaf order: primitive indices */
+    bvh_node *build_nodes;           /* node_count of them, depth-first */
+    int node_count;                  /* 0 when the scene has no primitives */
+    trace_node *trace_nodes;         /* trace_node_count of them, 64-byte aligned */
+    int trace_node_count;            /* inner nodes (1 if the root is a leaf) */
+    leaf_primitive *leaf_primitives; /* the primitives in leaf order, 64-byte aligned */
+} scene_bvh;
+
 typedef struct scene {
     char path[1024];
     camera camera;
-    int width, height;    /* `image` statement; 512 x 512 if absent */
-    vec3 background;      /* radiance of rays that escape */
+    int width, height; /* `image` statement; 512 x 512 if absent */
+    vec3 background;   /* radiance of rays that escape */
 
     material *materials;
     int material_count;
@@ -109,19 +126,21 @@ typedef struct scene {
     int probe_count;
 
     /* Emitting surfaces (material kind MATERIAL_EMITTER), for light sampling. */
-    int *emitters;        /* surface indices */
+    int *emitters; /* surface indices */
     int emitter_count;
-    double emitter_area;  /* total area of all emitting surfaces */
+    double emitter_area; /* total area of all emitting surfaces */
 
     /* Primitives: index i < triangle_count is triangle i; i >= triangle_count
      * is the sphere surface sphere_surfaces[i - triangle_count]. */
     int *sphere_surfaces;
     int sphere_count;
-    int *primitive_order; /* BVH leaf order */
-    bvh_node *nodes;
-    int node_count;
+    scene_bvh bvh;
 
-    aabb bounds;    /* of all geometry */
+    /* Per triangle: the area of its surface's triangles up to and including
+     * it (the last one's is the surface's area), for surface_sample_point. */
+    double *triangle_area_cdf;
+
+    aabb bounds; /* of all geometry */
     /* Scene-relative self-intersection offset.  A hit point computed in
      * double precision is off its surface by a few ulps of the coordinates'
      * magnitude (about 1e-16 relative); a ray leaving it must not re-hit
@@ -139,11 +158,11 @@ typedef struct {
 } ray;
 
 typedef struct {
-    double t;        /* ray parameter of the hit */
-    vec3 point;      /* origin + t * direction */
-    vec3 normal;     /* unit geometric normal as the file orients it (not flipped toward the ray) */
-    int surface;     /* index into scene.surfaces */
-    int primitive;   /* triangle index, or triangle_count + sphere number */
+    double t;      /* ray parameter of the hit */
+    vec3 point;    /* origin + t * direction */
+    vec3 normal;   /* unit geometric normal as the file orients it (not flipped toward the ray) */
+    int surface;   /* index into scene.surfaces */
+    int primitive; /* triangle index, or triangle_count + sphere number */
 } hit;
 
 /* Parse a .scene file.  Returns 0 on success.  On any error returns 2,

@@ -21,39 +21,39 @@ static const char *write_temp(const char *name, const char *text)
     static char path[512];
     snprintf(path, sizeof path, "%s/%s", temp_dir, name);
     FILE *f = fopen(path, "wb");
-    if (f == NULL) return NULL;
+    if (f == NULL)
+        return NULL;
     fputs(text, f);
     fclose(f);
     return path;
 }
 
-static const char CORNELL[] =
-    "# Cornell box (Cornell data page geometry), light lowered by 0.1 mm\n"
-    "camera eye 278 273 -800  look 278 273 0  up 0 1 0  fov 39.3076\n"
-    "material white diffuse 0.725 0.71 0.68\n"
-    "material red   diffuse 0.63 0.065 0.05\n"
-    "material green diffuse 0.14 0.45 0.091\n"
-    "material lamp  emitter 17 12 4  diffuse 0.78 0.78 0.78\n"
-    "quad floor     white  552.8 0 0   0 0 0   0 0 559.2   549.6 0 559.2\n"
-    "quad ceiling   white  556 548.8 0   556 548.8 559.2   0 548.8 559.2   0 548.8 0\n"
-    "quad light     lamp   343 548.7 227   343 548.7 332   213 548.7 332   213 548.7 227\n"
-    "quad back_wall white  549.6 0 559.2   0 0 559.2   0 548.8 559.2   556 548.8 559.2\n"
-    "quad green_wall green 0 0 559.2   0 0 0   0 548.8 0   0 548.8 559.2\n"
-    "# the red wall is not planar: two triangles\n"
-    "triangle red_wall_a red  552.8 0 0   549.6 0 559.2   556 548.8 559.2\n"
-    "triangle red_wall_b red  552.8 0 0   556 548.8 559.2   556 548.8 0\n"
-    "quad short_1 white 130 165 65  82 165 225  240 165 272  290 165 114\n"
-    "quad short_2 white 290 0 114  290 165 114  240 165 272  240 0 272\n"
-    "quad short_3 white 130 0 65  130 165 65  290 165 114  290 0 114\n"
-    "quad short_4 white 82 0 225  82 165 225  130 165 65  130 0 65\n"
-    "quad short_5 white 240 0 272  240 165 272  82 165 225  82 0 225\n"
-    "quad tall_1 white 423 330 247  265 330 296  314 330 456  472 330 406\n"
-    "quad tall_2 white 423 0 247  423 330 247  472 330 406  472 0 406\n"
-    "quad tall_3 white 472 0 406  472 330 406  314 330 456  314 0 456\n"
-    "quad tall_4 white 314 0 456  314 330 456  265 330 296  265 0 296\n"
-    "quad tall_5 white 265 0 296  265 330 296  423 330 247  423 0 247\n"
-    "light bulb point 278 500 279.5  1000 1000 1000\n"
-    "probe floor_center 278 0 279.5  0 2 0   # normalised on load\n";
+static const char CORNELL[] = "# Cornell box (Cornell data page geometry), light lowered by 0.1 mm\n"
+                              "camera eye 278 273 -800  look 278 273 0  up 0 1 0  fov 39.3076\n"
+                              "material white diffuse 0.725 0.71 0.68\n"
+                              "material red   diffuse 0.63 0.065 0.05\n"
+                              "material green diffuse 0.14 0.45 0.091\n"
+                              "material lamp  emitter 17 12 4  diffuse 0.78 0.78 0.78\n"
+                              "quad floor     white  552.8 0 0   0 0 0   0 0 559.2   549.6 0 559.2\n"
+                              "quad ceiling   white  556 548.8 0   556 548.8 559.2   0 548.8 559.2   0 548.8 0\n"
+                              "quad light     lamp   343 548.7 227   343 548.7 332   213 548.7 332   213 548.7 227\n"
+                              "quad back_wall white  549.6 0 559.2   0 0 559.2   0 548.8 559.2   556 548.8 559.2\n"
+                              "quad green_wall green 0 0 559.2   0 0 0   0 548.8 0   0 548.8 559.2\n"
+                              "# the red wall is not planar: two triangles\n"
+                              "triangle red_wall_a red  552.8 0 0   549.6 0 559.2   556 548.8 559.2\n"
+                              "triangle red_wall_b red  552.8 0 0   556 548.8 559.2   556 548.8 0\n"
+                              "quad short_1 white 130 165 65  82 165 225  240 165 272  290 165 114\n"
+                              "quad short_2 white 290 0 114  290 165 114  240 165 272  240 0 272\n"
+                              "quad short_3 white 130 0 65  130 165 65  290 165 114  290 0 114\n"
+                              "quad short_4 white 82 0 225  82 165 225  130 165 65  130 0 65\n"
+                              "quad short_5 white 240 0 272  240 165 272  82 165 225  82 0 225\n"
+                              "quad tall_1 white 423 330 247  265 330 296  314 330 456  472 330 406\n"
+                              "quad tall_2 white 423 0 247  423 330 247  472 330 406  472 0 406\n"
+                              "quad tall_3 white 472 0 406  472 330 406  314 330 456  314 0 456\n"
+                              "quad tall_4 white 314 0 456  314 330 456  265 330 296  265 0 296\n"
+                              "quad tall_5 white 265 0 296  265 330 296  423 330 247  423 0 247\n"
+                              "light bulb point 278 500 279.5  1000 1000 1000\n"
+                              "probe floor_center 278 0 279.5  0 2 0   # normalised on load\n";
 
 static int load_text(const char *name, const char *text, scene *s, char *err, size_t err_size)
 {
@@ -86,7 +86,8 @@ static void test_triangle_hit_and_miss(void)
     CHECK(isinf(intersect_triangle(&t, (ray){v3(0.25, 0.25, 1), v3(0, 0, 1)})), "triangle behind the ray");
     CHECK(isinf(intersect_triangle(&t, (ray){v3(0.6, 0.6, 1), v3(0, 0, -1)})), "outside the hypotenuse");
     CHECK(isinf(intersect_triangle(&t, (ray){v3(-0.1, 0.5, 1), v3(0, 0, -1)})), "outside the left edge");
-    CHECK(isinf(intersect_triangle(&t, (ray){v3(0.2, 0.2, 0), v3(0, 0, -1)})), "origin on the triangle: t = 0 is no hit");
+    CHECK(isinf(intersect_triangle(&t, (ray){v3(0.2, 0.2, 0), v3(0, 0, -1)})),
+          "origin on the triangle: t = 0 is no hit");
 }
 
 static void test_triangle_edges_and_grazing(void)
@@ -101,7 +102,7 @@ static void test_triangle_edges_and_grazing(void)
     }
     /* Rays in the triangle's plane and parallel to it: misses, not NaN. */
     ray grazing[] = {
-        {v3(-1, 0.25, 0), v3(1, 0, 0)},  {v3(-1, -1, 0), v3(1, 1, 0)}, {v3(0.25, -1, 0), v3(0, 1, 0)},
+        {v3(-1, 0.25, 0), v3(1, 0, 0)},      {v3(-1, -1, 0), v3(1, 1, 0)},   {v3(0.25, -1, 0), v3(0, 1, 0)},
         {v3(-1, 0.25, 1e-300), v3(1, 0, 0)}, {v3(0.2, 0.2, 1), v3(1, 0, 0)}, {v3(0.2, 0.2, 1), v3(0, 0, 0)},
     };
     for (size_t i = 0; i < sizeof grazing / sizeof grazing[0]; i++) {
@@ -157,10 +158,12 @@ static void test_sphere_huge_radius(void)
         vec3 d = v3_normalize(v3(-1.0, rng_uniform(&g) - 0.5, rng_uniform(&g) - 0.5));
         double t = intersect_sphere(c, r, (ray){o, d});
         CHECK(isfinite(t) && t > 0, "ray %d missed the wall", i);
-        if (!(isfinite(t) && t > 0)) break;
+        if (!(isfinite(t) && t > 0))
+            break;
         vec3 p = v3_madd(o, d, t);
         double residual = fabs(v3_length(v3_sub(p, c)) - r) / t;
-        if (residual > worst) worst = residual;
+        if (residual > worst)
+            worst = residual;
     }
     CHECK(worst < 1e-9, "hit point off the sphere by %g of the distance travelled", worst);
 
@@ -176,7 +179,8 @@ static void test_parse_cornell(void)
     char err[512] = "";
     int status = load_text("cornell.scene", CORNELL, &s, err, sizeof err);
     CHECK(status == 0, "load failed: %.300s", err);
-    if (status) return;
+    if (status)
+        return;
     CHECK(s.material_count == 4, "materials %d", s.material_count);
     CHECK(s.surface_count == 17, "surfaces %d", s.surface_count);
     CHECK(s.triangle_count == 32, "triangles %d", s.triangle_count);
@@ -216,42 +220,44 @@ static void test_parse_cornell(void)
     /* Structure of the BVH: every primitive once, leaves of at most 4. */
     int seen[64] = {0};
     int leaf_total = 0;
-    for (int i = 0; i < s.node_count; i++) {
-        const bvh_node *n = &s.nodes[i];
+    for (int i = 0; i < s.bvh.node_count; i++) {
+        const bvh_node *n = &s.bvh.build_nodes[i];
         if (n->count > 0) {
             CHECK(n->count <= 4, "leaf of %d", n->count);
             leaf_total += n->count;
         }
     }
-    for (int i = 0; i < s.triangle_count; i++) seen[s.primitive_order[i]]++;
-    for (int i = 0; i < s.triangle_count; i++) CHECK(seen[i] == 1, "primitive %d appears %d times", i, seen[i]);
+    for (int i = 0; i < s.triangle_count; i++)
+        seen[s.bvh.primitive_order[i]]++;
+    for (int i = 0; i < s.triangle_count; i++)
+        CHECK(seen[i] == 1, "primitive %d appears %d times", i, seen[i]);
     CHECK(leaf_total == s.triangle_count, "leaves hold %d primitives", leaf_total);
     scene_free(&s);
-    CHECK(s.surfaces == NULL && s.nodes == NULL, "scene_free clears the scene");
+    CHECK(s.surfaces == NULL && s.bvh.build_nodes == NULL, "scene_free clears the scene");
 }
 
 static void test_parse_syntax_variants(void)
 {
-    const char text[] =
-        "\t# tabs, CRLF, comments at the end of statements\r\n"
-        "image 320 240   # size\r\n"
-        "background 0.1 0.2 0.3\r\n"
-        "camera eye 0 0 -5 look 0 0 0 up 0 1 0 fov 40\r\n"
-        "\r\n"
-        "material p phong kd 0.5 0.4 0.3 ks 0.5 0.6 0.7 exp 20\n"
-        "material m mirror 0.9 0.9 0.9\n"
-        "material g glass 1.5\n"
-        "material tinted glass 1.33 0.9 0.95 1\n"
-        "material e emitter 1e1 0 2.5E-1\n"
-        "sphere ball g 0 0 0 1\n"
-        "sphere ball2 tinted 3 0 0 .5\n"
-        "triangle tri\tp  -1 -1 2  1 -1 2  0 1 2\n"
-        "probe pr 0 0 -3  0 0 1\n";
+    const char text[] = "\t# tabs, CRLF, comments at the end of statements\r\n"
+                        "image 320 240   # size\r\n"
+                        "background 0.1 0.2 0.3\r\n"
+                        "camera eye 0 0 -5 look 0 0 0 up 0 1 0 fov 40\r\n"
+                        "\r\n"
+                        "material p phong kd 0.5 0.4 0.3 ks 0.5 0.6 0.7 exp 20\n"
+                        "material m mirror 0.9 0.9 0.9\n"
+                        "material g glass 1.5\n"
+                        "material tinted glass 1.33 0.9 0.95 1\n"
+                        "material e emitter 1e1 0 2.5E-1\n"
+                        "sphere ball g 0 0 0 1\n"
+                        "sphere ball2 tinted 3 0 0 .5\n"
+                        "triangle tri\tp  -1 -1 2  1 -1 2  0 1 2\n"
+                        "probe pr 0 0 -3  0 0 1\n";
     scene s;
     char err[512] = "";
     int status = load_text("variants.scene", text, &s, err, sizeof err);
     CHECK(status == 0, "load failed: %.300s", err);
-    if (status) return;
+    if (status)
+        return;
     CHECK(s.width == 320 && s.height == 240, "image %dx%d", s.width, s.height);
     CHECK_NEAR(s.background.z, 0.3, 0, "background");
     CHECK(s.material_count == 5, "materials %d", s.material_count);
@@ -302,12 +308,14 @@ static void test_obj_meshes(void)
         used += (size_t)snprintf(circle + used, sizeof circle - used, "v %.17g %.17g 5\n", cos(2 * M_PI * i / 64),
                                  sin(2 * M_PI * i / 64));
     used += (size_t)snprintf(circle + used, sizeof circle - used, "f");
-    for (int i = 1; i <= 64; i++) used += (size_t)snprintf(circle + used, sizeof circle - used, " %d", i);
+    for (int i = 1; i <= 64; i++)
+        used += (size_t)snprintf(circle + used, sizeof circle - used, " %d", i);
     snprintf(circle + used, sizeof circle - used, "\n");
     write_temp("circle.obj", circle);
     FILE *src = fopen("tests/data/pentagon.obj", "rb");
     CHECK(src != NULL, "tests/data/pentagon.obj missing (run from the repository root)");
-    if (src == NULL) return;
+    if (src == NULL)
+        return;
     char obj[2048];
     size_t n = fread(obj, 1, sizeof obj - 1, src);
     obj[n] = '\0';
@@ -323,7 +331,8 @@ static void test_obj_meshes(void)
     snprintf(pentagon_path, sizeof pentagon_path, "%s/circle.obj", temp_dir);
     unlink(pentagon_path);
     CHECK(status == 0, "load failed: %.300s", err);
-    if (status) return;
+    if (status)
+        return;
     int cube = scene_find_surface(&s, "cube"), pentagon = scene_find_surface(&s, "pentagon");
     CHECK(s.surfaces[cube].kind == SURFACE_MESH, "mesh kind");
     CHECK(s.surfaces[cube].triangle_count == 12, "cube triangles %d (degenerate face dropped)",
@@ -338,7 +347,8 @@ static void test_obj_meshes(void)
     CHECK_NEAR(s.surfaces[pentagon].area, 2.5 * sin(72.0 * M_PI / 180.0), 1e-12, "pentagon area");
     CHECK(s.emitter_count == 1 && s.emitters[0] == pentagon, "mesh emitter");
     int circle_index = scene_find_surface(&s, "circle");
-    CHECK(s.surfaces[circle_index].triangle_count == 62, "64-gon triangles %d", s.surfaces[circle_index].triangle_count);
+    CHECK(s.surfaces[circle_index].triangle_count == 62, "64-gon triangles %d",
+          s.surfaces[circle_index].triangle_count);
     CHECK_NEAR(s.surfaces[circle_index].area, 32 * sin(2 * M_PI / 64), 1e-12, "64-gon area");
     CHECK_NEAR(s.triangles[s.surfaces[pentagon].first_triangle].normal.z, 1, 1e-15, "pentagon normal");
     scene_free(&s);
@@ -351,17 +361,21 @@ static void test_bad_corpus(void)
 {
     DIR *dir = opendir("tests/bad");
     CHECK(dir != NULL, "cannot open tests/bad (run from the repository root)");
-    if (dir == NULL) return;
+    if (dir == NULL)
+        return;
     int files = 0;
     struct dirent *entry;
     while ((entry = readdir(dir)) != NULL) {
         size_t len = strlen(entry->d_name);
-        if (len < 6 || strcmp(entry->d_name + len - 6, ".scene") != 0) continue;
+        if (len < 6 || strcmp(entry->d_name + len - 6, ".scene") != 0)
+            continue;
         char path[512], expected[600], first_line[512] = "";
         snprintf(path, sizeof path, "tests/bad/%s", entry->d_name);
         FILE *f = fopen(path, "rb");
-        if (f == NULL || fgets(first_line, sizeof first_line, f) == NULL) first_line[0] = '\0';
-        if (f) fclose(f);
+        if (f == NULL || fgets(first_line, sizeof first_line, f) == NULL)
+            first_line[0] = '\0';
+        if (f)
+            fclose(f);
         int line = 0;
         char target[512];
         if (sscanf(first_line, "# expect-line: %d", &line) == 1) {
@@ -380,9 +394,10 @@ static void test_bad_corpus(void)
               expected);
         CHECK(strlen(err) > strlen(expected) + 5, "no message after the location: '%.200s'", err);
         CHECK(strchr(err, '\n') == NULL, "%.120s: error has more than one line", path);
-        CHECK(s.materials == NULL && s.surfaces == NULL && s.triangles == NULL && s.nodes == NULL,
+        CHECK(s.materials == NULL && s.surfaces == NULL && s.triangles == NULL && s.bvh.build_nodes == NULL,
               "%.120s: a failed load must free everything", path);
-        if (status == 0) scene_free(&s);
+        if (status == 0)
+            scene_free(&s);
         files++;
     }
     closedir(dir);
@@ -413,7 +428,8 @@ static char *random_scene_text(void)
 {
     size_t capacity = 1 << 20, used = 0;
     char *text = malloc(capacity);
-    if (text == NULL) return NULL;
+    if (text == NULL)
+        return NULL;
     used += (size_t)snprintf(text + used, capacity - used,
                              "camera eye 5 5 -20 look 5 5 5 up 0 1 0 fov 40\n"
                              "material white diffuse 0.5 0.5 0.5\n"
@@ -422,10 +438,13 @@ static char *random_scene_text(void)
     for (int i = 0; i < 600; i++) {
         vec3 a = v3(10 * rng_uniform(&g), 10 * rng_uniform(&g), 10 * rng_uniform(&g));
         double size = i % 10 == 0 ? 5.0 : 0.8;
-        vec3 b = v3_add(a, v3(size * (rng_uniform(&g) - 0.5), size * (rng_uniform(&g) - 0.5), size * (rng_uniform(&g) - 0.5)));
-        vec3 c = v3_add(a, v3(size * (rng_uniform(&g) - 0.5), size * (rng_uniform(&g) - 0.5), size * (rng_uniform(&g) - 0.5)));
-        used += (size_t)snprintf(text + used, capacity - used, "triangle t%d white %.17g %.17g %.17g %.17g %.17g %.17g %.17g %.17g %.17g\n",
-                                 i, a.x, a.y, a.z, b.x, b.y, b.z, c.x, c.y, c.z);
+        vec3 b = v3_add(
+            a, v3(size * (rng_uniform(&g) - 0.5), size * (rng_uniform(&g) - 0.5), size * (rng_uniform(&g) - 0.5)));
+        vec3 c = v3_add(
+            a, v3(size * (rng_uniform(&g) - 0.5), size * (rng_uniform(&g) - 0.5), size * (rng_uniform(&g) - 0.5)));
+        used += (size_t)snprintf(text + used, capacity - used,
+                                 "triangle t%d white %.17g %.17g %.17g %.17g %.17g %.17g %.17g %.17g %.17g\n", i, a.x,
+                                 a.y, a.z, b.x, b.y, b.z, c.x, c.y, c.z);
     }
     for (int i = 0; i < 40; i++) {
         used += (size_t)snprintf(text + used, capacity - used, "sphere s%d white %.17g %.17g %.17g %.17g\n", i,
@@ -440,9 +459,12 @@ static vec3 random_direction(rng *g)
     vec3 d = uniform_sample_sphere(rng_uniform(g), rng_uniform(g));
     /* Some rays along axes or in axis planes: zero components (inf 1/d). */
     int kind = (int)(rng_next_u32(g) % 8);
-    if (kind == 0) d.x = 0;
-    if (kind == 1) d = v3(0, 0, d.z < 0 ? -1 : 1);
-    if (kind == 2) d.y = 0;
+    if (kind == 0)
+        d.x = 0;
+    if (kind == 1)
+        d = v3(0, 0, d.z < 0 ? -1 : 1);
+    if (kind == 2)
+        d.y = 0;
     return d;
 }
 
@@ -450,20 +472,23 @@ static void test_bvh_matches_brute_force(void)
 {
     char *text = random_scene_text();
     CHECK(text != NULL, "out of memory");
-    if (text == NULL) return;
+    if (text == NULL)
+        return;
     scene s;
     char err[512] = "";
     int status = load_text("random.scene", text, &s, err, sizeof err);
     free(text);
     CHECK(status == 0, "load failed: %.300s", err);
-    if (status) return;
+    if (status)
+        return;
     CHECK(s.triangle_count >= 590 && s.sphere_count == 40, "primitives %d + %d", s.triangle_count, s.sphere_count);
 
     rng g = rng_for(9, 0, 0);
     int mismatches = 0, hits = 0;
     const int rays = 100000;
     for (int i = 0; i < rays; i++) {
-        ray r = {v3(14 * rng_uniform(&g) - 2, 14 * rng_uniform(&g) - 2, 14 * rng_uniform(&g) - 2), random_direction(&g)};
+        ray r = {v3(14 * rng_uniform(&g) - 2, 14 * rng_uniform(&g) - 2, 14 * rng_uniform(&g) - 2),
+                 random_direction(&g)};
         double t_max = i % 2 ? INFINITY : 15 * rng_uniform(&g);
         hit a, b;
         int found_a = scene_intersect(&s, r, t_max, &a);
@@ -472,7 +497,8 @@ static void test_bvh_matches_brute_force(void)
         int same = found_a == found_b;
         if (same && found_a)
             same = a.primitive == b.primitive && a.t == b.t && a.surface == b.surface && a.normal.x == b.normal.x;
-        if (same && found_a) same = a.t > 0 && a.t < t_max;
+        if (same && found_a)
+            same = a.t > 0 && a.t < t_max;
         if (!same && mismatches++ == 0)
             CHECK(0, "ray %d: bvh %d (t %g, prim %d), brute force %d (t %g, prim %d)", i, found_a, found_a ? a.t : 0,
                   found_a ? a.primitive : -1, found_b, found_b ? b.t : 0, found_b ? b.primitive : -1);
@@ -490,10 +516,12 @@ static void test_bvh_matches_brute_force(void)
         double band = 3 * s.epsilon / v3_length(d);
         hit h;
         int found = scene_intersect_brute_force(&s, (ray){a, d}, 1.0, &h);
-        if (found && (h.t < band || h.t > 1 - band)) continue; /* ambiguous: at an end */
+        if (found && (h.t < band || h.t > 1 - band))
+            continue; /* ambiguous: at an end */
         checked++;
         blocked += found;
-        if (scene_occluded(&s, a, b) != found) disagreements++;
+        if (scene_occluded(&s, a, b) != found)
+            disagreements++;
     }
     CHECK(disagreements == 0, "occluded disagrees with intersect on %d of %d segments", disagreements, checked);
     CHECK(blocked > checked / 10 && blocked < checked, "%d of %d segments blocked", blocked, checked);
@@ -506,7 +534,8 @@ static void test_occlusion_between_surfaces(void)
     char err[512] = "";
     int status = load_text("cornell.scene", CORNELL, &s, err, sizeof err);
     CHECK(status == 0, "load failed: %.300s", err);
-    if (status) return;
+    if (status)
+        return;
     vec3 light_center = v3(278, 548.7, 279.5);
     /* Both ends on surfaces: the back corner of the floor by the green wall
      * sees the light; the front corner does not (the short block is between). */
@@ -545,7 +574,8 @@ static void test_surface_sampling(void)
     char err[512] = "";
     int status = load_text("sampling.scene", text, &s, err, sizeof err);
     CHECK(status == 0, "load failed: %.300s", err);
-    if (status) return;
+    if (status)
+        return;
     /* Triangles (v0 v1 v2) of area 1.5 and (v0 v2 v3) of area 3. */
     int quad = scene_find_surface(&s, "q"), ball = scene_find_surface(&s, "ball");
     CHECK_NEAR(s.surfaces[quad].area, 4.5, 1e-15, "quad area");
@@ -556,7 +586,8 @@ static void test_surface_sampling(void)
     for (int i = 0; i < n; i++) {
         vec3 p, normal;
         surface_sample_point(&s, quad, rng_uniform(&g), rng_uniform(&g), rng_uniform(&g), &p, &normal);
-        if (p.y < p.x / 3.0) in_first++;
+        if (p.y < p.x / 3.0)
+            in_first++;
         if (!(p.z == 0 && p.x >= 0 && p.x <= 3 && p.y >= 0 && p.y <= 2 - p.x / 3.0 + 1e-12) || normal.z != 1) {
             CHECK(0, "sample %d (%g %g %g) off the quad", i, p.x, p.y, p.z);
             break;
@@ -580,6 +611,105 @@ static void test_surface_sampling(void)
     CHECK(p.y <= p.x / 3.0 + 1e-12, "u3 = 0 picks the first triangle");
     surface_sample_point(&s, quad, 0.5, 0.5, 0.9999999999, &p, &normal);
     CHECK(p.y >= p.x / 3.0 - 1e-12, "u3 near 1 picks the last triangle");
+    scene_free(&s);
+}
+
+/* A mesh's triangle is picked in proportion to its area: the frequencies
+ * match the area fractions, and every u3 picks the triangle that the running
+ * sum of areas picks (the first whose sum exceeds u3 * area, the last if
+ * none does). */
+static void test_mesh_sampling_by_area(void)
+{
+    /* Six right triangles of areas 1, 2, 3, 4, 0.5, 5.5 (legs 2 and
+     * area), triangle k in x in [10 k, 10 k + 2]. */
+    static const double areas[] = {1, 2, 3, 4, 0.5, 5.5};
+    enum { TRIANGLES = sizeof areas / sizeof areas[0] };
+    char obj[1024] = "";
+    for (int k = 0; k < TRIANGLES; k++) {
+        char line[128];
+        snprintf(line, sizeof line, "v %d 0 0\nv %d 0 0\nv %d %.17g 0\nf %d %d %d\n", 10 * k, 10 * k + 2, 10 * k,
+                 areas[k], 3 * k + 1, 3 * k + 2, 3 * k + 3);
+        strncat(obj, line, sizeof obj - strlen(obj) - 1);
+    }
+    CHECK(write_temp("unequal.obj", obj) != NULL, "cannot write unequal.obj");
+    const char text[] = "camera eye 0 0 -5 look 0 0 0 up 0 1 0 fov 40\n"
+                        "material white diffuse 0.5 0.5 0.5\n"
+                        "mesh m white unequal.obj\n";
+    scene s;
+    char err[512] = "";
+    int status = load_text("unequal.scene", text, &s, err, sizeof err);
+    char obj_path[512];
+    snprintf(obj_path, sizeof obj_path, "%s/unequal.obj", temp_dir);
+    unlink(obj_path);
+    CHECK(status == 0, "load failed: %.300s", err);
+    if (status)
+        return;
+    int mesh = scene_find_surface(&s, "m");
+    const surface *surf = &s.surfaces[mesh];
+    CHECK(surf->triangle_count == TRIANGLES, "triangles %d", surf->triangle_count);
+    CHECK_NEAR(surf->area, 16.0, 1e-12, "mesh area");
+    if (surf->triangle_count != TRIANGLES) {
+        scene_free(&s);
+        return;
+    }
+
+    /* Frequencies: binomial, 5 sigma each. */
+    rng g = rng_for(11, 0, 0);
+    const int n = 200000;
+    int picked[TRIANGLES] = {0};
+    for (int i = 0; i < n; i++) {
+        double u1 = rng_uniform(&g);
+        double u2 = rng_uniform(&g);
+        double u3 = rng_uniform(&g);
+        vec3 p, normal;
+        surface_sample_point(&s, mesh, u1, u2, u3, &p, &normal);
+        int k = (int)floor(p.x / 10.0);
+        if (k < 0 || k >= TRIANGLES || p.x > 10 * k + 2 + 1e-12 || p.y < -1e-12 || p.y > areas[k] + 1e-12) {
+            CHECK(0, "sample %d (%g %g %g) off the mesh", i, p.x, p.y, p.z);
+            break;
+        }
+        picked[k]++;
+    }
+    for (int k = 0; k < TRIANGLES; k++) {
+        double expected = areas[k] / 16.0;
+        char what[64];
+        snprintf(what, sizeof what, "fraction of samples in triangle %d", k);
+        CHECK_NEAR((double)picked[k] / n, expected, 5 * sqrt(expected * (1 - expected) / n), what);
+    }
+
+    /* The mapping u3 -> triangle: a linear scan of the running sums, on a
+     * fine grid of u3 and just around each boundary. */
+    for (int j = 0; j <= 4000; j++) {
+        double u3[3] = {j / 4000.0, 0, 0};
+        int tries = 1;
+        if (j < TRIANGLES) {
+            double boundary = s.triangle_area_cdf[surf->first_triangle + j] / surf->area;
+            u3[0] = nextafter(boundary, 0.0);
+            u3[1] = boundary;
+            u3[2] = nextafter(boundary, 1.0);
+            tries = 3;
+        }
+        for (int t = 0; t < tries; t++) {
+            double u = u3[t] < 1.0 ? u3[t] : nextafter(1.0, 0.0);
+            double target = u * surf->area, cumulative = 0.0;
+            int expected = TRIANGLES - 1;
+            for (int k = 0; k < TRIANGLES - 1; k++) {
+                cumulative += s.triangles[surf->first_triangle + k].area;
+                if (target < cumulative) {
+                    expected = k;
+                    break;
+                }
+            }
+            vec3 p, normal;
+            surface_sample_point(&s, mesh, 0.25, 0.25, u, &p, &normal);
+            int k = (int)floor(p.x / 10.0);
+            if (k != expected) {
+                CHECK(0, "u3 = %.17g picks triangle %d, the running sum picks %d", u, k, expected);
+                j = 4001;
+                break;
+            }
+        }
+    }
     scene_free(&s);
 }
 
@@ -626,6 +756,7 @@ int main(void)
     RUN_TEST(test_bvh_matches_brute_force);
     RUN_TEST(test_occlusion_between_surfaces);
     RUN_TEST(test_surface_sampling);
+    RUN_TEST(test_mesh_sampling_by_area);
     RUN_TEST(test_camera_ray);
     rmdir(temp_dir);
     return CHECK_EXIT_STATUS();
