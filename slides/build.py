@@ -966,7 +966,7 @@ def main():
     parser.add_argument("--tradeoff-dir", default=os.path.join(ROOT, "out"),
                         help="where `make tradeoff` wrote tradeoff.csv and its plots (default out)")
     parser.add_argument("--only", help="build only the deck whose name contains this")
-    parser.add_argument("--deck", action="append", help="build this Markdown file instead of slides/NN_*.md "
+    parser.add_argument("--deck", action="append", help="build this Markdown file instead of slides/NN[a]_*.md "
                                                          "(may be repeated; the tests use it)")
     args = parser.parse_args()
     start = time.time()
@@ -982,7 +982,7 @@ def main():
         if args.deck:
             deck_paths = [os.path.abspath(p) for p in args.deck]
         else:
-            deck_paths = sorted(os.path.join(SLIDES, p) for p in os.listdir(SLIDES) if re.fullmatch(r"\d\d_\w+\.md", p))
+            deck_paths = sorted(os.path.join(SLIDES, p) for p in os.listdir(SLIDES) if re.fullmatch(r"\d\d[a-z]?_\w+\.md", p))
         if args.only:
             deck_paths = [p for p in deck_paths if args.only in os.path.basename(p)]
         decks = []

@@ -88,7 +88,7 @@ async function checkDeck(browser, file) {
     args: ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
            "--disable-component-update", "--disable-sync", "--allow-file-access-from-files"],
   });
-  const decks = fs.readdirSync(deckDir).filter((f) => /^\d\d_\w+\.html$/.test(f)).sort();
+  const decks = fs.readdirSync(deckDir).filter((f) => /^\d\d[a-z]?_\w+\.html$/.test(f)).sort();
   const result = { decks: {} };
   try {
     for (const f of decks) {
