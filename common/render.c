@@ -664,6 +664,13 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
     double last_write = render_start;
     while (acc.samples < spp_cap) {
         int pass_samples = timed ? 1 : (int)fmin((double)(spp_cap - acc.samples), fmax(1.0, acc.samples / 2.0));
+        if (ch->begin_pass) {
+            pass_samples = 1;
+            if (ch->begin_pass(state, &s, &o, passes + 1, err, err_size))
+                goto done;
+            if (interrupted)
+                break;
+        }
         render_pass(ch, state, &s, &o, width, height, (int)acc.samples, pass_samples,
                     spp_for_offsets, &acc);
         if (interrupted)

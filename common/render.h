@@ -86,6 +86,12 @@ typedef struct chapter {
      * this path, 0 if it is not its format, 2 on error.  May be NULL. */
     int (*write_output)(const void *state, const scene *s, const char *path, char *err, size_t err_size);
     void (*finish)(void *state); /* free the chapter's memory (may be NULL) */
+    /* Before each progressive pass (pass = 1, 2, ...; may be NULL): a
+     * chapter that builds something per pass (photon mapping traces a new
+     * photon map and shrinks its radius) does it here.  With this hook the
+     * driver renders one sample per pixel per pass, so sample k of every
+     * pixel belongs to pass k + 1.  Return 0, or 2 with a message. */
+    int (*begin_pass)(void *state, const scene *s, const render_options *o, int pass, char *err, size_t err_size);
 } chapter;
 
 /* Parse the command line, render, write outputs.  Returns the process exit

@@ -1,0 +1,161 @@
+/* photon_grid.c — the hashed uniform grid of photon_grid.h. */
+#include "photon_grid.h"
+
+#include <stdlib.h>
+
+#include "rng.h"
+
+/* Integer coordinate of the cube containing coordinate v. */
+static int64_t cell_of(double v, double cell_size) { return (int64_t)floor(v / cell_size); }
+
+static uint32_t bucket_of(const photon_grid *g, int64_t cx, int64_t cy, int64_t cz)
+{
+    uint64_t h = hash64((uint64_t)cx ^ hash64((uint64_t)cy ^ hash64((uint64_t)cz)));
+    return (uint32_t)(h % g->bucket_count);
+}
+
+static uint32_t bucket_of_point(const photon_grid *g, vec3 p)
+{
+    return bucket_of(g, cell_of(p.x, g->cell_size), cell_of(p.y, g->cell_size), cell_of(p.z, g->cell_size));
+}
+
+static vec3 point_at(const void *first, size_t stride, size_t i)
+{
+    return *(const vec3 *)((const char *)first + i * stride);
+}
+
+int photon_grid_build(photon_grid *g, const void *first, size_t stride, size_t count, double cell_size)
+{
+    *g = (photon_grid){.cell_size = cell_size, .count = count};
+    /* About two buckets per point keeps most buckets short; at least one. */
+    g->bucket_count = (uint32_t)(count < (1u << 30) ? 2 * count + 1 : (1u << 31));
+    g->bucket_start = calloc((size_t)g->bucket_count + 1, sizeof *g->bucket_start);
+    g->order = malloc((count + 1) * sizeof *g->order);
+    g->position = malloc((count + 1) * sizeof *g->position);
+    uint32_t *bucket = malloc((count + 1) * sizeof *bucket);
+    if (!g->bucket_start || !g->order || !g->position || !bucket) {
+        free(bucket);
+        photon_grid_free(g);
+        return 2;
+    }
+    /* Counting sort by bucket, stable: count, prefix sums, place in order. */
+    for (size_t i = 0; i < count; i++) {
+        bucket[i] = bucket_of_point(g, point_at(first, stride, i));
+        g->bucket_start[bucket[i] + 1]++;
+    }
+    for (uint32_t b = 0; b < g->bucket_count; b++)
+        g->bucket_start[b + 1] += g->bucket_start[b];
+    uint32_t *next_slot = malloc(((size_t)g->bucket_count + 1) * sizeof *next_slot);
+    if (!next_slot) {
+        free(bucket);
+        photon_grid_free(g);
+        return 2;
+    }
+    for (uint32_t b = 0; b <= g->bucket_count; b++)
+        next_slot[b] = g->bucket_start[b];
+    for (size_t i = 0; i < count; i++) {
+        uint32_t slot = next_slot[bucket[i]]++;
+        g->order[slot] = (uint32_t)i;
+        g->position[slot] = point_at(first, stride, i);
+    }
+    free(next_slot);
+    free(bucket);
+    return 0;
+}
+
+void photon_grid_free(photon_grid *g)
+{
+    free(g->bucket_start);
+    free(g->order);
+    free(g->position);
+    *g = (photon_grid){0};
+}
+
+void photon_grid_search(const photon_grid *g, vec3 x, double radius, photon_grid_cursor *c)
+{
+    *c = (photon_grid_cursor){.center = x, .radius2 = radius * radius, .current = -1};
+    if (g->count == 0)
+        return;
+    int64_t cx = cell_of(x.x, g->cell_size), cy = cell_of(x.y, g->cell_size), cz = cell_of(x.z, g->cell_size);
+    for (int dx = -1; dx <= 1; dx++)
+        for (int dy = -1; dy <= 1; dy++)
+            for (int dz = -1; dz <= 1; dz++) {
+                uint32_t b = bucket_of(g, cx + dx, cy + dy, cz + dz);
+                bool seen = false;
+                for (int k = 0; k < c->bucket_count && !seen; k++)
+                    seen = c->bucket[k] == b;
+                if (!seen)
+                    c->bucket[c->bucket_count++] = b;
+            }
+}
+
+bool photon_grid_next(const photon_grid *g, photon_grid_cursor *c, uint32_t *index, double *distance2)
+{
+    for (;;) {
+        while (c->next < c->end) {
+            uint32_t j = c->next++;
+            vec3 d = v3_sub(g->position[j], c->center);
+            double d2 = v3_dot(d, d);
+            if (d2 <= c->radius2) {
+                *index = g->order[j];
+                *distance2 = d2;
+                return true;
+            }
+        }
+        if (++c->current >= c->bucket_count)
+            return false;
+        c->next = g->bucket_start[c->bucket[c->current]];
+        c->end = g->bucket_start[c->bucket[c->current] + 1];
+    }
+}
+
+/* A max-heap on distance2: the root is the farthest of the k kept so far. */
+static void sift_down(uint32_t *found, double *d2, int n, int i)
+{
+    for (;;) {
+        int largest = i, l = 2 * i + 1, r = l + 1;
+        if (l < n && d2[l] > d2[largest])
+            largest = l;
+        if (r < n && d2[r] > d2[largest])
+            largest = r;
+        if (largest == i)
+            return;
+        uint32_t fi = found[i];
+        double di = d2[i];
+        found[i] = found[largest], d2[i] = d2[largest];
+        found[largest] = fi, d2[largest] = di;
+        i = largest;
+    }
+}
+
+static void sift_up(uint32_t *found, double *d2, int i)
+{
+    while (i > 0 && d2[(i - 1) / 2] < d2[i]) {
+        int p = (i - 1) / 2;
+        uint32_t fi = found[i];
+        double di = d2[i];
+        found[i] = found[p], d2[i] = d2[p];
+        found[p] = fi, d2[p] = di;
+        i = p;
+    }
+}
+
+int photon_grid_nearest(const photon_grid *g, vec3 x, double radius, int k, uint32_t *found, double *d2,
+                        double *farthest2)
+{
+    photon_grid_cursor c;
+    uint32_t i;
+    double dist2;
+    int n = 0;
+    for (photon_grid_search(g, x, radius, &c); photon_grid_next(g, &c, &i, &dist2);) {
+        if (n < k) {
+            found[n] = i, d2[n] = dist2;
+            sift_up(found, d2, n++);
+        } else if (dist2 < d2[0]) {
+            found[0] = i, d2[0] = dist2;
+            sift_down(found, d2, n, 0);
+        }
+    }
+    *farthest2 = n == k && k > 0 ? d2[0] : radius * radius;
+    return n;
+}

@@ -1,0 +1,61 @@
+/* photon_grid.h — finding the points near a point: a hashed uniform grid.
+ *
+ * Photon mapping (chapter 5) asks, millions of times, "which photons lie
+ * within distance r of x?" (and "which are the k nearest?").  This is
+ * infrastructure, not the lecture: any spatial index answers it (Jensen used
+ * a kd-tree).  Here space is cut into cubes of side `cell_size`, and each
+ * cube's integer coordinates are hashed into one of `bucket_count` buckets
+ * (so the table's size depends on the number of points, not on the scene's
+ * extent over the radius, which grows without bound as a progressive
+ * radius shrinks).  A query of radius r <= cell_size visits the 3 x 3 x 3
+ * cubes around x; two cubes that hash to the same bucket are visited once.
+ *
+ * Points are kept in bucket order, and in their original order within a
+ * bucket (a stable counting sort): a query returns the same points in the
+ * same order on every run, whatever the thread count that made the input.
+ */
+#ifndef COMMON_PHOTON_GRID_H
+#define COMMON_PHOTON_GRID_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "vec.h"
+
+typedef struct {
+    double cell_size;
+    uint32_t bucket_count;
+    uint32_t *bucket_start; /* bucket_count + 1 offsets into order / position */
+    uint32_t *order;        /* the points' indices, grouped by bucket */
+    vec3 *position;         /* position[j] is the point order[j]: the search reads only this array */
+    size_t count;
+} photon_grid;
+
+/* Index `count` points: point i is at *(const vec3 *)((const char *)first + i * stride)
+ * (a member of an array of structs).  Returns 0, or 2 when out of memory.
+ * cell_size > 0 is the largest radius the grid will be asked about. */
+int photon_grid_build(photon_grid *grid, const void *first, size_t stride, size_t count, double cell_size);
+void photon_grid_free(photon_grid *grid);
+
+/* for (photon_grid_search(g, x, r, &c); photon_grid_next(g, &c, &i, &d2);) ...
+ * visits every point i with |p_i - x|^2 <= r^2 (d2 = that squared distance). */
+typedef struct {
+    vec3 center;
+    double radius2;
+    uint32_t bucket[27];
+    int bucket_count, current;
+    uint32_t next, end;
+} photon_grid_cursor;
+
+void photon_grid_search(const photon_grid *grid, vec3 x, double radius, photon_grid_cursor *cursor);
+bool photon_grid_next(const photon_grid *grid, photon_grid_cursor *cursor, uint32_t *index, double *distance2);
+
+/* The (at most) k points nearest to x within `radius`: their indices into
+ * found[0..k-1] (nearest not first: a heap), the count as the result, and
+ * the largest squared distance among them in *farthest2 (radius^2 when
+ * fewer than k were found, so the caller's disc is always well defined). */
+int photon_grid_nearest(const photon_grid *grid, vec3 x, double radius, int k, uint32_t *found,
+                        double *distance2_scratch, double *farthest2);
+
+#endif
