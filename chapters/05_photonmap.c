@@ -45,35 +45,16 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "optics.h"
-#include "photon_grid.h"
+#include "photon_map.h"
 #include "render.h"
 #include "sampling.h"
+#include "scatter.h"
 
 /* ---- state and options ------------------------------------------------------------ */
 
 typedef enum { MAPS_GLOBAL, MAPS_CAUSTIC, MAPS_BOTH } maps_kind;
 static const char *const maps_names[] = {"global", "caustic", "both"};
-enum { BATCHES = 32, CHUNK = 4096, MAX_BOUNCES = 1000, MAX_NEAREST = 4096 };
-
-/* A photon where it landed: a packet of flux Phi_p arriving from w_p. */
-typedef struct {
-    vec3 position;
-    vec3 from;    /* w_p: unit, toward where the photon came from */
-    vec3 normal;  /* the surface's unit normal on the side the photon arrived */
-    vec3 power;   /* Phi_p (W per channel), already divided by the photons of the pass */
-    int bounces;  /* scatterings before it landed: 0 = straight from a light */
-    bool caustic; /* every scattering was specular (the path L S+ D) */
-    bool front;   /* it arrived on the side the surface's normal points to */
-    int surface;
-    uint32_t path; /* which emitted photon it is (for batch statistics) */
-} photon;
-
-typedef struct {
-    photon *photons;
-    size_t count, capacity;
-    photon_grid grid;
-} photon_map;
+enum { CHUNK = 4096, MAX_BOUNCES = 1000 };
 
 /* A light, picked for emission with probability proportional to its power. */
 typedef struct {
@@ -87,18 +68,17 @@ typedef struct {
     double radius, alpha;
     /* From prepare and begin_pass. */
     const scene *scene;
-    int bounce_min, bounce_max, passes;
-    uint64_t seed;
+    int bounce_min, bounce_max;
+    uint64_t seed, photon_rays;
     light_source *lights;
     int light_count;
+    vec3 emitted_power;
     double initial_radius, current_radius, *radius_per_pass;
-    photon_map global, caustic;
-    uint64_t photon_rays, stored[2];
-    vec3 emitted_power, power_batch[2][BATCHES]; /* stored power, global and caustic map */
-    vec3 *surface_batch;                         /* per surface x BATCHES: power landing on its front */
+    photon_map global, caustic; /* this pass's photons (photon_map.h: what a photon holds) */
+    photon_tally tally;         /* stored power over all passes, for the stats */
 } photonmap_state;
 
-enum { COUNT_LOOKUPS, COUNT_PHOTONS_USED, COUNT_SHADOW_RAYS, COUNT_WALK_RAYS };
+enum { COUNT_LOOKUPS, COUNT_PHOTONS_VISITED, COUNT_SHADOW_RAYS, COUNT_WALK_RAYS };
 
 #define STATE(field) offsetof(photonmap_state, field)
 static const option PHOTONMAP_OPTIONS[] = {
@@ -112,94 +92,16 @@ static const option PHOTONMAP_OPTIONS[] = {
      .help = "which photon maps estimate what (see the file's header)"},
     {"--gather", "N", OPTION_INT, STATE(gather), .min = 0, .max = 1 << 16, .default_text = "0",
      .help = "final-gather rays per eye sample (0: read the global map at the first diffuse point)"},
-    {"--nearest", "K", OPTION_INT, STATE(nearest), .min = 0, .max = MAX_NEAREST, .default_text = "0",
+    {"--nearest", "K", OPTION_INT, STATE(nearest), .min = 0, .max = PHOTON_GRID_MAX_NEAREST, .default_text = "0",
      .help = "use the K nearest photons within the radius (0: all photons within it)"},
-    {"--probe-photons", "N", OPTION_INT, STATE(probe_photons), .min = BATCHES, .max = 1 << 28,
-     .default_text = "1048576", .help = "photons per probe estimate, in 32 batches"},
+    {"--probe-photons", "N", OPTION_INT, STATE(probe_photons), .min = PHOTON_BATCHES, .max = 1 << 28,
+     .default_text = "262144", .help = "photons per probe estimate, in 32 batches"},
     {0},
 };
 #undef STATE
 
 /* Is the Neumann term K^k E (R6) inside the --bounces window? */
 static bool keeps(const photonmap_state *st, int k) { return k >= st->bounce_min && k <= st->bounce_max; }
-
-/* ---- scattering -------------------------------------------------------------------------- */
-
-/* Non-specular materials (diffuse, Phong, emitters that reflect) get photons
- * and the density estimate; mirrors and glass only pass light on. */
-static bool is_specular(const material *m) { return m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS; }
-
-/* f(w_i, w_o) of chapter 4: Lambert plus the normalised Phong lobe around the
- * mirror direction of w_o (symmetric in w_i and w_o, so photons and eye
- * paths share it).  n is the normal on the side of w_o; 0 below the surface. */
-static vec3 bsdf(const material *m, vec3 n, vec3 w_i, vec3 w_o)
-{
-    if (v3_dot(n, w_i) <= 0.0 || v3_dot(n, w_o) <= 0.0)
-        return v3_splat(0.0);
-    vec3 f = v3_scale(m->albedo, 1.0 / M_PI);
-    double cos_alpha = v3_dot(w_i, v3_reflect(v3_neg(w_o), n));
-    if (m->kind == MATERIAL_PHONG && cos_alpha > 0.0)
-        f = v3_add(f, v3_scale(m->specular, (m->exponent + 2.0) / (2.0 * M_PI) * pow(cos_alpha, m->exponent)));
-    return f;
-}
-
-/* Draw w_i at a non-specular point: cosine-weighted, or (for Phong, with
- * the lobe's share of the albedo) around the mirror direction; the weight
- * f cos / pdf uses the pdf of the whole mixture.  False: absorbed. */
-static bool sample_bsdf(const material *m, vec3 n, vec3 w_o, rng *g, vec3 *w_i, vec3 *weight)
-{
-    double kd = v3_average(m->albedo), ks = m->kind == MATERIAL_PHONG ? v3_average(m->specular) : 0.0;
-    double share = kd + ks > 0.0 ? ks / (kd + ks) : 0.0, u1 = rng_uniform(g), u2 = rng_uniform(g);
-    vec3 mirror = v3_reflect(v3_neg(w_o), n);
-    if (rng_uniform(g) >= share) {
-        *w_i = onb_to_world(onb_from_normal(n), cosine_sample_hemisphere(u1, u2));
-    } else {
-        double c = pow(u1, 1.0 / (m->exponent + 1.0)), sin_phi, cos_phi;
-        sincos_turns(u2, &sin_phi, &cos_phi);
-        vec3 local = v3(sqrt_one_minus_square(c) * cos_phi, sqrt_one_minus_square(c) * sin_phi, c);
-        *w_i = onb_to_world(onb_from_normal(mirror), local);
-    }
-    double cos_i = v3_dot(n, *w_i), cos_alpha = fmax(0.0, v3_dot(*w_i, mirror));
-    double pdf = (1.0 - share) * cos_i / M_PI + share * (m->exponent + 1.0) / (2.0 * M_PI) * pow(cos_alpha, m->exponent);
-    if (!(cos_i > 0.0) || !(pdf > 0.0))
-        return false;
-    *weight = v3_scale(bsdf(m, n, *w_i, w_o), cos_i / pdf);
-    return v3_max_component(*weight) > 0.0;
-}
-
-/* A mirror or glass: the next direction and its weight.  Glass reflects
- * with probability F (exact Fresnel) and refracts otherwise.  Radiance
- * crossing into glass is squeezed into a smaller solid angle, times
- * (n_i / n_t)^2; flux is not (a photon's power is the same on both sides):
- * `carries_radiance` says which of the two is being carried. */
-static vec3 scatter_specular(const material *m, vec3 n_geometric, vec3 w_o, bool carries_radiance, rng *g, vec3 *w_i)
-{
-    bool entering = v3_dot(n_geometric, w_o) > 0.0;
-    vec3 n = entering ? n_geometric : v3_neg(n_geometric);
-    if (m->kind == MATERIAL_MIRROR) {
-        *w_i = v3_reflect(v3_neg(w_o), n);
-        return m->specular;
-    }
-    double n_i = entering ? 1.0 : m->ior, n_t = entering ? m->ior : 1.0;
-    double fresnel = fresnel_dielectric(v3_dot(n, w_o), n_i, n_t, NULL, NULL);
-    if (rng_uniform(g) < fresnel || !refract_direction(v3_neg(w_o), n, n_i / n_t, w_i)) {
-        *w_i = v3_reflect(v3_neg(w_o), n);
-        return v3_splat(1.0);
-    }
-    double eta = n_i / n_t;
-    return carries_radiance ? v3_scale(m->specular, eta * eta) : m->specular;
-}
-
-/* Russian roulette on a path's weight: go on with probability p = its
- * largest channel (at most 1) and divide by p; the expectation is unchanged. */
-static bool survives_roulette(vec3 *weight, rng *g)
-{
-    double p = fmin(1.0, v3_max_component(*weight));
-    if (!(p > 0.0) || rng_uniform(g) >= p)
-        return false;
-    *weight = v3_scale(*weight, 1.0 / p);
-    return true;
-}
 
 /* ---- lights and photon emission ----------------------------------------------------------- */
 
@@ -234,40 +136,46 @@ static ray emit_photon(const photonmap_state *st, const scene *s, rng *g, int ph
 
 /* ---- the photon pass -------------------------------------------------------------------------- */
 
-static int map_add(photon_map *map, const photon *p)
+/* A probe is a sensor, not a surface: photons fly through it.  Its
+ * irradiance is the flux crossing a disc of radius r around it (from the
+ * side its normal faces) per unit area, Phi / (pi r^2): (R11) with f = 1.
+ * (So it is the irradiance averaged over that disc.) */
+static bool crosses_disc(const probe *p, double radius, ray r, double t_max)
 {
-    if (map->count == map->capacity) {
-        size_t capacity = 2 * map->capacity + 256;
-        photon *grown = realloc(map->photons, capacity * sizeof *grown);
-        if (!grown)
-            return 2;
-        map->photons = grown, map->capacity = capacity;
-    }
-    map->photons[map->count++] = *p;
-    return 0;
+    double facing = -v3_dot(r.direction, p->normal);
+    double t = v3_dot(v3_sub(r.origin, p->position), p->normal) / facing;
+    vec3 offset = v3_sub(v3_madd(r.origin, r.direction, t), p->position);
+    return facing > 0.0 && t >= 0.0 && t <= t_max && v3_dot(offset, offset) <= radius * radius;
 }
 
 /* Follow one photon from a light until it is absorbed or leaves the scene,
- * storing it at every non-specular surface it lands on.  Returns rays traced. */
-static int trace_photon(const photonmap_state *st, const scene *s, uint32_t path, rng *g, photon_map *out)
+ * storing it (into `out`) at every non-specular surface it lands on.  A
+ * probe's estimate passes a `sensor` instead: the flux crossing its disc
+ * of radius r from the front (after a --bounces number of bounces) is added
+ * to *crossed.  Returns the rays traced, or -1 when out of memory. */
+static int trace_photon(const photonmap_state *st, const scene *s, int photons, uint32_t path, rng *g,
+                        photon_map *out, const probe *sensor, vec3 *crossed)
 {
     vec3 power;
-    ray r = emit_photon(st, s, g, st->photons, &power);
+    ray r = emit_photon(st, s, g, photons, &power);
     bool caustic = true;
-    int rays = 0;
-    for (int bounces = 0; bounces < MAX_BOUNCES; bounces++) {
+    int bounces = 0;
+    for (; bounces < MAX_BOUNCES; bounces++) {
         hit h;
-        rays++;
-        if (!scene_intersect(s, r, INFINITY, &h))
+        bool found = scene_intersect(s, r, INFINITY, &h);
+        if (sensor && keeps(st, bounces) && crosses_disc(sensor, st->initial_radius, r, found ? h.t : INFINITY))
+            *crossed = v3_add(*crossed, power);
+        if (!found)
             break;
         const material *m = &s->materials[s->surfaces[h.surface].material];
         vec3 from = v3_neg(r.direction), w_i, weight;
-        vec3 n = v3_dot(h.normal, from) > 0.0 ? h.normal : v3_neg(h.normal);
+        bool front = v3_dot(h.normal, from) > 0.0;
+        vec3 n = front ? h.normal : v3_neg(h.normal);
         if (is_specular(m)) {
             weight = scatter_specular(m, h.normal, from, false, g, &w_i);
         } else {
-            photon p = {h.point, from, n, power, bounces, caustic && bounces > 0, n.x == h.normal.x && n.y == h.normal.y && n.z == h.normal.z, h.surface, path};
-            if (map_add(out, &p))
+            photon p = {h.point, from, n, power, bounces, caustic && bounces > 0, front, h.surface, path};
+            if (out && photon_map_add(out, &p))
                 return -1;
             if (!sample_bsdf(m, n, from, g, &w_i, &weight))
                 break; /* absorbed */
@@ -278,12 +186,12 @@ static int trace_photon(const photonmap_state *st, const scene *s, uint32_t path
         power = v3_mul(power, weight);
         r = (ray){scene_offset_origin(s, h.point, h.normal, w_i), w_i};
     }
-    return rays;
+    return bounces + 1;
 }
 
 /* Shoot the pass's photons in parallel.  Each chunk of CHUNK photons has
- * its own list, and each photon its own random stream, so the concatenated
- * map is the same for any number of threads. */
+ * its own list, and each photon its own random stream, so the maps (the
+ * lists joined in chunk order) are the same for any number of threads. */
 static int photon_pass(photonmap_state *st, const scene *s, int pass)
 {
     int chunks = (st->photons + CHUNK - 1) / CHUNK, failed = 0;
@@ -293,40 +201,15 @@ static int photon_pass(photonmap_state *st, const scene *s, int pass)
         return 2;
 #pragma omp parallel for schedule(dynamic, 1) reduction(+ : rays, failed)
     for (int c = 0; c < chunks; c++)
-        for (int k = c * CHUNK; k < st->photons && k < (c + 1) * CHUNK && !failed; k++) {
+        for (int k = c * CHUNK; k < st->photons && k < (c + 1) * CHUNK; k++) {
             rng g = rng_for(st->seed ^ 0x70686f746f6eull, (uint64_t)pass, (uint64_t)k);
-            int traced = trace_photon(st, s, (uint32_t)k, &g, &lists[c]);
+            int traced = trace_photon(st, s, st->photons, (uint32_t)k, &g, &lists[c], NULL, NULL);
             failed += traced < 0, rays += (uint64_t)(traced > 0 ? traced : 0);
         }
     st->photon_rays += rays;
-    st->global.count = st->caustic.count = 0;
-    for (int c = 0; c < chunks; c++) {
-        for (size_t i = 0; i < lists[c].count && !failed; i++) {
-            const photon *p = &lists[c].photons[i];
-            failed |= map_add(&st->global, p) || (p->caustic && map_add(&st->caustic, p));
-        }
-        free(lists[c].photons);
-    }
+    failed += photon_maps_merge(lists, chunks, &st->global, &st->caustic);
     free(lists);
     return failed ? 2 : 0;
-}
-
-/* Statistics of a pass's photons: stored power per map and per surface, in
- * BATCHES batches of emitted photons (independent, so their spread gives
- * the standard error). */
-static void tally_pass(photonmap_state *st)
-{
-    for (size_t i = 0; i < st->global.count; i++) {
-        const photon *p = &st->global.photons[i];
-        int b = (int)(p->path % BATCHES);
-        st->power_batch[0][b] = v3_add(st->power_batch[0][b], p->power);
-        if (p->caustic)
-            st->power_batch[1][b] = v3_add(st->power_batch[1][b], p->power);
-        if (p->front && keeps(st, p->bounces + 1))
-            st->surface_batch[(size_t)p->surface * BATCHES + (size_t)b] =
-                v3_add(st->surface_batch[(size_t)p->surface * BATCHES + (size_t)b], p->power);
-    }
-    st->stored[0] += st->global.count, st->stored[1] += st->caustic.count;
 }
 
 /* ---- density estimation (R11) ---------------------------------------------------------------- */
@@ -349,32 +232,22 @@ static bool photon_counts(const photonmap_state *st, const photon *p, vec3 n, in
 
 /* (R11): the sum of f Phi_p over the photons in a disc of radius r around x,
  * divided by the disc's area pi r^2.  With --nearest K the disc is the
- * smallest one holding the K nearest photons (at most the pass's radius). */
+ * smallest that holds the K nearest photons (at most the pass's radius). */
 static vec3 photon_estimate(const photonmap_state *st, const photon_map *map, vec3 x, vec3 n, vec3 w_o,
                             const material *m, int before, photon_filter filter, render_counters *counters)
 {
     double r2 = st->current_radius * st->current_radius, d2;
+    if (st->nearest > 0)
+        r2 = photon_grid_nearest_radius2(&map->grid, x, st->current_radius, st->nearest);
     vec3 sum = v3_splat(0.0);
+    photon_grid_cursor c;
     uint32_t i;
     counters->value[COUNT_LOOKUPS]++;
-    if (st->nearest > 0) {
-        uint32_t found[MAX_NEAREST];
-        double scratch[MAX_NEAREST];
-        int count = photon_grid_nearest(&map->grid, x, st->current_radius, st->nearest, found, scratch, &r2);
-        for (int j = 0; j < count; j++) {
-            const photon *p = &map->photons[found[j]];
-            if (photon_counts(st, p, n, before, filter))
-                sum = v3_add(sum, v3_mul(bsdf(m, n, p->from, w_o), p->power));
-        }
-        counters->value[COUNT_PHOTONS_USED] += (uint64_t)count;
-    } else {
-        photon_grid_cursor c;
-        for (photon_grid_search(&map->grid, x, st->current_radius, &c); photon_grid_next(&map->grid, &c, &i, &d2);) {
-            const photon *p = &map->photons[i];
-            if (photon_counts(st, p, n, before, filter))
-                sum = v3_add(sum, v3_mul(bsdf(m, n, p->from, w_o), p->power));
-            counters->value[COUNT_PHOTONS_USED]++;
-        }
+    for (photon_grid_search(&map->grid, x, sqrt(r2), &c); photon_grid_next(&map->grid, &c, &i, &d2);) {
+        const photon *p = &map->photons[i];
+        if (photon_counts(st, p, n, before, filter))
+            sum = v3_add(sum, v3_mul(bsdf(m, n, p->from, w_o), p->power));
+        counters->value[COUNT_PHOTONS_VISITED]++;
     }
     return v3_scale(sum, 1.0 / (M_PI * r2)); /* (R11) */
 }
@@ -511,64 +384,25 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
 
 /* ---- probes -------------------------------------------------------------------------------------- */
 
-/* A probe is a sensor, not a surface: photons fly through it.  Its
- * irradiance is the flux crossing a disc of radius r around it (from the
- * side its normal faces) over the disc's area: (R11) with f = 1/pi
- * times pi.  Each of BATCHES batches shoots its own photons; the spread of
- * the batch estimates is the standard error.  (The estimate is the mean
- * irradiance over the disc: the tests compare it with exactly that.) */
-static double crossing_distance(const probe *p, double radius, ray r, double t_max)
-{
-    double facing = -v3_dot(r.direction, p->normal);
-    if (!(facing > 0.0))
-        return INFINITY;
-    double t = v3_dot(v3_sub(r.origin, p->position), p->normal) / facing;
-    vec3 offset = v3_sub(v3_madd(r.origin, r.direction, t), p->position);
-    return t >= 0.0 && t <= t_max && v3_dot(offset, offset) <= radius * radius ? t : INFINITY;
-}
-
-static vec3 probe_batch(const photonmap_state *st, const scene *s, const probe *p, uint64_t seed, int batch, int count)
-{
-    vec3 flux = v3_splat(0.0);
-    for (int k = 0; k < count; k++) {
-        rng g = rng_for(seed ^ 0x70726f6265ull, (uint64_t)(p - s->probes), (uint64_t)batch * (uint64_t)count + (uint64_t)k);
-        vec3 power;
-        ray r = emit_photon(st, s, &g, count, &power);
-        for (int bounces = 0; bounces < MAX_BOUNCES; bounces++) {
-            hit h;
-            bool found = scene_intersect(s, r, INFINITY, &h);
-            if (keeps(st, bounces) && isfinite(crossing_distance(p, st->initial_radius, r, found ? h.t + s->epsilon : INFINITY)))
-                flux = v3_add(flux, power);
-            if (!found)
-                break;
-            const material *m = &s->materials[s->surfaces[h.surface].material];
-            vec3 from = v3_neg(r.direction), w_i, weight;
-            vec3 n = v3_dot(h.normal, from) > 0.0 ? h.normal : v3_neg(h.normal);
-            if (is_specular(m))
-                weight = scatter_specular(m, h.normal, from, false, &g, &w_i);
-            else if (!sample_bsdf(m, n, from, &g, &w_i, &weight))
-                break;
-            if (!survives_roulette(&weight, &g))
-                break;
-            power = v3_mul(power, weight);
-            r = (ray){scene_offset_origin(s, h.point, h.normal, w_i), w_i};
-        }
-    }
-    return v3_scale(flux, 1.0 / (M_PI * st->initial_radius * st->initial_radius));
-}
-
+/* PHOTON_BATCHES independent batches of photons; the spread of their estimates is
+ * the standard error. */
 static probe_result probe_irradiance(const void *state_pointer, const scene *s, const probe *p, uint64_t seed,
                                      render_counters *counters)
 {
     const photonmap_state *st = state_pointer;
-    vec3 batch[BATCHES];
+    int per_batch = st->probe_photons / PHOTON_BATCHES;
+    vec3 batch[PHOTON_BATCHES];
     (void)counters;
-    if (st->light_count == 0)
-        return (probe_result){v3_splat(0.0), v3_splat(0.0)};
 #pragma omp parallel for schedule(dynamic, 1)
-    for (int b = 0; b < BATCHES; b++)
-        batch[b] = probe_batch(st, s, p, seed, b, st->probe_photons / BATCHES);
-    return batch_mean_and_error(batch, BATCHES);
+    for (int b = 0; b < PHOTON_BATCHES; b++) {
+        vec3 crossed = v3_splat(0.0);
+        for (int k = 0; k < per_batch && st->light_count > 0; k++) {
+            rng g = rng_for(seed ^ 0x70726f6265ull, (uint64_t)(p - s->probes), (uint64_t)(b * per_batch + k));
+            trace_photon(st, s, per_batch, (uint32_t)k, &g, NULL, p, &crossed);
+        }
+        batch[b] = v3_scale(crossed, 1.0 / (M_PI * st->initial_radius * st->initial_radius));
+    }
+    return batch_mean_and_error(batch, PHOTON_BATCHES);
 }
 
 /* ---- passes (R12), stats and main ----------------------------------------------------------------- */
@@ -579,9 +413,8 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
     photonmap_state *st = state_pointer;
     st->scene = s, st->seed = o->seed, st->bounce_min = o->bounce_min, st->bounce_max = o->bounce_max;
     st->lights = calloc((size_t)(s->emitter_count + s->light_count) + 1, sizeof *st->lights);
-    st->surface_batch = calloc((size_t)s->surface_count * BATCHES + 1, sizeof *st->surface_batch);
-    st->radius_per_pass = calloc(1, sizeof *st->radius_per_pass);
-    if (!st->lights || !st->surface_batch || !st->radius_per_pass) {
+    st->tally.surface = calloc((size_t)s->surface_count * PHOTON_BATCHES + 1, sizeof *st->tally.surface);
+    if (!st->lights || !st->tally.surface) {
         snprintf(err, err_size, "argv:0: out of memory");
         return 2;
     }
@@ -603,114 +436,54 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
         st->lights[l].probability /= total;
     if (st->light_count == 0)
         fprintf(stderr, "warning: 05_photonmap: the scene has no light to shoot photons from: the image is black\n");
-    vec3 diagonal = v3_sub(s->bounds.hi, s->bounds.lo);
-    st->initial_radius = st->radius > 0.0 ? st->radius : 0.01 * v3_length(diagonal);
-    if (!(st->initial_radius > 0.0))
-        st->initial_radius = 1.0; /* a scene without extent: nothing to look up anyway */
-    st->current_radius = st->initial_radius;
+    /* A radius relative to the scene, so the scene's unit does not matter. */
+    st->initial_radius = st->radius > 0.0 ? st->radius : 0.01 * v3_length(v3_sub(s->bounds.hi, s->bounds.lo));
+    st->current_radius = st->initial_radius = st->initial_radius > 0.0 ? st->initial_radius : 1.0;
     return 0;
 }
 
-/* Before pass i (from 1): a new photon map, and the radius of (R12). */
+/* Before pass i (from 1): the radius of (R12), and a new photon map. */
 static int begin_pass(void *state_pointer, const scene *s, const render_options *o, int pass, char *err,
                       size_t err_size)
 {
     photonmap_state *st = state_pointer;
     (void)o;
-    if (pass > 1) {
-        double r2 = st->current_radius * st->current_radius * (pass - 1 + st->alpha) / pass; /* (R12) */
-        st->current_radius = sqrt(r2);
-    }
-    double *grown = realloc(st->radius_per_pass, (size_t)pass * sizeof *grown);
-    if (!grown || (st->light_count > 0 && photon_pass(st, s, pass))) {
-        st->radius_per_pass = grown ? grown : st->radius_per_pass;
+    if (pass > 1)
+        st->current_radius *= sqrt((pass - 1 + st->alpha) / pass); /* (R12) with i = pass - 1 */
+    double *radii = realloc(st->radius_per_pass, (size_t)pass * sizeof *radii);
+    if (radii)
+        st->radius_per_pass = radii, radii[pass - 1] = st->current_radius;
+    if (!radii || (st->light_count > 0 && photon_pass(st, s, pass)) ||
+        photon_map_index(&st->global, st->current_radius) || photon_map_index(&st->caustic, st->current_radius)) {
         snprintf(err, err_size, "argv:0: out of memory for the photons of pass %d", pass);
         return 2;
     }
-    st->radius_per_pass = grown, grown[pass - 1] = st->current_radius, st->passes = pass;
-    tally_pass(st);
-    photon_grid_free(&st->global.grid);
-    photon_grid_free(&st->caustic.grid);
-    if (photon_grid_build(&st->global.grid, &st->global.photons[0].position, sizeof(photon), st->global.count,
-                          st->current_radius) ||
-        photon_grid_build(&st->caustic.grid, &st->caustic.photons[0].position, sizeof(photon), st->caustic.count,
-                          st->current_radius)) {
-        snprintf(err, err_size, "argv:0: out of memory for the photon grid of pass %d", pass);
-        return 2;
-    }
+    photon_tally_add(&st->tally, &st->global, st->bounce_min, st->bounce_max);
     return 0;
-}
-
-static void json_batches(FILE *json, const char *key, const vec3 *batch, int passes)
-{
-    vec3 scaled[BATCHES]; /* a batch's share of the photons stands for all of them: times BATCHES, per pass */
-    for (int b = 0; b < BATCHES; b++)
-        scaled[b] = v3_scale(batch[b], (double)BATCHES / (passes > 0 ? passes : 1));
-    probe_result r = batch_mean_and_error(scaled, BATCHES);
-    fprintf(json, "\"%s\": ", key);
-    json_vec3(json, r.irradiance);
-    fprintf(json, ", \"%s_standard_error\": ", key);
-    json_vec3(json, r.standard_error);
 }
 
 static void write_stats(const void *state_pointer, FILE *json)
 {
     const photonmap_state *st = state_pointer;
-    const scene *s = st->scene;
     fprintf(json, ",\n  \"maps\": \"%s\",\n  \"photons_per_pass\": %d,\n  \"gather\": %d,\n  \"nearest\": %d",
             maps_names[st->maps], st->photons, st->gather, st->nearest);
     json_field_number(json, "alpha", st->alpha);
-    fprintf(json, ",\n  \"photons_stored\": {\"global\": %llu, \"caustic\": %llu},\n  \"photon_rays\": %llu",
-            (unsigned long long)st->stored[0], (unsigned long long)st->stored[1], (unsigned long long)st->photon_rays);
+    json_field_number(json, "photon_rays", (double)st->photon_rays);
     fprintf(json, ",\n  \"radius_per_pass\": [");
-    for (int i = 0; i < st->passes; i++)
+    for (int i = 0; i < st->tally.passes; i++)
         fprintf(json, "%s%.17g", i ? ", " : "", st->radius_per_pass[i]);
     fprintf(json, "],\n  \"emitted_power\": ");
     json_vec3(json, st->emitted_power);
-    fprintf(json, ",\n  \"stored_power\": {");
-    json_batches(json, "global", st->power_batch[0], st->passes);
-    fputs(", ", json);
-    json_batches(json, "caustic", st->power_batch[1], st->passes);
-    fprintf(json, "},\n  \"surfaces\": [");
-    /* A Lambertian surface's mean exitant radiance from the power landing on
-     * its front: L = L_e + rho / pi * Phi / A (no radius: no blur). */
-    int written = 0;
-    for (int i = 0; i < s->surface_count; i++) {
-        const material *m = &s->materials[s->surfaces[i].material];
-        if (m->kind != MATERIAL_DIFFUSE && m->kind != MATERIAL_EMITTER)
-            continue;
-        vec3 batch[BATCHES];
-        for (int b = 0; b < BATCHES; b++) {
-            vec3 landed = v3_scale(st->surface_batch[(size_t)i * BATCHES + (size_t)b], (double)BATCHES / st->passes);
-            batch[b] = v3_scale(v3_mul(m->albedo, landed), 1.0 / (M_PI * s->surfaces[i].area));
-            if (m->kind == MATERIAL_EMITTER && keeps(st, 0))
-                batch[b] = v3_add(batch[b], m->emission);
-        }
-        probe_result r = batch_mean_and_error(batch, BATCHES);
-        fprintf(json, "%s\n    {\"name\": ", written++ ? "," : "");
-        json_string(json, s->surfaces[i].name);
-        fprintf(json, ", \"area\": ");
-        json_number(json, s->surfaces[i].area);
-        fprintf(json, ", \"radiance\": ");
-        json_vec3(json, r.irradiance);
-        fprintf(json, ", \"standard_error\": ");
-        json_vec3(json, r.standard_error);
-        fputc('}', json);
-    }
-    fprintf(json, "%s]", written ? "\n  " : "");
+    photon_tally_write(json, &st->tally, st->scene, keeps(st, 0));
 }
 
 static void finish(void *state_pointer)
 {
     photonmap_state *st = state_pointer;
-    photon_map *maps[2] = {&st->global, &st->caustic};
-    for (int k = 0; k < 2; k++) {
-        photon_grid_free(&maps[k]->grid);
-        free(maps[k]->photons);
-        *maps[k] = (photon_map){0};
-    }
-    free(st->lights), free(st->surface_batch), free(st->radius_per_pass);
-    st->lights = NULL, st->surface_batch = NULL, st->radius_per_pass = NULL;
+    photon_map_free(&st->global);
+    photon_map_free(&st->caustic);
+    free(st->lights), free(st->tally.surface), free(st->radius_per_pass);
+    st->lights = NULL, st->tally.surface = NULL, st->radius_per_pass = NULL;
 }
 
 int main(int argc, char **argv)

@@ -109,8 +109,8 @@ bool photon_grid_next(const photon_grid *g, photon_grid_cursor *c, uint32_t *ind
     }
 }
 
-/* A max-heap on distance2: the root is the farthest of the k kept so far. */
-static void sift_down(uint32_t *found, double *d2, int n, int i)
+/* A max-heap of squared distances: the root is the farthest of those kept. */
+static void sift_down(double *d2, int n, int i)
 {
     for (;;) {
         int largest = i, l = 2 * i + 1, r = l + 1;
@@ -120,42 +120,37 @@ static void sift_down(uint32_t *found, double *d2, int n, int i)
             largest = r;
         if (largest == i)
             return;
-        uint32_t fi = found[i];
         double di = d2[i];
-        found[i] = found[largest], d2[i] = d2[largest];
-        found[largest] = fi, d2[largest] = di;
+        d2[i] = d2[largest], d2[largest] = di;
         i = largest;
     }
 }
 
-static void sift_up(uint32_t *found, double *d2, int i)
+static void sift_up(double *d2, int i)
 {
     while (i > 0 && d2[(i - 1) / 2] < d2[i]) {
         int p = (i - 1) / 2;
-        uint32_t fi = found[i];
         double di = d2[i];
-        found[i] = found[p], d2[i] = d2[p];
-        found[p] = fi, d2[p] = di;
+        d2[i] = d2[p], d2[p] = di;
         i = p;
     }
 }
 
-int photon_grid_nearest(const photon_grid *g, vec3 x, double radius, int k, uint32_t *found, double *d2,
-                        double *farthest2)
+double photon_grid_nearest_radius2(const photon_grid *g, vec3 x, double radius, int k)
 {
+    double d2[PHOTON_GRID_MAX_NEAREST], dist2;
     photon_grid_cursor c;
     uint32_t i;
-    double dist2;
     int n = 0;
+    k = k < PHOTON_GRID_MAX_NEAREST ? k : PHOTON_GRID_MAX_NEAREST;
     for (photon_grid_search(g, x, radius, &c); photon_grid_next(g, &c, &i, &dist2);) {
         if (n < k) {
-            found[n] = i, d2[n] = dist2;
-            sift_up(found, d2, n++);
-        } else if (dist2 < d2[0]) {
-            found[0] = i, d2[0] = dist2;
-            sift_down(found, d2, n, 0);
+            d2[n] = dist2;
+            sift_up(d2, n++);
+        } else if (k > 0 && dist2 < d2[0]) {
+            d2[0] = dist2;
+            sift_down(d2, n, 0);
         }
     }
-    *farthest2 = n == k && k > 0 ? d2[0] : radius * radius;
-    return n;
+    return n == k && k > 0 ? d2[0] : radius * radius;
 }

@@ -51,11 +51,10 @@ typedef struct {
 void photon_grid_search(const photon_grid *grid, vec3 x, double radius, photon_grid_cursor *cursor);
 bool photon_grid_next(const photon_grid *grid, photon_grid_cursor *cursor, uint32_t *index, double *distance2);
 
-/* The (at most) k points nearest to x within `radius`: their indices into
- * found[0..k-1] (nearest not first: a heap), the count as the result, and
- * the largest squared distance among them in *farthest2 (radius^2 when
- * fewer than k were found, so the caller's disc is always well defined). */
-int photon_grid_nearest(const photon_grid *grid, vec3 x, double radius, int k, uint32_t *found,
-                        double *distance2_scratch, double *farthest2);
+/* The squared radius of the smallest ball around x that holds the k
+ * points nearest to x, searching within `radius` (radius^2 when fewer than
+ * k lie within it).  k <= PHOTON_GRID_MAX_NEAREST. */
+enum { PHOTON_GRID_MAX_NEAREST = 4096 };
+double photon_grid_nearest_radius2(const photon_grid *grid, vec3 x, double radius, int k);
 
 #endif
