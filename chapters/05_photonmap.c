@@ -38,12 +38,11 @@
  * blur vanishes: the average of the passes converges to the true image.
  * (alpha = 1 keeps the radius: classic photon mapping, whose bias stays.)
  *
- * Sections: state and options · scattering · lights and photon emission ·
- * the photon pass · density estimation (R11) · direct light (R9) · the eye
- * pass · probes · passes (R12), stats and main.
+ * Sections: state and options · lights and photon emission · the photon
+ * pass · density estimation (R11) · direct light (R9) · the eye pass ·
+ * probes · passes (R12), stats and main.  (Materials: common/scatter.h.)
  */
 #include <stdlib.h>
-#include <string.h>
 
 #include "photon_map.h"
 #include "render.h"
@@ -68,10 +67,9 @@ typedef struct {
     double radius, alpha;
     /* From prepare and begin_pass. */
     const scene *scene;
-    int bounce_min, bounce_max;
+    int bounce_min, bounce_max, light_count;
     uint64_t seed, photon_rays;
     light_source *lights;
-    int light_count;
     vec3 emitted_power;
     double initial_radius, current_radius, *radius_per_pass;
     photon_map global, caustic; /* this pass's photons (photon_map.h: what a photon holds) */
@@ -136,18 +134,6 @@ static ray emit_photon(const photonmap_state *st, const scene *s, rng *g, int ph
 
 /* ---- the photon pass -------------------------------------------------------------------------- */
 
-/* A probe is a sensor, not a surface: photons fly through it.  Its
- * irradiance is the flux crossing a disc of radius r around it (from the
- * side its normal faces) per unit area, Phi / (pi r^2): (R11) with f = 1.
- * (So it is the irradiance averaged over that disc.) */
-static bool crosses_disc(const probe *p, double radius, ray r, double t_max)
-{
-    double facing = -v3_dot(r.direction, p->normal);
-    double t = v3_dot(v3_sub(r.origin, p->position), p->normal) / facing;
-    vec3 offset = v3_sub(v3_madd(r.origin, r.direction, t), p->position);
-    return facing > 0.0 && t >= 0.0 && t <= t_max && v3_dot(offset, offset) <= radius * radius;
-}
-
 /* Follow one photon from a light until it is absorbed or leaves the scene,
  * storing it (into `out`) at every non-specular surface it lands on.  A
  * probe's estimate passes a `sensor` instead: the flux crossing its disc
@@ -159,11 +145,11 @@ static int trace_photon(const photonmap_state *st, const scene *s, int photons, 
     vec3 power;
     ray r = emit_photon(st, s, g, photons, &power);
     bool caustic = true;
-    int bounces = 0;
-    for (; bounces < MAX_BOUNCES; bounces++) {
+    int bounces;
+    for (bounces = 0; bounces < MAX_BOUNCES; bounces++) {
         hit h;
         bool found = scene_intersect(s, r, INFINITY, &h);
-        if (sensor && keeps(st, bounces) && crosses_disc(sensor, st->initial_radius, r, found ? h.t : INFINITY))
+        if (sensor && keeps(st, bounces) && ray_crosses_disc(r, found ? h.t : INFINITY, sensor->position, sensor->normal, st->initial_radius))
             *crossed = v3_add(*crossed, power);
         if (!found)
             break;
@@ -223,11 +209,8 @@ typedef enum { ALL_PHOTONS, INDIRECT_PHOTONS } photon_filter;
  * after `before` scatterings on the way to the eye. */
 static bool photon_counts(const photonmap_state *st, const photon *p, vec3 n, int before, photon_filter filter)
 {
-    if (v3_dot(p->normal, n) < 0.9)
-        return false;
-    if (filter == INDIRECT_PHOTONS && (p->bounces == 0 || p->caustic))
-        return false; /* direct light and caustics are counted elsewhere */
-    return keeps(st, before + p->bounces + 1);
+    bool counted_elsewhere = filter == INDIRECT_PHOTONS && (p->bounces == 0 || p->caustic); /* direct, caustic */
+    return v3_dot(p->normal, n) >= 0.9 && !counted_elsewhere && keeps(st, before + p->bounces + 1);
 }
 
 /* (R11): the sum of f Phi_p over the photons in a disc of radius r around x,
@@ -309,14 +292,53 @@ static bool next_diffuse_hit(const scene *s, ray *r, vec3 *weight, int *bounces,
     return false;
 }
 
-/* The light reflected at the non-specular point x toward w_o, after `before`
- * scatterings on the way to the eye.  --maps global: (R11) on the global map,
- * nothing else.  Otherwise direct light (R9) plus the caustic map (R11), and
- * for the rest: the global map without its direct and caustic photons, or
- * walks from x (--gather N of them): --maps both reads the global map where
- * a walk next lands (final gathering), --maps caustic goes on as a path
- * tracer.  Light a walk finds on an emitter is direct or caustic light at
- * the vertex before, counted there already: walks never add it again. */
+/* At the non-specular point x (normal n on the side of w_o, `before`
+ * scatterings from the eye): the light the maps need not blur, direct light
+ * by light sampling (R9), and the caustics from the caustic map (R11). */
+static vec3 direct_and_caustic(const photonmap_state *st, const scene *s, hit x, vec3 n, vec3 w_o, int before, rng *g,
+                               render_counters *counters)
+{
+    const material *m = &s->materials[s->surfaces[x.surface].material];
+    vec3 L = photon_estimate(st, &st->caustic, x.point, n, w_o, m, before, ALL_PHOTONS, counters);
+    return keeps(st, before + 1) ? v3_add(L, direct_light(st, s, x.point, n, w_o, m, g, counters)) : L;
+}
+
+/* The rest of the light at x by one walk (weight 1/walks): --maps both reads
+ * the global map where the walk lands next (final gathering), --maps caustic
+ * goes on as a path tracer.  Light a walk finds on an emitter is direct or
+ * caustic light at the vertex before, counted there already: not again. */
+static vec3 indirect_walk(const photonmap_state *st, const scene *s, hit at, vec3 normal, vec3 out, int k,
+                          vec3 weight, rng *g, render_counters *counters)
+{
+    vec3 L = v3_splat(0.0), w_i, scatter;
+    while (k < st->bounce_max) {
+        const material *m = &s->materials[s->surfaces[at.surface].material];
+        if (!sample_bsdf(m, normal, out, g, &w_i, &scatter))
+            break;
+        weight = v3_mul(weight, scatter); /* f cos / p (R2) */
+        ray r = {scene_offset_origin(s, at.point, at.normal, w_i), w_i};
+        bool escaped = false;
+        k++;
+        if (!survives_roulette(&weight, g) || !next_diffuse_hit(s, &r, &weight, &k, g, counters, &at, &escaped)) {
+            if (escaped && keeps(st, k)) /* the background lights x: it shoots no photons */
+                L = v3_add(L, v3_mul(weight, s->background));
+            break;
+        }
+        out = v3_neg(r.direction);
+        normal = v3_dot(at.normal, out) > 0.0 ? at.normal : v3_neg(at.normal);
+        if (st->maps == MAPS_BOTH) /* final gathering: the global map one bounce on */
+            return v3_add(L, v3_mul(weight, photon_estimate(st, &st->global, at.point, normal, out,
+                                                            &s->materials[s->surfaces[at.surface].material], k,
+                                                            ALL_PHOTONS, counters)));
+        L = v3_add(L, v3_mul(weight, direct_and_caustic(st, s, at, normal, out, k, g, counters)));
+    }
+    return L;
+}
+
+/* The light reflected at the non-specular point x toward w_o.  --maps global:
+ * (R11) on the global map, nothing else.  Otherwise direct light and
+ * caustics, and for the rest the global map's photons that were reflected
+ * diffusely on their way (--gather 0, --maps both), or --gather N walks. */
 static vec3 reflected_radiance(const photonmap_state *st, const scene *s, hit x, vec3 w_o, int before, rng *g,
                                render_counters *counters)
 {
@@ -324,42 +346,12 @@ static vec3 reflected_radiance(const photonmap_state *st, const scene *s, hit x,
     vec3 n = v3_dot(x.normal, w_o) > 0.0 ? x.normal : v3_neg(x.normal);
     if (st->maps == MAPS_GLOBAL)
         return photon_estimate(st, &st->global, x.point, n, w_o, m, before, ALL_PHOTONS, counters);
-    vec3 L = photon_estimate(st, &st->caustic, x.point, n, w_o, m, before, ALL_PHOTONS, counters);
-    if (keeps(st, before + 1))
-        L = v3_add(L, direct_light(st, s, x.point, n, w_o, m, g, counters));
+    vec3 L = direct_and_caustic(st, s, x, n, w_o, before, g, counters);
     if (st->maps == MAPS_BOTH && st->gather == 0)
         return v3_add(L, photon_estimate(st, &st->global, x.point, n, w_o, m, before, INDIRECT_PHOTONS, counters));
     int walks = st->gather > 0 ? st->gather : 1;
-    for (int w = 0; w < walks; w++) {
-        vec3 weight = v3_splat(1.0 / walks), out = w_o, normal = n, w_i, scatter;
-        const material *at_material = m;
-        hit at = x;
-        for (int k = before; k < st->bounce_max;) {
-            if (!sample_bsdf(at_material, normal, out, g, &w_i, &scatter))
-                break;
-            weight = v3_mul(weight, scatter); /* f cos / p (R2) */
-            ray r = {scene_offset_origin(s, at.point, at.normal, w_i), w_i};
-            bool escaped;
-            k++;
-            if (!survives_roulette(&weight, g) || !next_diffuse_hit(s, &r, &weight, &k, g, counters, &at, &escaped)) {
-                if (escaped && keeps(st, k)) /* the background lights x: not a photon source */
-                    L = v3_add(L, v3_mul(weight, s->background));
-                break;
-            }
-            out = v3_neg(r.direction);
-            normal = v3_dot(at.normal, out) > 0.0 ? at.normal : v3_neg(at.normal);
-            at_material = &s->materials[s->surfaces[at.surface].material];
-            if (st->maps == MAPS_BOTH) { /* final gathering: the global map one bounce on */
-                L = v3_add(L, v3_mul(weight, photon_estimate(st, &st->global, at.point, normal, out, at_material, k,
-                                                             ALL_PHOTONS, counters)));
-                break;
-            }
-            vec3 here = photon_estimate(st, &st->caustic, at.point, normal, out, at_material, k, ALL_PHOTONS, counters);
-            if (keeps(st, k + 1))
-                here = v3_add(here, direct_light(st, s, at.point, normal, out, at_material, g, counters));
-            L = v3_add(L, v3_mul(weight, here));
-        }
-    }
+    for (int w = 0; w < walks; w++)
+        L = v3_add(L, indirect_walk(st, s, x, n, w_o, before, v3_splat(1.0 / walks), g, counters));
     return L;
 }
 
@@ -384,8 +376,11 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
 
 /* ---- probes -------------------------------------------------------------------------------------- */
 
-/* PHOTON_BATCHES independent batches of photons; the spread of their estimates is
- * the standard error. */
+/* A probe is a sensor, not a surface: photons fly through it.  Its
+ * irradiance is the flux crossing a disc of radius r around it (from the
+ * side its normal faces) per unit area, Phi / (pi r^2): (R11) with f = 1,
+ * the irradiance averaged over the disc.  PHOTON_BATCHES independent batches
+ * of photons; the spread of their estimates is the standard error. */
 static probe_result probe_irradiance(const void *state_pointer, const scene *s, const probe *p, uint64_t seed,
                                      render_counters *counters)
 {
@@ -418,7 +413,6 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
         snprintf(err, err_size, "argv:0: out of memory");
         return 2;
     }
-    double total = 0.0;
     for (int e = 0; e < s->emitter_count; e++) {
         const surface *surf = &s->surfaces[s->emitters[e]];
         vec3 power = v3_scale(s->materials[surf->material].emission, M_PI * surf->area);
@@ -430,10 +424,10 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
         if (v3_average(power) > 0.0)
             st->lights[st->light_count++] = (light_source){-1, l, v3_average(power), power};
     }
+    for (int l = 0; l < st->light_count; l++) /* the power of all of them, then each one's share */
+        st->emitted_power = v3_add(st->emitted_power, st->lights[l].power);
     for (int l = 0; l < st->light_count; l++)
-        total += st->lights[l].probability, st->emitted_power = v3_add(st->emitted_power, st->lights[l].power);
-    for (int l = 0; l < st->light_count; l++)
-        st->lights[l].probability /= total;
+        st->lights[l].probability /= v3_average(st->emitted_power);
     if (st->light_count == 0)
         fprintf(stderr, "warning: 05_photonmap: the scene has no light to shoot photons from: the image is black\n");
     /* A radius relative to the scene, so the scene's unit does not matter. */

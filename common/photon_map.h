@@ -63,4 +63,15 @@ void photon_tally_add(photon_tally *tally, const photon_map *global, int bounce_
  * each with standard errors; members of the stats object (",\n  ..."). */
 void photon_tally_write(FILE *json, const photon_tally *tally, const scene *s, bool keep_emission);
 
+/* Does ray r cross, at a parameter t in [0, t_max], the disc of the given
+ * radius around `center` in the plane of unit `normal`, arriving from the
+ * side the normal faces?  (A probe counts the photons that fly through it.) */
+static inline bool ray_crosses_disc(ray r, double t_max, vec3 center, vec3 normal, double radius)
+{
+    double facing = -v3_dot(r.direction, normal);
+    double t = v3_dot(v3_sub(r.origin, center), normal) / facing;
+    vec3 offset = v3_sub(v3_madd(r.origin, r.direction, t), center);
+    return facing > 0.0 && t >= 0.0 && t <= t_max && v3_dot(offset, offset) <= radius * radius;
+}
+
 #endif
