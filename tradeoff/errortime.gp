@@ -22,7 +22,7 @@ set grid xtics ytics mxtics mytics lc rgb '#dddddd'
 set key outside below center horizontal maxcols 2 Left reverse samplen 2 box
 set xlabel offset 0,-0.3
 
-# 1-4 path tracing estimators, 5-8 radiosity solvers, 9-10 Whitted, 11 local
+# 1-4 path tracing estimators, 5-8 radiosity solvers, 9-10 Whitted, 11 local, 12 photon mapping
 set style line 1  lc rgb '#9467bd' lw 2 pt 7  ps 0.9
 set style line 2  lc rgb '#1f77b4' lw 2 pt 5  ps 0.9
 set style line 3  lc rgb '#17becf' lw 2 pt 9  ps 1.0
@@ -34,6 +34,7 @@ set style line 8  lc rgb '#ff7f0e' lw 2 pt 12 ps 1.0 dt 1
 set style line 9  lc rgb '#7f7f7f' lw 2 pt 2  ps 1.0 dt 3
 set style line 10 lc rgb '#000000' lw 1.5 pt 3 ps 1.0 dt 3
 set style line 11 lc rgb '#e377c2' lw 2 pt 1  ps 1.2 dt 2
+set style line 12 lc rgb '#ff7f0e' lw 2.5 pt 11 ps 1.2 dt 1
 
 guide(t) = e0 * sqrt(t0 / t)
 plot for [i=1:words(files)] word(files, i) using 1:2 with linespoints ls int(word(styles, i)) title word(names, i), \

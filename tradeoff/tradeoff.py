@@ -28,8 +28,15 @@ and SE(MSE) = sd(per-pixel squared error) / sqrt(pixels).  It gives the
 path-tracing slope its uncertainty and lets the tests tell a real fall of
 the error from noise.
 
+Photon mapping (chapter 5, when build/05_photonmap exists) is swept over its
+progressive passes beside the path tracer.  On cornell-spheres every point also
+gets caustic_rmse: the RMSE over the caustic region (tradeoff/caustic_region.py:
+the pixels that see the floor within 80 mm of the glass ball's focus), with the
+reference's own MSE there, MSE(a - b) / 4 over the region, subtracted.
+
 Outputs (OUT/): tradeoff.csv, tradeoff.md, tradeoff-<scene>.png/.svg (error
-against time, log-log), tradeoff-radiosity-<scene>.png/.svg (error against
+against time, log-log), tradeoff-caustic-cornell-spheres.png/.svg (the caustic
+region's error against time: path tracing and photon mapping), tradeoff-radiosity-<scene>.png/.svg (error against
 iterations per patch size: the discretisation floor), tradeoff/ (the
 renders, their stats and the plot data).
 """
@@ -46,6 +53,10 @@ import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+from caustic_region import caustic_region  # noqa: E402
+
+CAUSTIC_SCENE = "cornell-spheres"
 
 SCENES = ["cornell", "cornell-spheres"]
 ESTIMATORS = ["hemisphere", "cosine", "light", "mis"]
@@ -57,7 +68,7 @@ COMMON_SEED = 424242
 
 CSV_COLUMNS = ["scene", "method", "variant", "curve", "setting", "spp", "patches", "iterations", "light_samples",
                "max_depth", "min_weight", "patch_size", "seed", "time_s", "time_min_s", "repeats", "prepare_s",
-               "render_s", "rmse", "relmse", "ssim", "psnr", "mse_se", "ref_mse", "status"]
+               "render_s", "rmse", "relmse", "ssim", "psnr", "mse_se", "ref_mse", "caustic_rmse", "status"]
 
 
 def env_int(name, default):
@@ -75,11 +86,11 @@ def config():
     if quick:
         # Shooting and direct only at the coarsest patch size: they are the
         # slow solvers, and the quick run only checks the pipeline.
-        c = dict(quick=True, size=32, ref_spp=4096, pt_max_spp=512, repeats=1, cap=5.0, aa_spp=16,
+        c = dict(quick=True, pm_passes=[2, 8], pm_photons=5000, size=32, ref_spp=4096, pt_max_spp=512, repeats=1, cap=5.0, aa_spp=16,
                  patch_sizes=[200, 100], slow_solver_sizes=1, iters=[1, 2, 4, 8, 16], shoot_iters=[1, 2],
                  depths=[0, 1, 2, 4], min_weights=[0.3, 0.03], light_samples=[1, 4, 16, 64])
     else:
-        c = dict(quick=False, size=128, ref_spp=8192, pt_max_spp=2048, repeats=3, cap=20.0, aa_spp=64,
+        c = dict(quick=False, pm_passes=[2, 8, 32, 128, 512], pm_photons=50000, size=128, ref_spp=8192, pt_max_spp=2048, repeats=3, cap=20.0, aa_spp=64,
                  patch_sizes=[200, 141, 100, 71, 50, 35, 25], slow_solver_sizes=7, iters=[1, 2, 3, 4, 6, 8, 12, 16, 24, 32],
                  shoot_iters=[1, 2, 3, 4, 6, 8], depths=[0, 1, 2, 3, 4, 6, 10],
                  min_weights=[0.5, 0.2, 0.1, 0.05, 0.02, 0.01], light_samples=[1, 2, 4, 8, 16, 32, 64])
@@ -136,6 +147,15 @@ def write_pfm(path, width, height, pixels):
     os.replace(tmp, path)
 
 
+def caustic_index(width, height):
+    """Float offsets, in a PFM (bottom row first), of the caustic region's pixels."""
+    return [3 * ((height - 1 - y) * width + x) for x, y in caustic_region(width, height)]
+
+
+def region_mse(a, b, index):
+    return sum((a[i + k] - b[i + k]) ** 2 for i in index for k in range(3)) / (3 * len(index))
+
+
 def mse_standard_error(test, reference):
     """(MSE, its standard error) from per-pixel squared errors (the 3 channels
     of a pixel share one random path, so the pixel is the independent unit)."""
@@ -158,6 +178,7 @@ class Runner:
         self.work = os.path.join(c["out"], "tradeoff")
         self.size = f"{c['size']}x{c['size']}"
         self.log = []
+        self.caustic_ref_mse = {}  # scene -> the reference's own MSE over the caustic region
 
     def exe(self, chapter):
         return os.path.join(ROOT, self.c["build"], chapter)
@@ -201,6 +222,10 @@ class Runner:
         m = first.get("metrics") or {}
         w, h, pixels = read_pfm(os.path.join(self.work, scene, name + ".pfm"))
         mse, se = mse_standard_error(pixels, ref_pixels)
+        caustic = None
+        if scene == CAUSTIC_SCENE and self.caustic_ref_mse.get(scene) is not None:
+            index = caustic_index(w, h)
+            caustic = math.sqrt(max(region_mse(pixels, ref_pixels, index) - self.caustic_ref_mse[scene], 0.0))
         # The chapter's rmse and ours are the same quantity (a consistency check).
         if m.get("rmse") is not None and abs(math.sqrt(mse) - m["rmse"]) > 1e-3 * m["rmse"] + 1e-9:
             raise RuntimeError(f"{name}: rmse {m['rmse']} from stats but {math.sqrt(mse)} from the image")
@@ -209,7 +234,7 @@ class Runner:
                 "prepare_s": first["prepare_s"], "render_s": first["render_s"], "rmse": m.get("rmse"),
                 "relmse": m.get("relmse"), "ssim": m.get("ssim"), "psnr": m.get("psnr"), "mse_se": se,
                 "spp": first.get("spp"), "patches": first.get("patches"), "iterations": first.get("iterations"),
-                "status": status, "_stats": first}
+                "caustic_rmse": caustic, "status": status, "_stats": first}
 
 
 # --- the sweeps ---------------------------------------------------------------------------
@@ -226,6 +251,7 @@ def reference(run, scene):
         with open(info_path) as f:
             info = json.load(f)
         if info.get("key") == key:
+            run.caustic_ref_mse[scene] = info.get("caustic_mse")
             return ref_path, read_pfm(ref_path)[2], info
     args = ["--estimator", "mis", "--spp", c["ref_spp"], "--probe-samples", 32]
     a = run.run_once("04_pathtrace", scene, args + ["--seed", 900001], "ref-a")
@@ -236,7 +262,9 @@ def reference(run, scene):
     avg = array.array("f", [(x + y) * 0.5 for x, y in zip(pa, pb)])
     write_pfm(ref_path, w, h, avg)
     rmse_ab = b["metrics"]["rmse"]
-    info = {"key": key, "spp": 2 * c["ref_spp"], "seeds": [900001, 900002],
+    if scene == CAUSTIC_SCENE:
+        run.caustic_ref_mse[scene] = region_mse(pa, pb, caustic_index(w, h)) / 4.0
+    info = {"caustic_mse": run.caustic_ref_mse.get(scene), "key": key, "spp": 2 * c["ref_spp"], "seeds": [900001, 900002],
             "time_s": a["prepare_s"] + a["render_s"] + b["prepare_s"] + b["render_s"],
             "rmse_halves": rmse_ab, "rmse": rmse_ab / 2.0, "mse": (rmse_ab / 2.0) ** 2,
             "nonfinite_samples": a["nonfinite_samples"] + b["nonfinite_samples"]}
@@ -261,7 +289,7 @@ def sweep_scene(run, scene, rows):
         # jitters its pixel samples identically and the differences between
         # points are the method's, not the jitter's.
         seed[0] += 1
-        point_seed = seed[0] if method == "pathtrace" else COMMON_SEED
+        point_seed = seed[0] if method in ("pathtrace", "photonmap") else COMMON_SEED
         r = run.point(chapter, scene, list(args) + ["--seed", point_seed], name, ref_path, ref_pixels, repeats)
         r.update(extra)
         r.update({"scene": scene, "method": method, "variant": variant, "curve": curve, "setting": setting,
@@ -278,6 +306,11 @@ def sweep_scene(run, scene, rows):
         for n in c["pt_spp"]:
             add("pathtrace", e, f"pt-{e}", f"spp={n}", "04_pathtrace",
                 ["--estimator", e, "--spp", n, "--probe-samples", 32], f"pt-{e}-{n}", {})
+    # Photon mapping: progressive passes (the radius shrinks by R12 each pass).
+    if os.access(run.exe("05_photonmap"), os.X_OK):
+        for n in c["pm_passes"]:
+            add("photonmap", "progressive", "pm", f"passes={n}", "05_photonmap",
+                ["--spp", n, "--photons", c["pm_photons"], "--probe-photons", 32], f"pm-{n}", {})
     # Local illumination: light samples per emitter (per pixel sample).
     for k in c["light_samples"]:
         add("local", "light-samples", "local", f"light-samples={k}", "01_local",
@@ -512,6 +545,7 @@ def report(c, rows, refs, plots):
         if over:
             L.append("\nOver budget (stopped at " + f"{c['cap']:g} s, not plotted): " +
                      ", ".join(f"{r['curve']} {r['setting']}" for r in over) + ".")
+    L.extend(caustic_report(rows))
     L.append("\n## How to read this\n")
     L.append("- Unbiased Monte Carlo (path tracing) falls along N^-1/2 lines (the grey guide) without floor; "
              "the estimators differ by a constant factor in time (their efficiency).\n"
@@ -571,15 +605,77 @@ def gnuplot(script, variables):
 
 
 CURVES = [f"pt-{e}" for e in ESTIMATORS] + [f"radiosity-{s}" for s in SOLVERS] + \
-         ["whitted-depth", "whitted-weight", "local"]
+         ["whitted-depth", "whitted-weight", "local", "pm"]
 CURVE_TITLE = {f"pt-{e}": f"path tracing ({e})" for e in ESTIMATORS}
 CURVE_TITLE.update({f"radiosity-{s}": f"radiosity ({s}, converged; patch sizes)" for s in SOLVERS})
+CURVE_TITLE["pm"] = "photon mapping (progressive passes)"
 CURVE_TITLE.update({"whitted-depth": "Whitted (max depth)", "whitted-weight": "Whitted (min weight)",
                     "local": "local (light samples)"})
 
 
 def quoted(words):
     return " ".join("'" + w.replace("'", "") + "'" for w in words)
+
+
+def caustic_points(rows, curve):
+    return sorted([r for r in ok_rows(rows, CAUSTIC_SCENE, curve) if r.get("caustic_rmse")],
+                  key=lambda r: r["time_s"])
+
+
+def rmse_at_time(points, t):
+    """A curve's caustic RMSE at time t, interpolated linearly in log-log (None outside it)."""
+    for a, b in zip(points, points[1:]):
+        if a["time_s"] <= t <= b["time_s"] and a["time_s"] < b["time_s"]:
+            w = math.log(t / a["time_s"]) / math.log(b["time_s"] / a["time_s"])
+            return math.exp((1 - w) * math.log(a["caustic_rmse"]) + w * math.log(b["caustic_rmse"]))
+    return None
+
+
+def caustic_report(rows):
+    """Markdown: the caustic region's error, photon mapping against path tracing at equal time."""
+    pm, mis = caustic_points(rows, "pm"), caustic_points(rows, "pt-mis")
+    if not pm or not mis:
+        return []
+    L = ["\n## The caustic region of cornell-spheres.scene\n",
+         "RMSE over the pixels that see the floor within 80 mm of the glass ball's focus "
+         "(tradeoff/caustic_region.py), the reference's own error there subtracted. Equal time: "
+         "the MIS curve interpolated (log-log) at the photon map's time.\n",
+         "| photon mapping | time (s) | caustic RMSE | path tracing (mis) at that time | ratio |", "|---|---|---|---|---|"]
+    for r in pm:
+        other = rmse_at_time(mis, r["time_s"])
+        L.append(f"| {r['setting']} | {r['time_s']:.3g} | {r['caustic_rmse']:.4g} | {fmt(other, 4)} | "
+                 f"{fmt(r['caustic_rmse'] / other) if other else '—'} |")
+    return L
+
+
+def caustic_plot(c, rows, refs, data_dir):
+    curves = [cv for cv in [f"pt-{e}" for e in ESTIMATORS] + ["pm"] if caustic_points(rows, cv)]
+    if "pm" not in curves:
+        return []
+    files = []
+    for cv in curves:
+        path = os.path.join(data_dir, f"{CAUSTIC_SCENE}-{cv}-caustic.dat")
+        with open(path, "w") as f:
+            f.write("# time_s caustic_rmse\n" + "".join(f"{r['time_s']:.8g} {r['caustic_rmse']:.8g}\n"
+                                                        for r in caustic_points(rows, cv)))
+        files.append(path)
+    pts = [r for cv in curves for r in caustic_points(rows, cv)]
+    anchor = caustic_points(rows, "pt-mis")[len(caustic_points(rows, "pt-mis")) // 2]
+    ref_rmse = math.sqrt(max(refs[CAUSTIC_SCENE].get("caustic_mse") or 0.0, 1e-12))
+    made = []
+    for term in ("png", "svg"):
+        out = os.path.join(c["out"], f"tradeoff-caustic-{CAUSTIC_SCENE}.{term}")
+        gnuplot("errortime.gp", {
+            "term": term, "out": out,
+            "title": f"{CAUSTIC_SCENE}.scene, {c['size']}x{c['size']}: the caustic region's error against time",
+            "files": " ".join(files), "names": quoted(CURVE_TITLE[cv] for cv in curves),
+            "styles": " ".join(str(CURVES.index(cv) + 1) for cv in curves),
+            "t0": anchor["time_s"], "e0": anchor["caustic_rmse"], "refrmse": ref_rmse,
+            "tmin": min(r["time_s"] for r in pts) / 2, "tmax": max(r["time_s"] for r in pts) * 2,
+            "emin": min(min(r["caustic_rmse"] for r in pts), ref_rmse) / 2,
+            "emax": max(r["caustic_rmse"] for r in pts) * 2})
+        made.append(out)
+    return made
 
 
 def plots(c, rows, refs):
@@ -623,6 +719,8 @@ def plots(c, rows, refs):
                     "dashes": " ".join(str(SOLVERS.index(k[1][len("radiosity-"):-len("-iter")]) + 1) for k in iters),
                     "refrmse": refs[scene]["rmse"]})
                 made.append(out)
+    if CAUSTIC_SCENE in refs:
+        made += caustic_plot(c, rows, refs, os.path.join(c["out"], "tradeoff", "data"))
     return made
 
 

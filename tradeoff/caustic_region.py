@@ -1,0 +1,83 @@
+"""The caustic region of scenes/cornell-spheres.scene: the pixels that see the floor within
+CAUSTIC_RADIUS of the point where the glass ball focuses the light.
+
+Geometry, not a threshold on a noisy reference (which would pick the pixels whose noise
+happens to be high): the ball is a lens, so light from the light's centre through the
+ball's centre continues to the floor at the focus; a pixel is in the region when the ray
+through its centre hits the floor (y = 0) within CAUSTIC_RADIUS of the focus without
+hitting the ball first.  The scene file gives the camera, the ball and the light.
+Standard library only (used by tradeoff.py, bench/bench_05_photonmap.py and the tests).
+"""
+import math
+import os
+
+CAUSTIC_RADIUS = 80.0  # mm: the bright core of the caustic and its falloff (the ball's radius is 100)
+
+
+def _scene_numbers(path):
+    camera = ball = light = None
+    with open(path) as f:
+        for line in f:
+            w = line.split("#", 1)[0].split()
+            if not w:
+                continue
+            if w[0] == "camera":
+                camera = [float(v) for v in (w[2:5] + w[6:9] + w[10:13] + [w[14]])]
+            elif w[0] == "sphere" and w[1] == "glass_ball":
+                ball = [float(v) for v in w[3:7]]
+            elif w[0] == "quad" and w[1] == "light":
+                v = [float(x) for x in w[3:15]]
+                light = [sum(v[k::3]) / 4 for k in range(3)]
+    return camera, ball, light
+
+
+def _sub(a, b): return [a[i] - b[i] for i in range(3)]
+def _dot(a, b): return sum(a[i] * b[i] for i in range(3))
+def _cross(a, b): return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+def _unit(a):
+    n = math.sqrt(_dot(a, a))
+    return [x / n for x in a]
+
+
+def focus(scene_path):
+    _, ball, light = _scene_numbers(scene_path)
+    c, r = ball[:3], ball[3]
+    t = c[1] / (light[1] - c[1])
+    return [c[0] + (c[0] - light[0]) * t, 0.0, c[2] + (c[2] - light[2]) * t]
+
+
+def caustic_region(width, height, scene_path=None, radius=CAUSTIC_RADIUS):
+    """[(x, y)] pixel coordinates (top row 0) of the caustic region."""
+    scene_path = scene_path or os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                            "scenes", "cornell-spheres.scene")
+    camera, ball, _ = _scene_numbers(scene_path)
+    eye, look, up, fov = camera[0:3], camera[3:6], camera[6:9], camera[9]
+    forward = _unit(_sub(look, eye))
+    right = _unit(_cross(forward, up))
+    true_up = _cross(right, forward)
+    half = math.tan(math.radians(fov) / 2)
+    f = focus(scene_path)
+    centre, r = ball[:3], ball[3]
+    region = []
+    for py in range(height):
+        for px in range(width):
+            sx = (2 * (px + 0.5) / width - 1) * half * width / height
+            sy = (1 - 2 * (py + 0.5) / height) * half
+            d = _unit([forward[i] + sx * right[i] + sy * true_up[i] for i in range(3)])
+            if d[1] >= 0:
+                continue
+            t_floor = -eye[1] / d[1]
+            oc = _sub(eye, centre)
+            b = _dot(oc, d)
+            disc = b * b - (_dot(oc, oc) - r * r)
+            if disc > 0 and -b - math.sqrt(disc) < t_floor:
+                continue  # the ball is in front of the floor here
+            p = [eye[i] + t_floor * d[i] for i in range(3)]
+            if (p[0] - f[0]) ** 2 + (p[2] - f[2]) ** 2 <= radius * radius:
+                region.append((px, py))
+    return region
+
+
+if __name__ == "__main__":
+    reg = caustic_region(32, 32)
+    print(len(reg), reg)
