@@ -83,7 +83,7 @@ static const option PHOTONMAP_OPTIONS[] = {
     {"--photons", "N", OPTION_INT, STATE(photons), .min = 1, .max = 1 << 26, .default_text = "100000",
      .help = "photons emitted per pass"},
     {"--radius", "R", OPTION_DOUBLE, STATE(radius), .min = 0.0, .min_exclusive = true, .max = 1e300,
-     .help = "first pass's search radius (default: 1/100 of the scene's bounding-box diagonal)"},
+     .help = "first pass's search radius (default: 1/200 of the scene's bounding-box diagonal)"},
     {"--alpha", "A", OPTION_DOUBLE, STATE(alpha), .min = 0.0, .min_exclusive = true, .max = 1.0,
      .default_text = "0.666667", .help = "radius shrink per pass (R12); 1 keeps the radius (no convergence)"},
     {"--maps", NULL, OPTION_CHOICE, STATE(maps), .choices = "global|caustic|both", .default_text = "both",
@@ -431,7 +431,7 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
     if (st->light_count == 0)
         fprintf(stderr, "warning: 05_photonmap: the scene has no light to shoot photons from: the image is black\n");
     /* A radius relative to the scene, so the scene's unit does not matter. */
-    st->initial_radius = st->radius > 0.0 ? st->radius : 0.01 * v3_length(v3_sub(s->bounds.hi, s->bounds.lo));
+    st->initial_radius = st->radius > 0.0 ? st->radius : 0.005 * v3_length(v3_sub(s->bounds.hi, s->bounds.lo));
     st->current_radius = st->initial_radius = st->initial_radius > 0.0 ? st->initial_radius : 1.0;
     return 0;
 }
