@@ -1066,6 +1066,45 @@ def test_bad_input(ctx):
     assert not os.path.exists(ctx.path("x.png"))
 
 
+# ---- the key table ---------------------------------------------------------------------------------
+
+def markdown_table_rows(lines, header):
+    """The rows of the Markdown table that starts at the line `header` (header and rule left out)."""
+    assert header in lines, f"no table with the header {header!r}"
+    start = lines.index(header)
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append(line)
+    return rows
+
+
+def test_help_keys_match_readme(ctx):
+    """`build/viewer --help-keys` prints the one key table of main.c (the same
+    table dispatches the keys and draws the H overlay) as Markdown;
+    viewer/README.md must carry exactly those rows: every key with its help
+    line, and no key the table lacks."""
+    result = run_viewer(ctx, "--help-keys")
+    ok(result, "--help-keys")
+    printed = result.stdout.splitlines()
+    header = "| key | action |"
+    assert printed[:2] == [header, "|---|---|"], f"--help-keys must print a Markdown table: {printed[:2]}"
+    rows = markdown_table_rows(printed, header)
+    assert len(rows) == len(printed) - 2, "--help-keys prints only the table"
+    keys = [row.split(" | ")[0].lstrip("| ") for row in rows]
+    for expected in ("`H` / `F1`", "`D`", "`P`", "`Q` / `Esc`", "`1..9`", "`S`", "`Tab`"):
+        assert expected in keys, f"the key table lacks {expected}: {keys}"
+    with open(os.path.join(lib.ROOT, "viewer", "README.md"), encoding="utf-8") as f:
+        readme = [line.rstrip() for line in f.read().splitlines()]
+    documented = markdown_table_rows(readme, header)
+    missing = [row for row in rows if row not in documented]
+    extra = [row for row in documented if row not in rows]
+    assert not missing, "viewer/README.md lacks these rows of --help-keys:\n" + "\n".join(missing)
+    assert not extra, "viewer/README.md documents keys the table lacks:\n" + "\n".join(extra)
+    assert documented == rows, "viewer/README.md lists the keys in another order than --help-keys"
+
+
 # ---- PLY ------------------------------------------------------------------------------------------------
 
 def test_ply_per_vertex_radiance(ctx):
