@@ -1046,6 +1046,35 @@ def test_raster_matches_chapter1(ctx):
                 f"chapter-1 panel pixel ({x},{y}) shows {got}, expected {expected}"
 
 
+def test_raster_light_below_ceiling_has_no_depth_stripes(ctx):
+    """cornell.scene's light is a quad 0.1 mm below the ceiling, seen from
+    about 800 mm.  The depth buffer must resolve that: every pixel whose 3x3
+    neighbourhood sees only the light (by the Python ray caster) shows the
+    light's radiance (17, 12, 4) -- the emitter is lit edge-on by its own
+    point, so nothing else adds to it -- not stripes of the ceiling
+    (radiance ~0.1), which a near plane at far x 1e-4 produced (0.3 mm of
+    depth resolution at 800 mm with a 24-bit buffer)."""
+    scene, n = "scenes/cornell.scene", 240
+    raster = ctx.path("raster-light.pfm")
+    ok(run_viewer(ctx, "--raster", scene, "--headless", "--backend", "osmesa", "--size", f"{2 * n}x{n + LABEL_BAND}",
+                  "--render-size", f"{n}x{n}", "--panel-out", raster), "viewer --raster cornell")
+    gpu = lib.read_pfm(raster)
+    assert (gpu.width, gpu.height) == (n, n), f"raster is {gpu.width}x{gpu.height}"
+    ids = surface_ids(scene, n, n)
+    inside, wrong = 0, []
+    for y in range(1, n - 1):
+        for x in range(1, n - 1):
+            if any(ids[y + j][x + i] != "light" for j in (-1, 0, 1) for i in (-1, 0, 1)):
+                continue
+            inside += 1
+            got = gpu.at(x, y)
+            if any(abs(g - e) > 1e-3 * e for g, e in zip(got, (17.0, 12.0, 4.0))):
+                wrong.append((x, y, got))
+    assert inside >= 100, f"only {inside} pixels inside the light's rectangle"
+    assert not wrong, f"{len(wrong)} of {inside} pixels of the light are not its radiance (17, 12, 4), " \
+                      f"e.g. {wrong[:4]}: the ceiling shows through (depth precision)"
+
+
 def test_raster_shader_error_is_reported(ctx):
     bad = ctx.write("bad.frag", "#version 330 core\nout vec4 fragment;\nvoid main() {\n  fragment = vec4(oops);\n}\n")
     result = run_viewer(ctx, "--raster", "scenes/cornell-point.scene", "--headless", "--backend", "osmesa",
