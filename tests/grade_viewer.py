@@ -1095,6 +1095,55 @@ def test_bad_input(ctx):
     assert not os.path.exists(ctx.path("x.png"))
 
 
+# ---- labels --------------------------------------------------------------------------------------------
+
+def test_labels_say_what_each_panel_is(ctx):
+    """Four path-tracing images of the same chapter must not all read
+    "04_pathtrace spp 64": line 1 of each label names the chapter and its
+    variant (estimator, solver, model, bounces from the stats JSON), line 2
+    the numbers and the file name.  --verbose prints each label as drawn."""
+    w, h = 32, 24
+    variants = [("hemisphere", [0, 1000000]), ("cosine", [0, 1000000]), ("light", [1, 1]), ("mis", [2, 1000000])]
+    inputs = []
+    for estimator, bounces in variants:
+        path = ctx.path(f"cornell-04_pathtrace-{estimator}.pfm")
+        write_pfm(path, w, h, lambda x, y: (0.5, 0.25, 0.125))
+        ctx.write(f"cornell-04_pathtrace-{estimator}.json",
+                  '{\n  "chapter": "04_pathtrace",\n  "spp": 64,\n  "time_s": 1.5,\n'
+                  f'  "bounces": [{bounces[0]}, {bounces[1]}],\n  "estimator": "{estimator}",\n  "rr_depth": 3\n}}\n')
+        inputs.append(path)
+    radiosity = ctx.path("cornell-03_radiosity.pfm")
+    write_pfm(radiosity, w, h, lambda x, y: (0.5, 0.25, 0.125))
+    ctx.write("cornell-03_radiosity.json", '{"chapter": "03_radiosity", "patches": 1057, "bounces": [0, 1000000], '
+                                           '"solver": "gauss-seidel", "solver_used": "gauss-seidel"}\n')
+    local = ctx.path("cornell-01_local.pfm")
+    write_pfm(local, w, h, lambda x, y: (0.5, 0.25, 0.125))
+    ctx.write("cornell-01_local.json", '{"chapter": "01_local", "spp": 4, "bounces": [0, 1], "model": "phong", '
+                                       '"normalised": true, "shadows": false}\n')
+    inputs += [radiosity, local]
+    result = run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", "640x360", "--verbose",
+                        "--out", ctx.path("labels.png"), *inputs)
+    ok(result, "viewer with labelled inputs")
+    labels = {}
+    for line in result.stdout.splitlines():
+        if line.startswith("label "):
+            number, text = line[len("label "):].split(": ", 1)
+            labels[int(number)] = text
+    assert sorted(labels) == list(range(1, len(inputs) + 1)), f"--verbose must print every label: {labels}"
+    expected = [("04_pathtrace  estimator hemisphere", "spp 64"), ("04_pathtrace  estimator cosine", "spp 64"),
+                ("04_pathtrace  estimator light  bounces 1:1", "spp 64"),
+                ("04_pathtrace  estimator mis  bounces 2:", "spp 64"),
+                ("03_radiosity  solver gauss-seidel", "patches 1057"),
+                ("01_local  model phong normalised no shadows  bounces 0:1", "spp 4")]
+    for i, (title, numbers) in enumerate(expected):
+        line1, line2 = labels[i + 1].split(" | ")
+        assert line1 == f"[{i + 1}] {title}", f"label {i + 1} line 1 is {line1!r}, expected '[{i + 1}] {title}'"
+        assert numbers in line2 and os.path.basename(inputs[i]) in line2, \
+            f"label {i + 1} line 2 {line2!r} must give {numbers!r} and the file name"
+    assert len({labels[i].split(" | ")[0].split("] ")[1] for i in range(1, 5)}) == 4, \
+        "the four path-tracing panels must read differently"
+
+
 # ---- the key table ---------------------------------------------------------------------------------
 
 def markdown_table_rows(lines, header):

@@ -439,18 +439,28 @@ static double rmse_against(const panel *a, const panel *b)
     return sqrt(sum / (double)n);
 }
 
+/* What a panel is, in its label: line 1 "[N] chapter  variant" (the
+ * estimator, solver, model and bounces from the stats JSON), line 2 the
+ * numbers (samples or patches, seconds, error) and the file name. */
+static void label_lines(int index, char *title, size_t title_size, char *numbers, size_t numbers_size)
+{
+    const panel *p = &V.panels[index];
+    snprintf(title, title_size, "[%d] %s%s%s", index + 1, p->method, p->variant[0] ? "  " : "", p->variant);
+    if (p->kind == SOURCE_CHILD)
+        snprintf(numbers, numbers_size, "%s  updates %d", p->detail, p->updates);
+    else
+        snprintf(numbers, numbers_size, "%s%s%s", p->detail, p->file[0] ? "  " : "", p->file);
+}
+
 static void draw_label(int index, rect whole, const char *title_suffix)
 {
     const panel *p = &V.panels[index];
     gfx_fill((rect){whole.x, whole.y, whole.w, LABEL_BAND}, BAND);
-    char line[256];
-    snprintf(line, sizeof line, "[%d] %s%s", index + 1, p->method, title_suffix);
+    char title[256], numbers[256], line[512];
+    label_lines(index, title, sizeof title, numbers, sizeof numbers);
+    snprintf(line, sizeof line, "%s%s", title, title_suffix);
     gfx_text(whole.x + 4, whole.y + 3, 1, line, WHITE, whole);
-    if (p->kind == SOURCE_CHILD)
-        snprintf(line, sizeof line, "%s%s  updates %d", p->detail, p->pid > 0 ? "" : "", p->updates);
-    else
-        snprintf(line, sizeof line, "%s", p->detail);
-    gfx_text(whole.x + 4, whole.y + 13, 1, line, GREY, whole);
+    gfx_text(whole.x + 4, whole.y + 13, 1, numbers, GREY, whole);
 
     double u, v;
     line[0] = '\0';
@@ -685,9 +695,12 @@ static int set_up(char *err, size_t err_size)
             if (panel_load_pfm(p, path, err, err_size))
                 return 2;
         }
-        if (V.verbose)
-            for (int i = 0; i < V.panel_count; i++)
-                printf("panel %d %s %dx%d\n", i + 1, V.panels[i].path, V.panels[i].img.width, V.panels[i].img.height);
+        for (int i = 0; i < V.panel_count && V.verbose; i++) {
+            char title[256], numbers[256];
+            label_lines(i, title, sizeof title, numbers, sizeof numbers);
+            printf("panel %d %s %dx%d\n", i + 1, V.panels[i].path, V.panels[i].img.width, V.panels[i].img.height);
+            printf("label %d: %s | %s\n", i + 1, title, numbers);
+        }
         return 0;
     }
 

@@ -81,6 +81,54 @@ static void json_string_of(const char *json, const char *key, char *out, size_t 
     out[n] = '\0';
 }
 
+static bool json_true(const char *json, const char *key)
+{
+    char pattern[80];
+    snprintf(pattern, sizeof pattern, "\"%s\": true", key);
+    return strstr(json, pattern) != NULL;
+}
+
+/* "bounces": [A, B]: the Neumann terms rendered; every one is [0, 1000000]. */
+static void json_bounces(const char *json, char *out, size_t out_size)
+{
+    const char *at = strstr(json, "\"bounces\": [");
+    double a, b;
+    out[0] = '\0';
+    if (!at || sscanf(at + strlen("\"bounces\": ["), "%lf , %lf", &a, &b) != 2 || (a == 0 && b >= 1e6))
+        return;
+    if (b >= 1e6)
+        snprintf(out, out_size, "bounces %.0f:", a);
+    else
+        snprintf(out, out_size, "bounces %.0f:%.0f", a, b);
+}
+
+/* What variant of its chapter an image is: the estimator (path tracing),
+ * the solver (radiosity), the local model (chapters 1, 2), the bounces. */
+static void stats_variant(const char *json, char *out, size_t out_size)
+{
+    char estimator[32] = "", solver[32] = "", model[32] = "", bounces[48];
+    json_string_of(json, "estimator", estimator, sizeof estimator);
+    json_string_of(json, "solver_used", solver, sizeof solver);
+    if (!solver[0])
+        json_string_of(json, "solver", solver, sizeof solver);
+    json_string_of(json, "model", model, sizeof model);
+    json_bounces(json, bounces, sizeof bounces);
+    size_t used = 0;
+    out[0] = '\0';
+    if (estimator[0])
+        used += (size_t)snprintf(out + used, out_size - used, "estimator %s  ", estimator);
+    if (solver[0] && used < out_size)
+        used += (size_t)snprintf(out + used, out_size - used, "solver %s  ", solver);
+    if (model[0] && used < out_size)
+        used += (size_t)snprintf(out + used, out_size - used, "model %s%s%s  ", model,
+                                 json_true(json, "normalised") ? " normalised" : "",
+                                 strstr(json, "\"shadows\": false") ? " no shadows" : "");
+    if (bounces[0] && used < out_size)
+        used += (size_t)snprintf(out + used, out_size - used, "%s  ", bounces);
+    while (used > 0 && used < out_size && out[used - 1] == ' ')
+        out[--used] = '\0';
+}
+
 void panel_read_stats(panel *p, const char *json_path)
 {
     FILE *f = fopen(json_path, "rb");
@@ -91,6 +139,7 @@ void panel_read_stats(panel *p, const char *json_path)
     fclose(f);
     json[n] = '\0';
     json_string_of(json, "chapter", p->method, sizeof p->method);
+    stats_variant(json, p->variant, sizeof p->variant);
     char detail[160] = "";
     size_t used = 0;
     double patches = json_number_of(json, "patches"), spp = json_number_of(json, "spp");
@@ -103,6 +152,8 @@ void panel_read_stats(panel *p, const char *json_path)
         used += (size_t)snprintf(detail + used, sizeof detail - used, "%.2f s  ", time_s);
     if (isfinite(rmse) && used < sizeof detail)
         snprintf(detail + used, sizeof detail - used, "rmse %.4g", rmse);
+    for (size_t end = strlen(detail); end > 0 && detail[end - 1] == ' ';)
+        detail[--end] = '\0';
     snprintf(p->detail, sizeof p->detail, "%s", detail);
 }
 
@@ -130,6 +181,8 @@ int panel_load_pfm(panel *p, const char *path, char *err, size_t err_size)
     if (p->kind == SOURCE_FILE) {
         snprintf(p->path, sizeof p->path, "%s", path);
         stem(path, p->method, sizeof p->method);
+        const char *base = strrchr(path, '/');
+        snprintf(p->file, sizeof p->file, "%s", base ? base + 1 : path);
         snprintf(p->detail, sizeof p->detail, "%dx%d", img.width, img.height);
         /* the stats beside it: x.pfm -> x.json */
         snprintf(p->stats_path, sizeof p->stats_path, "%s", path);
@@ -137,6 +190,8 @@ int panel_load_pfm(panel *p, const char *path, char *err, size_t err_size)
         if (dot && strlen(dot) == 4 && strlen(p->stats_path) + 1 < sizeof p->stats_path)
             strcpy(dot, ".json");
         panel_read_stats(p, p->stats_path);
+    } else if (p->kind == SOURCE_CHILD) {
+        panel_read_stats(p, p->stats_path); /* the chapters rewrite the stats with every pass */
     }
     return 0;
 }

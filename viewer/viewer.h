@@ -25,7 +25,9 @@ typedef enum { SOURCE_FILE, SOURCE_CHILD, SOURCE_RASTER, SOURCE_PLY } source_kin
 typedef struct {
     source_kind kind;
     char method[64];   /* label line 1: chapter / method */
+    char variant[96];  /* label line 1 after the method: estimator, solver, model, bounces (stats JSON) */
     char detail[160];  /* label line 2: samples or patches, time, error */
+    char file[128];    /* label line 2 after the detail: the PFM's file name (compare mode) */
     image img;         /* linear radiance, top row first */
     GLuint texture;    /* RGB32F copy of img (or the 3D target's colour) */
     int updates;       /* how often the image changed */
