@@ -21,7 +21,8 @@ Truth comes from outside the viewer:
     D the heat map against the reference picked with 1..9 (an input against
     itself black), S / Tab / , / . the A/B split, its panels and its slider.
 The layout the tests rely on is the documented one (build/viewer --help):
-ceil(sqrt(n)) columns, a 34-pixel label band on top of each panel, the
+a 14-pixel status line at the bottom of the window, above it ceil(sqrt(n))
+columns, a 34-pixel label band on top of each panel, the
 image scaled to fit the rest, centred on a whole pixel.
 
 Standard library only.  PNGs are decoded here (zlib + the five PNG filters).
@@ -39,6 +40,7 @@ import zlib
 import lib
 
 LABEL_BAND = 34
+STATUS_BAND = 14  # the status line at the bottom of the window
 
 
 # ---- helpers ---------------------------------------------------------------------------------
@@ -135,6 +137,7 @@ def grid_image_origin(i, n, width, height):
     cols = math.ceil(math.sqrt(n))
     rows = (n + cols - 1) // cols
     c, r = i % cols, i // cols
+    height -= STATUS_BAND
     return c * width // cols, r * height // rows + LABEL_BAND
 
 
@@ -181,14 +184,14 @@ def label_has_text(png, i, n):
 
 def compare_grid(ctx, backend):
     inputs, w, h = synthetic_inputs(ctx)
-    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"  # 3 panels: 2 columns, 2 rows, images at scale 1
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"  # 3 panels: 2 columns, 2 rows, images at scale 1
     for exposure in (0.0, 1.5):
         out = ctx.path(f"grid-{backend}-{exposure}.png")
         result = run_viewer(ctx, "--headless", "--backend", backend, "--size", size, "--exposure", exposure,
                             "--out", out, *inputs)
         ok(result, f"viewer --backend {backend}")
         png = read_png(out)
-        assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND)), f"screenshot is {png[0]}x{png[1]}, not {size}"
+        assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND) + STATUS_BAND), f"screenshot is {png[0]}x{png[1]}, not {size}"
         check_grid(png, inputs, exposure)
         for i in range(3):
             assert label_has_text(png, i, 3), f"panel {i + 1} has no label text"
@@ -215,7 +218,7 @@ def test_split_and_heat_map(ctx):
     tone-mapped inputs.  Heat map: a panel identical to the reference is
     black (zero error), a different one is not."""
     inputs, w, h = synthetic_inputs(ctx)
-    width, height = w, h + LABEL_BAND
+    width, height = w, h + LABEL_BAND + STATUS_BAND
     out = ctx.path("split.png")
     ok(run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", f"{width}x{height}", "--split", "1,3,0.5",
                   "--out", out, *inputs), "viewer --split")
@@ -234,7 +237,7 @@ def test_split_and_heat_map(ctx):
 
     same = [inputs[1], inputs[0], inputs[1]]
     out = ctx.path("heat.png")
-    ok(run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", f"{2 * w}x{2 * height}", "--diff", "1",
+    ok(run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}", "--diff", "1",
                   "--out", out, *same), "viewer --diff")
     png = read_png(out)
     reference = lib.read_pfm(same[0])
@@ -274,7 +277,7 @@ def start_xvfb():
 
 def test_glfw_window_under_xvfb_equals_headless(ctx):
     inputs, w, h = synthetic_inputs(ctx)
-    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
     headless = ctx.path("headless.png")
     ok(run_viewer(ctx, "--headless", "--backend", "egl", "--size", size, "--out", headless, *inputs), "headless")
     proc, display = start_xvfb()
@@ -452,7 +455,7 @@ def test_window_exposure_keys(ctx):
     Then `-` three times (-1/2), the keypad's `+` three times (+1: one step
     per press, not two) and `0` (back to 0), each checked the same way."""
     inputs, w, h = synthetic_inputs(ctx)
-    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
     shots = ((["plus", "plus"], 2 * EXPOSURE_STEP),
              (["minus", "minus", "minus"], -EXPOSURE_STEP),
              (["KP_Add", "KP_Add", "KP_Add"], 2 * EXPOSURE_STEP),
@@ -464,7 +467,7 @@ def test_window_exposure_keys(ctx):
             s.xdo("key", *keys, "p")
             line, after = s.wait_line(f"wrote viewer-{n}.png", after)
             png = read_png(ctx.path(f"viewer-{n}.png"))
-            assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND)), f"screenshot {png[0]}x{png[1]}, not {size}"
+            assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND) + STATUS_BAND), f"screenshot {png[0]}x{png[1]}, not {size}"
             try:
                 check_grid(png, inputs, exposure)
             except AssertionError as e:
@@ -600,6 +603,7 @@ def panel_area(i, n, width, height):
     cols = math.ceil(math.sqrt(n))
     rows = (n + cols - 1) // cols
     c, r = i % cols, i // cols
+    height -= STATUS_BAND
     x0, x1 = c * width // cols, (c + 1) * width // cols
     y0, y1 = r * height // rows, (r + 1) * height // rows
     return x0, y0 + LABEL_BAND, x1 - x0, y1 - y0 - LABEL_BAND
@@ -685,9 +689,9 @@ def test_window_zoom_pan_fit_keys(ctx):
     that window point would hold every image's left edge still."""
     inputs, w, h = synthetic_inputs(ctx)
     images = [tonemapped(lib.read_pfm(p)) for p in inputs]
-    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
     z = ZOOM_STEP
-    with WindowSession(ctx, "--size", f"{2 * w}x{h + LABEL_BAND}", *inputs[:2]) as s:
+    with WindowSession(ctx, "--size", f"{2 * w}x{h + LABEL_BAND + STATUS_BAND}", *inputs[:2]) as s:
         s.xdo("mousemove", "--window", s.window, 5, 5)
         after = 0
         for n, (keys, zoom) in enumerate(((["z"], z), (["z"], z * z), (["x", "x", "x"], 1 / z)), 1):
@@ -709,7 +713,7 @@ def test_window_zoom_pan_fit_keys(ctx):
         after = 0
         for n, (keys, zoom, shift) in enumerate(shots, 1):
             png, after = shoot(s, ctx, keys, n, after)
-            assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND)), f"screenshot {png[0]}x{png[1]}, not {size}"
+            assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND) + STATUS_BAND), f"screenshot {png[0]}x{png[1]}, not {size}"
             check_view(png, images, zoom, shift, f"after {' '.join(keys)} (zoom {zoom:g}, image moved {shift})")
         check_grid(png, inputs)  # F: exactly the fitted grid of the exposure test
         status = s.finish("q")
@@ -798,7 +802,7 @@ def test_window_heat_map_and_reference_keys(ctx):
     inputs, err = heat_inputs(ctx)
     w, h, n = 96, 64, 3
     r_img, x_img = lib.read_pfm(inputs[0]), lib.read_pfm(inputs[1])
-    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
     with WindowSession(ctx, "--size", size, *inputs) as s:
         s.xdo("mousemove", "--window", s.window, 5, 5)
         png, after = shoot(s, ctx, ["1", "d"], 1, 0)
@@ -890,7 +894,7 @@ def test_window_split_keys(ctx):
     double arithmetic and clamping, so no rounding is left to chance."""
     inputs = channel_inputs(ctx)
     images = [tonemapped(lib.read_pfm(p)) for p in inputs]
-    width, height = 200, 2 * 64 + LABEL_BAND
+    width, height = 200, 2 * 64 + LABEL_BAND + STATUS_BAND
     position = 0.5
     steps = (  # keys, (reference, B) 0-based, slider column
         (["s"], (0, 1), 100),
@@ -1011,7 +1015,7 @@ def test_raster_matches_chapter1(ctx):
     scene, n = "scenes/cornell-point.scene", 96
     raster = ctx.path("raster.pfm")
     shot = ctx.path("raster.png")
-    size = f"{2 * n}x{n + LABEL_BAND}"
+    size = f"{2 * n}x{n + LABEL_BAND + STATUS_BAND}"
     ok(run_viewer(ctx, "--raster", scene, "--no-shadows", "--headless", "--backend", "osmesa", "--size", size,
                   "--panel-out", raster, "--out", shot, "--verbose"), "viewer --raster")
     gpu = lib.read_pfm(raster)
@@ -1056,7 +1060,7 @@ def test_raster_light_below_ceiling_has_no_depth_stripes(ctx):
     depth resolution at 800 mm with a 24-bit buffer)."""
     scene, n = "scenes/cornell.scene", 240
     raster = ctx.path("raster-light.pfm")
-    ok(run_viewer(ctx, "--raster", scene, "--headless", "--backend", "osmesa", "--size", f"{2 * n}x{n + LABEL_BAND}",
+    ok(run_viewer(ctx, "--raster", scene, "--headless", "--backend", "osmesa", "--size", f"{2 * n}x{n + LABEL_BAND + STATUS_BAND}",
                   "--render-size", f"{n}x{n}", "--panel-out", raster), "viewer --raster cornell")
     gpu = lib.read_pfm(raster)
     assert (gpu.width, gpu.height) == (n, n), f"raster is {gpu.width}x{gpu.height}"
@@ -1144,6 +1148,82 @@ def test_labels_say_what_each_panel_is(ctx):
         "the four path-tracing panels must read differently"
 
 
+# ---- the default reference, the legend, the status line ------------------------------------------------
+
+def reference_inputs(ctx, w, h, rmse_of_panel_2=None):
+    """Four flat images with stats: [1] 01_local spp 4, [2] 04_pathtrace
+    cosine spp 16, [3] 04_pathtrace mis spp 1024 (the best: unbiased, the
+    most samples), [4] 04_pathtrace mis spp 4096 but bounces 1:1 only
+    (biased: not a reference).  Each image a different grey."""
+    stats = [('"chapter": "01_local", "spp": 4, "bounces": [0, 1000000], "model": "blinn"', 0.2),
+             ('"chapter": "04_pathtrace", "spp": 16, "bounces": [0, 1000000], "estimator": "cosine"', 0.3),
+             ('"chapter": "04_pathtrace", "spp": 1024, "bounces": [0, 1000000], "estimator": "mis"', 0.4),
+             ('"chapter": "04_pathtrace", "spp": 4096, "bounces": [1, 1], "estimator": "mis"', 0.5)]
+    paths = []
+    for k, (body, grey) in enumerate(stats, 1):
+        if k == 2 and rmse_of_panel_2 is not None:
+            body += f', "rmse": {rmse_of_panel_2}'
+        path = ctx.path(f"ref{k}-{rmse_of_panel_2}.pfm")
+        write_pfm(path, w, h, lambda x, y, g=grey: (g, g, g))
+        ctx.write(f"ref{k}-{rmse_of_panel_2}.json", "{" + body + "}\n")
+        paths.append(path)
+    return paths
+
+
+def heat_reference_shown(ctx, inputs, w, h, *options):
+    """Headless --heat: which panel shows its plain tone map (the reference),
+    and the screenshot."""
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
+    out = ctx.path(f"reference-{len(options)}-{os.path.basename(inputs[0])}.png")
+    ok(run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", size, "--heat", *options, "--out", out, *inputs),
+       "viewer --heat")
+    png = read_png(out)
+    plain = []
+    for i, path in enumerate(inputs):
+        grey = tonemap(lib.read_pfm(path).at(0, 0)[0])
+        pixels = panel_pixels(png, i, len(inputs), w, h)
+        if all(max(abs(c - grey) for c in p) <= 1 for row in pixels for p in row):
+            plain.append(i + 1)
+    return plain, png
+
+
+def test_heat_map_default_reference_is_the_best_image(ctx):
+    """D / --heat compare against the best image on screen, not panel 1: an
+    unbiased path tracer over all bounces with the most samples beats a
+    chapter-1 image and a biased one with more samples; a measured error
+    (stats rmse) beats everything; --reference N names one."""
+    w, h = 192, 24
+    plain, _ = heat_reference_shown(ctx, reference_inputs(ctx, w, h), w, h)
+    assert plain == [3], f"the reference (plain tone map) must be panel 3 (mis, 1024 spp, all bounces), not {plain}"
+    plain, _ = heat_reference_shown(ctx, reference_inputs(ctx, w, h, rmse_of_panel_2=0.01), w, h)
+    assert plain == [2], f"panel 2 has the only measured error (rmse): it must be the reference, not {plain}"
+    plain, _ = heat_reference_shown(ctx, reference_inputs(ctx, w, h), w, h, "--reference", "4")
+    assert plain == [4], f"--reference 4 must make panel 4 the reference, not {plain}"
+
+
+def test_status_line_and_heat_legend_stay_with_the_mouse_over(ctx):
+    """The status line (exposure, help hint, heat scale) is the bottom strip of
+    the window and stays there with the pointer over a panel (--cursor), and
+    with the heat map it shows the colour legend: black (error 1e-3) to the
+    top colour (error >= 1), heat_inputs' saturated colour."""
+    w, h = 192, 24
+    inputs = reference_inputs(ctx, w, h)
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
+    height = 2 * (h + LABEL_BAND) + STATUS_BAND
+    yellow = (255, 217, 77)
+    for options in ([], ["--heat"]):
+        out = ctx.path(f"status-{len(options)}.png")
+        ok(run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", size, "--cursor", "40,50", *options,
+                      "--out", out, *inputs), "viewer --cursor")
+        png = read_png(out)
+        strip = [rgb_at(png, x, y) for y in range(height - STATUS_BAND, height) for x in range(png[0])]
+        assert sum(1 for p in strip if max(abs(a - b) for a, b in zip(p, yellow)) <= 2) > 50, \
+            f"{options}: no status text in the bottom {STATUS_BAND} pixels with the pointer over panel 1"
+        top = (252, 255, 163)  # heat(1): vec3(0.99, 1.0, 0.64)
+        has_top = any(max(abs(a - b) for a, b in zip(p, top)) <= 2 for p in strip)
+        assert has_top == bool(options), f"{options}: the legend's top colour {'missing' if options else 'shown'}"
+
+
 # ---- the key table ---------------------------------------------------------------------------------
 
 def markdown_table_rows(lines, header):
@@ -1198,7 +1278,7 @@ def test_ply_per_vertex_radiance(ctx):
     # fov 90 at distance 1 sees exactly [-1, 1]^2 (camera_ray convention)
     w = h = 64
     out, pfm = ctx.path("ply.png"), ctx.path("ply.pfm")
-    ok(run_viewer(ctx, "--ply", ply, "--headless", "--backend", "egl", "--size", f"{w}x{h + LABEL_BAND}",
+    ok(run_viewer(ctx, "--ply", ply, "--headless", "--backend", "egl", "--size", f"{w}x{h + LABEL_BAND + STATUS_BAND}",
                   "--eye", "0,0,1", "--look", "0,0,0", "--up", "0,1,0", "--fov", "90", "--out", out,
                   "--panel-out", pfm), "viewer --ply")
     img = lib.read_pfm(pfm)

@@ -43,7 +43,7 @@ static const char *panel_fs =
     "uniform float scale;          /* framebuffer pixels per image pixel */\n"
     "uniform vec2 viewport;\n"
     "uniform float exposure;       /* stops */\n"
-    "uniform int mode;             /* 0 radiance, 1 relative error against reference */\n"
+    "uniform int mode;             /* 0 radiance, 1 relative error against reference, 2 legend */\n"
     "out vec4 fragment;\n"
     "float srgb(float linear) {\n"
     "    float v = linear * exp2(exposure);\n"
@@ -60,6 +60,7 @@ static const char *panel_fs =
     "}\n"
     "void main() {\n"
     "    vec2 p = vec2(gl_FragCoord.x, viewport.y - gl_FragCoord.y);\n"
+    "    if (mode == 2) { fragment = vec4(heat((p.x - origin.x) / scale), 1.0); return; } /* the legend */\n"
     "    vec2 q = (p - origin) / scale;\n"
     "    ivec2 size = textureSize(image, 0);\n"
     "    ivec2 t = ivec2(floor(q));\n"
@@ -469,7 +470,7 @@ void gfx_image(rect area, GLuint texture, double origin_x, double origin_y, doub
     glUniform2f(glGetUniformLocation(p, "origin"), (float)origin_x, (float)origin_y);
     glUniform1f(glGetUniformLocation(p, "scale"), (float)scale);
     glUniform1f(glGetUniformLocation(p, "exposure"), (float)exposure);
-    glUniform1i(glGetUniformLocation(p, "mode"), mode == PANEL_HEAT);
+    glUniform1i(glGetUniformLocation(p, "mode"), mode == PANEL_LEGEND ? 2 : mode == PANEL_HEAT);
     glUniform1i(glGetUniformLocation(p, "image"), 0);
     glUniform1i(glGetUniformLocation(p, "reference"), 1);
     glActiveTexture(GL_TEXTURE1);
@@ -479,6 +480,11 @@ void gfx_image(rect area, GLuint texture, double origin_x, double origin_y, doub
     scissor(area);
     draw_quads(v, 1);
     glDisable(GL_SCISSOR_TEST);
+}
+
+void gfx_heat_legend(rect bar)
+{
+    gfx_image(bar, 0, bar.x, bar.y, bar.w, 0.0, PANEL_LEGEND, 0);
 }
 
 void gfx_read_rgb8(int width, int height, unsigned char *rgb)

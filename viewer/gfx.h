@@ -37,13 +37,16 @@ void gfx_fill(rect r, const float rgba[4]);
 void gfx_text(int x, int y, int scale, const char *text, const float rgba[4], rect clip);
 int gfx_text_width(const char *text, int scale);
 
-typedef enum { PANEL_RADIANCE, PANEL_HEAT } panel_mode;
+typedef enum { PANEL_RADIANCE, PANEL_HEAT, PANEL_LEGEND } panel_mode;
 /* Draw image texture (w x h) inside area: image pixel (i, j) covers
  * framebuffer pixels origin + scale * [i, i+1) x [j, j+1).  PANEL_HEAT shows
  * the relative error against reference (sampled at the same relative
  * position) on a log scale 1e-3 .. 1. */
 void gfx_image(rect area, GLuint texture, double origin_x, double origin_y, double scale, double exposure,
                panel_mode mode, GLuint reference);
+/* The heat map's colours from 1e-3 (left end, black) to 1 (right end), a
+ * decade every third of the bar. */
+void gfx_heat_legend(rect bar);
 /* Read the framebuffer of the last gfx_begin as 8-bit RGB, top row first. */
 void gfx_read_rgb8(int width, int height, unsigned char *rgb);
 

@@ -31,7 +31,8 @@
 
 typedef enum { MODE_COMPARE, MODE_LIVE, MODE_RASTER, MODE_PLY } viewer_mode;
 
-enum { LABEL_BAND = 34 }; /* pixels of label at the top of every panel: 3 lines of 8x8 text */
+enum { LABEL_BAND = 34 };  /* pixels of label at the top of every panel: 3 lines of 8x8 text */
+enum { STATUS_BAND = 14 }; /* pixels of status line at the bottom of the window */
 
 static struct {
     /* options */
@@ -55,6 +56,7 @@ static struct {
     double exposure, zoom, cx, cy; /* zoom 1 = fit; (cx, cy): image point at the panel centre, 0..1 */
     bool diff, split, help;
     int reference, split_b;        /* panel indices */
+    bool reference_given;          /* by --reference, --diff, --split, 1..9 or a right click */
     double split_position;         /* 0..1 of the width */
     double mouse_x, mouse_y;
     bool cursor_given, mouse_inside;
@@ -103,6 +105,8 @@ static void usage(void)
            "  --panel-out FILE.pfm write panel 1's linear radiance (the GLSL raster, the PLY view ...)\n"
            "  --exposure STOPS     shared exposure (as the chapters' --exposure)\n"
            "  --diff N             error heat map of every panel against panel N\n"
+           "  --heat               error heat map against the default reference (the best image: see below)\n"
+           "  --reference N        the reference panel for the heat map and the split (default: the best image)\n"
            "  --split A,B[,POS]    A/B split slider between panels A and B at POS (0..1, default 0.5)\n"
            "  --zoom Z --center U,V  shared zoom (1 = fit) and image point (0..1) at the panel centres\n"
            "  --cursor X,Y         cursor position in pixels (shows the radiance under it in every panel)\n"
@@ -117,10 +121,13 @@ static void usage(void)
            "  --no-shadows --ambient LA  chapter 1's options, for the raster and passed to 01_local\n"
            "  --raster-shader FILE.frag  replace the built-in Blinn-Phong fragment shader\n"
            "  --verbose            print the layout, every update and (window) every camera move\n"
-           "Layout: ceil(sqrt(n)) columns; each panel's top %d pixels are its label, the image is scaled\n"
-           "to fit the rest (zoom 1), centred, its corner on a whole pixel, nearest-neighbour sampled.\n"
+           "Layout: the bottom %d pixels of the window are the status line; above it ceil(sqrt(n)) columns;\n"
+           "each panel's top %d pixels are its label, the image is scaled to fit the rest (zoom 1), centred,\n"
+           "its corner on a whole pixel, nearest-neighbour sampled.\n"
+           "Default reference: the lowest stats rmse; else a path tracer over all bounces with the most\n"
+           "samples (then mis > light > cosine > hemisphere); else the most samples; else panel 1.\n"
            "Exit status: 0, 2 bad input or shader error (file:line: message), 3 no such backend here.\n",
-           LABEL_BAND);
+           STATUS_BAND, LABEL_BAND);
 }
 
 static int bad(char *err, size_t err_size, int i, const char *what, const char *value)
@@ -258,7 +265,15 @@ static int parse_options(int argc, char **argv, char *err, size_t err_size)
             NEED_VALUE;
             if (!parse_number(value, 1, PANEL_MAX, &n) || n != floor(n))
                 return bad(err, err_size, i, "--diff wants a panel number, not", value);
-            V.diff = true, V.reference = (int)n - 1;
+            V.diff = true, V.reference = (int)n - 1, V.reference_given = true;
+        } else if (!strcmp(a, "--reference")) {
+            double n;
+            NEED_VALUE;
+            if (!parse_number(value, 1, PANEL_MAX, &n) || n != floor(n))
+                return bad(err, err_size, i, "--reference wants a panel number, not", value);
+            V.reference = (int)n - 1, V.reference_given = true;
+        } else if (!strcmp(a, "--heat")) {
+            V.diff = true;
         } else if (!strcmp(a, "--split")) {
             int pa, pb;
             double pos = 0.5;
@@ -268,6 +283,7 @@ static int parse_options(int argc, char **argv, char *err, size_t err_size)
             if ((n != 2 && n != 3) || pa < 1 || pb < 1 || pa > PANEL_MAX || pb > PANEL_MAX || !(pos >= 0 && pos <= 1))
                 return bad(err, err_size, i, "--split wants A,B[,POS] (panel numbers, 0 <= POS <= 1), not", value);
             V.split = true, V.reference = pa - 1, V.split_b = pb - 1, V.split_position = pos;
+            V.reference_given = true;
         } else if (!strcmp(a, "--zoom")) {
             NEED_VALUE;
             if (!parse_number(value, 1e-3, 1e4, &V.zoom))
@@ -382,6 +398,7 @@ static void panel_rects(int i, int n, int width, int height, rect *whole, rect *
 {
     int cols = (int)ceil(sqrt((double)n)), rows = (n + cols - 1) / cols;
     int c = i % cols, r = i / cols;
+    height -= STATUS_BAND;
     whole->x = c * width / cols, whole->w = (c + 1) * width / cols - whole->x;
     whole->y = r * height / rows, whole->h = (r + 1) * height / rows - whole->y;
     *area = (rect){whole->x, whole->y + LABEL_BAND, whole->w, whole->h - LABEL_BAND};
@@ -470,15 +487,36 @@ static void draw_label(int index, rect whole, const char *title_suffix)
         vec3 c = image_get(&p->img, x, y);
         snprintf(line, sizeof line, "(%d,%d) %.4g %.4g %.4g", x, y, c.x, c.y, c.z);
     } else if (V.diff && !V.split && index != V.reference && V.reference < V.panel_count) {
-        snprintf(line, sizeof line, "heat: rel.err 1e-3..1 vs [%d]  rmse %.4g", V.reference + 1,
-                 rmse_against(p, &V.panels[V.reference]));
-    } else if (index == 0) {
-        snprintf(line, sizeof line, "exposure %+.1f  zoom %.2fx  H: help", V.exposure, V.zoom);
+        snprintf(line, sizeof line, "heat vs [%d]  rmse %.4g", V.reference + 1, rmse_against(p, &V.panels[V.reference]));
     }
     gfx_text(whole.x + 4, whole.y + 23, 1, line, YELLOW, whole);
 }
 
 static void draw_help(int width, int height);
+
+/* The status line, the bottom STATUS_BAND pixels whatever the mouse does:
+ * with the heat map its reference and its colour legend (1e-3 black at the
+ * left end .. 1 at the right, a tick at every decade); then the exposure,
+ * the zoom and the help hint. */
+static void draw_status(int width, int height)
+{
+    rect band = {0, height - STATUS_BAND, width, STATUS_BAND};
+    gfx_fill(band, BAND);
+    int x = 4, y = band.y + (STATUS_BAND - 8) / 2;
+    char line[256];
+    if (V.diff && !V.split && V.reference < V.panel_count) {
+        snprintf(line, sizeof line, "heat vs [%d]  1e-3", V.reference + 1);
+        gfx_text(x, y, 1, line, YELLOW, band);
+        rect bar = {x + gfx_text_width(line, 1) + 4, band.y + 2, 120, STATUS_BAND - 4};
+        gfx_heat_legend(bar);
+        for (int k = 1; k < 3; k++)
+            gfx_fill((rect){bar.x + k * bar.w / 3, bar.y + bar.h - 3, 1, 3}, WHITE);
+        gfx_text(bar.x + bar.w + 4, y, 1, "1", YELLOW, band);
+        x = bar.x + bar.w + 4 + 3 * 8;
+    }
+    snprintf(line, sizeof line, "exposure %+.1f  zoom %.2fx  H: help", V.exposure, V.zoom);
+    gfx_text(x, y, 1, line, YELLOW, band);
+}
 
 static void draw_frame(GLuint fbo, int width, int height)
 {
@@ -514,6 +552,7 @@ static void draw_frame(GLuint fbo, int width, int height)
             gfx_text(area.x + 8, area.y + 8, 1, p->pid > 0 ? "waiting for the first image ..." : "no image", GREY, area);
         draw_label(i, whole, V.diff && i == V.reference ? "  (reference)" : "");
     }
+    draw_status(width, height);
     if (V.help)
         draw_help(width, height);
 }
@@ -578,6 +617,50 @@ static bool children_running(void)
     return false;
 }
 
+/* Is panel a a better reference than panel b: closer to the true solution?
+ * A measured error (stats rmse) first, the lowest; then a path tracer over
+ * all bounces (unbiased), the most samples, then the better estimator;
+ * then the most samples; panels without stats last. */
+static int reference_tier(const panel *p)
+{
+    if (!p->has_stats || !p->img.pixels)
+        return 0;
+    if (isfinite(p->rmse))
+        return 3;
+    if (p->estimator_rank > 0 && p->all_bounces && isfinite(p->spp))
+        return 2;
+    return isfinite(p->spp) ? 1 : 0;
+}
+
+static bool better_reference(const panel *a, const panel *b)
+{
+    int ta = reference_tier(a), tb = reference_tier(b);
+    if (ta != tb)
+        return ta > tb;
+    if (ta == 3)
+        return a->rmse < b->rmse;
+    if (ta >= 1 && a->spp != b->spp)
+        return a->spp > b->spp;
+    return ta == 2 && a->estimator_rank > b->estimator_rank;
+}
+
+/* Unless the user named one, the reference is the best image on screen
+ * (it may change as live children progress). */
+static void auto_reference(void)
+{
+    if (V.reference_given || V.panel_count < 1)
+        return;
+    int best = 0;
+    for (int i = 1; i < V.panel_count; i++)
+        if (better_reference(&V.panels[i], &V.panels[best]))
+            best = i;
+    if (best != V.reference && V.verbose)
+        printf("reference %d %s\n", best + 1, V.panels[best].method);
+    V.reference = best;
+    if (V.split_b == V.reference && V.panel_count > 1)
+        V.split_b = (V.reference + 1) % V.panel_count;
+}
+
 /* Poll the files and children; returns true if anything changed. */
 static bool poll_sources(void)
 {
@@ -598,6 +681,8 @@ static bool poll_sources(void)
                 printf("exit %s %d\n", p->method, p->exit_status);
         }
     }
+    if (changed)
+        auto_reference();
     fflush(stdout);
     return changed;
 }
@@ -701,6 +786,7 @@ static int set_up(char *err, size_t err_size)
             printf("panel %d %s %dx%d\n", i + 1, V.panels[i].path, V.panels[i].img.width, V.panels[i].img.height);
             printf("label %d: %s | %s\n", i + 1, title, numbers);
         }
+        auto_reference();
         return 0;
     }
 
@@ -719,7 +805,7 @@ static int set_up(char *err, size_t err_size)
         double radius = 0.5 * v3_length(v3_sub(V.bounds_hi, V.bounds_lo));
         V.scene_cam = (camera){.eye = v3_add(centre, v3(0, 0, -2.6 * radius)), .look = centre, .up = v3(0, 1, 0),
                                .fov_degrees = 40.0};
-        aspect_w = V.width, aspect_h = V.height - LABEL_BAND;
+        aspect_w = V.width, aspect_h = V.height - LABEL_BAND - STATUS_BAND;
     } else {
         if (scene_load(V.scene_path, &V.scene, err, err_size))
             return 2;
@@ -924,7 +1010,7 @@ static void key_reference(int key)
 {
     if (key - GLFW_KEY_1 >= V.panel_count)
         return;
-    V.reference = key - GLFW_KEY_1;
+    V.reference = key - GLFW_KEY_1, V.reference_given = true;
     if (V.split_b == V.reference)
         V.split_b = (V.reference + 1) % V.panel_count;
 }
@@ -972,7 +1058,7 @@ static const key_binding KEYS[] = {
     {"Left / Right / Up / Down", {GLFW_KEY_LEFT, GLFW_KEY_RIGHT, GLFW_KEY_UP, GLFW_KEY_DOWN}, {0}, key_arrow,
      "pan 40 window pixels (Left shows more of the left); 3D: orbit 5 degrees"},
     {"PgUp / PgDn", {GLFW_KEY_PAGE_UP, GLFW_KEY_PAGE_DOWN}, {0}, key_dolly, "3D: dolly in / out (distance x 0.9, / 0.9)"},
-    {"D", {GLFW_KEY_D}, {0}, key_heat, "heat map: relative error against the reference, 1e-3..1, 0 black"},
+    {"D", {GLFW_KEY_D}, {0}, key_heat, "heat map: relative error vs the reference (default: the best image)"},
     {"1..9",
      {GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4, GLFW_KEY_5, GLFW_KEY_6, GLFW_KEY_7, GLFW_KEY_8, GLFW_KEY_9},
      {0}, key_reference, "pick the reference panel"},
@@ -1095,7 +1181,7 @@ static void on_button(GLFWwindow *w, int button, int action, int mods)
         double u, v;
         int index = panel_at(V.mouse_x, V.mouse_y, &u, &v);
         if (index >= 0 && !V.split)
-            V.reference = index, V.diff = true;
+            V.reference = index, V.diff = true, V.reference_given = true;
     }
     V.redraw = true;
 }

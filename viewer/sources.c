@@ -140,6 +140,16 @@ void panel_read_stats(panel *p, const char *json_path)
     json[n] = '\0';
     json_string_of(json, "chapter", p->method, sizeof p->method);
     stats_variant(json, p->variant, sizeof p->variant);
+    char estimator[32] = "", bounces[48];
+    static const char *ranked[] = {"hemisphere", "cosine", "light", "mis"};
+    json_string_of(json, "estimator", estimator, sizeof estimator);
+    p->estimator_rank = 0;
+    for (int k = 0; k < 4; k++)
+        p->estimator_rank = strcmp(estimator, ranked[k]) ? p->estimator_rank : k + 1;
+    json_bounces(json, bounces, sizeof bounces);
+    p->all_bounces = !bounces[0] && strstr(json, "\"bounces\": [");
+    p->spp = json_number_of(json, "spp"), p->rmse = json_number_of(json, "rmse");
+    p->has_stats = true;
     char detail[160] = "";
     size_t used = 0;
     double patches = json_number_of(json, "patches"), spp = json_number_of(json, "spp");

@@ -28,6 +28,11 @@ typedef struct {
     char variant[96];  /* label line 1 after the method: estimator, solver, model, bounces (stats JSON) */
     char detail[160];  /* label line 2: samples or patches, time, error */
     char file[128];    /* label line 2 after the detail: the PFM's file name (compare mode) */
+    /* from the stats JSON, to pick the default reference (NAN: not given) */
+    bool has_stats;
+    double spp, rmse;
+    int estimator_rank; /* 0 none, 1 hemisphere, 2 cosine, 3 light, 4 mis */
+    bool all_bounces;   /* "bounces": [0, 1000000] */
     image img;         /* linear radiance, top row first */
     GLuint texture;    /* RGB32F copy of img (or the 3D target's colour) */
     int updates;       /* how often the image changed */
