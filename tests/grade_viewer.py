@@ -302,8 +302,8 @@ def test_glfw_window_under_xvfb_equals_headless(ctx):
 # ---- the window driven by synthetic input (xdotool, XTEST) under Xvfb ------------------------------
 #
 # The documented input mapping (viewer/README.md, the H overlay): `+` / `-`
-# half a stop of exposure per press, `P` a screenshot viewer-N.png in the
-# current directory, left drag orbits 0.3 degrees per pixel about the look
+# half a stop of exposure per press, `P` a screenshot out/viewer-N.png under
+# the current directory (out/ made, nothing written beside it), left drag orbits 0.3 degrees per pixel about the look
 # point (distance kept), each wheel step scales the distance to the look point
 # by 0.9 (in) or 1/0.9 (out), `Q` / Esc quit with status 0.  The viewer's
 # stdout says what happened (`live: start|restart ... eye=... pids ...`,
@@ -465,8 +465,10 @@ def test_window_exposure_keys(ctx):
         after = 0
         for n, (keys, exposure) in enumerate(shots, 1):
             s.xdo("key", *keys, "p")
-            line, after = s.wait_line(f"wrote viewer-{n}.png", after)
-            png = read_png(ctx.path(f"viewer-{n}.png"))
+            line, after = s.wait_line(f"wrote out/viewer-{n}.png", after)
+            png = read_png(ctx.path(f"out/viewer-{n}.png"))
+            stray = [name for name in os.listdir(ctx.scratch) if name.endswith(".png")]
+            assert not stray, f"P must write under out/, not into the current directory: {stray}"
             assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND) + STATUS_BAND), f"screenshot {png[0]}x{png[1]}, not {size}"
             try:
                 check_grid(png, inputs, exposure)
@@ -594,8 +596,8 @@ SPLIT_STEP = 0.02        # fraction of the width per `,` / `.`
 def shoot(s, ctx, keys, n, after):
     """Press keys, then `P`; wait for `wrote viewer-n.png`; the decoded PNG."""
     s.xdo("key", *keys, "p")
-    _, after = s.wait_line(f"wrote viewer-{n}.png", after)
-    return read_png(ctx.path(f"viewer-{n}.png")), after
+    _, after = s.wait_line(f"wrote out/viewer-{n}.png", after)
+    return read_png(ctx.path(f"out/viewer-{n}.png")), after
 
 
 def panel_area(i, n, width, height):

@@ -1066,7 +1066,7 @@ static const key_binding KEYS[] = {
     {"Tab", {GLFW_KEY_TAB}, {0}, key_next_b, "next panel B (skipping the reference)"},
     {", / .", {GLFW_KEY_COMMA, GLFW_KEY_PERIOD}, {0}, key_slider, "split slider 2 % of the width left / right"},
     {"C", {GLFW_KEY_C}, {0}, key_camera_reset, "3D: camera back to the scene's"},
-    {"P", {GLFW_KEY_P}, {0}, key_screenshot, "screenshot viewer-N.png in the current directory"},
+    {"P", {GLFW_KEY_P}, {0}, key_screenshot, "screenshot out/viewer-N.png (out/ made if missing)"},
     {"Q / Esc", {GLFW_KEY_Q, GLFW_KEY_ESCAPE}, {0}, key_quit, "quit (exit 0, the children stopped and reaped)"},
     {"wheel", {0}, {0}, NULL, "zoom 1.25 per step at the cursor; 3D: dolly 0.9 per step (Ctrl: zoom)"},
     {"left drag", {0}, {0}, NULL, "pan; 3D: orbit the look point, 0.3 degrees per pixel; split: slider"},
@@ -1218,10 +1218,16 @@ static int save_screen(const char *path, int width, int height, char *err, size_
     return status;
 }
 
+/* P: out/viewer-N.png (out/ made if missing), N counting from 1 in each
+ * session; never into the current directory itself (the repository root). */
 static void screenshot_key(void)
 {
     char path[64], err[512];
-    snprintf(path, sizeof path, "viewer-%d.png", ++V.screenshot_counter);
+    if (mkdir("out", 0777) != 0 && errno != EEXIST) {
+        fprintf(stderr, "out:0: cannot make the screenshot directory: %s\n", strerror(errno));
+        return;
+    }
+    snprintf(path, sizeof path, "out/viewer-%d.png", ++V.screenshot_counter);
     int w, h;
     glfwGetFramebufferSize(backend_window(), &w, &h);
     draw_frame(0, w, h);
