@@ -39,8 +39,12 @@ import zlib
 
 import lib
 
-LABEL_BAND = 34
-STATUS_BAND = 14  # the status line at the bottom of the window
+# The documented layout (build/viewer --help) at the default font size 14:
+FONT_PX = 14
+LINE = FONT_PX + 4
+LABEL_BAND = 3 * LINE + 4     # a label above its image: 3 lines
+STATUS_BAND = LINE + 4        # the status line at the bottom of the window
+LABEL_COLUMN = 18 * FONT_PX   # a label beside its image
 
 
 # ---- helpers ---------------------------------------------------------------------------------
@@ -132,13 +136,37 @@ def write_pfm(path, width, height, pixel):
             f.write(b"".join(struct.pack("<3f", *pixel(x, y)) for x in range(width)))
 
 
-def grid_image_origin(i, n, width, height):
-    """Top-left pixel of panel i's area under the documented layout."""
-    cols = math.ceil(math.sqrt(n))
-    rows = (n + cols - 1) // cols
+def choose_grid(n, width, height, iw, ih):
+    """(columns, rows, label beside?) that make panel 1's iw x ih image the
+    largest in the nominal cell; ties keep fewer columns, the label above."""
+    def fitted(aw, ah):
+        return 0.0 if aw < 1 or ah < 1 else min(aw * ih / iw, float(ah))
+    best, best_h = (1, n, False), -1.0
+    for cols in range(1, n + 1):
+        rows = (n + cols - 1) // cols
+        cw, ch = width // cols, (height - STATUS_BAND) // rows
+        for beside, h in ((False, fitted(cw, ch - LABEL_BAND)), (True, fitted(cw - LABEL_COLUMN, ch))):
+            if h > best_h:
+                best, best_h = (cols, rows, beside), h
+    return best
+
+
+def panel_area(i, n, width, height, iw, ih):
+    """(x, y, w, h) of panel i's image area under the documented layout."""
+    cols, rows, beside = choose_grid(n, width, height, iw, ih)
     c, r = i % cols, i // cols
     height -= STATUS_BAND
-    return c * width // cols, r * height // rows + LABEL_BAND
+    x0, x1 = c * width // cols, (c + 1) * width // cols
+    y0, y1 = r * height // rows, (r + 1) * height // rows
+    if beside:
+        return x0 + LABEL_COLUMN, y0, x1 - x0 - LABEL_COLUMN, y1 - y0
+    return x0, y0 + LABEL_BAND, x1 - x0, y1 - y0 - LABEL_BAND
+
+
+def grid_image_origin(i, n, width, height, iw, ih):
+    """Top-left pixel of panel i's area under the documented layout."""
+    x, y, _, _ = panel_area(i, n, width, height, iw, ih)
+    return x, y
 
 
 def synthetic_inputs(ctx):
@@ -159,10 +187,11 @@ def synthetic_inputs(ctx):
 def check_grid(png, inputs, exposure=0.0):
     """Every image pixel of every panel equals the tone-mapped input within 1."""
     n, (w, h) = len(inputs), (png[0], png[1])
+    first = lib.read_pfm(inputs[0])
     worst = 0
     for i, path in enumerate(inputs):
         img = lib.read_pfm(path)
-        ox, oy = grid_image_origin(i, n, w, h)
+        ox, oy = grid_image_origin(i, n, w, h, first.width, first.height)
         for y in range(img.height):
             for x in range(img.width):
                 expected = [tonemap(v, exposure) for v in img.at(x, y)]
@@ -174,9 +203,9 @@ def check_grid(png, inputs, exposure=0.0):
     return worst
 
 
-def label_has_text(png, i, n):
+def label_has_text(png, i, n, iw, ih):
     w, h = png[0], png[1]
-    ox, oy = grid_image_origin(i, n, w, h)
+    ox, oy = grid_image_origin(i, n, w, h, iw, ih)
     return any(max(rgb_at(png, x, y)) > 200 for y in range(oy - LABEL_BAND, oy) for x in range(ox, ox + 90))
 
 
@@ -194,7 +223,7 @@ def compare_grid(ctx, backend):
         assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND) + STATUS_BAND), f"screenshot is {png[0]}x{png[1]}, not {size}"
         check_grid(png, inputs, exposure)
         for i in range(3):
-            assert label_has_text(png, i, 3), f"panel {i + 1} has no label text"
+            assert label_has_text(png, i, 3, w, h), f"panel {i + 1} has no label text"
     return result
 
 
@@ -242,13 +271,13 @@ def test_split_and_heat_map(ctx):
     png = read_png(out)
     reference = lib.read_pfm(same[0])
     for i, expect_black in ((2, True), (1, False)):
-        ox, oy = grid_image_origin(i, 3, png[0], png[1])
+        ox, oy = grid_image_origin(i, 3, png[0], png[1], w, h)
         pixels = [rgb_at(png, ox + x, oy + y) for y in range(h) for x in range(w)]
         if expect_black:
             assert all(p == (0, 0, 0) for p in pixels), "a panel equal to the reference must show zero error (black)"
         else:
             assert sum(1 for p in pixels if max(p) > 0) > w * h // 4, "a different panel shows no error"
-    ox, oy = grid_image_origin(0, 3, png[0], png[1])  # the reference itself: plain tone map
+    ox, oy = grid_image_origin(0, 3, png[0], png[1], w, h)  # the reference itself: plain tone map
     for y in range(0, h, 5):
         for x in range(0, w, 5):
             expected = [tonemap(v) for v in reference.at(x, y)]
@@ -600,17 +629,6 @@ def shoot(s, ctx, keys, n, after):
     return read_png(ctx.path(f"out/viewer-{n}.png")), after
 
 
-def panel_area(i, n, width, height):
-    """(x, y, w, h) of panel i's image area under the documented layout."""
-    cols = math.ceil(math.sqrt(n))
-    rows = (n + cols - 1) // cols
-    c, r = i % cols, i // cols
-    height -= STATUS_BAND
-    x0, x1 = c * width // cols, (c + 1) * width // cols
-    y0, y1 = r * height // rows, (r + 1) * height // rows
-    return x0, y0 + LABEL_BAND, x1 - x0, y1 - y0 - LABEL_BAND
-
-
 def placement(area, iw, ih, zoom=1.0, shift=(0, 0)):
     """Scale (fit x zoom) and top-left corner of an iw x ih image in area:
     image point (0.5, 0.5) on the area's centre, the corner rounded to a whole
@@ -668,7 +686,7 @@ def check_view(png, images, zoom=1.0, shift=(0, 0), what=""):
     At least a quarter of every image area must be compared."""
     n = len(images)
     for i, tm in enumerate(images):
-        area = panel_area(i, n, png[0], png[1])
+        area = panel_area(i, n, png[0], png[1], len(images[0][0]), len(images[0]))
         s, ox, oy = placement(area, len(tm[0]), len(tm), zoom, shift)
         count = check_image_in(png, area, tm, s, ox, oy, f"{what} panel {i + 1}")
         assert count >= area[2] * area[3] // 4, \
@@ -742,7 +760,7 @@ def luminance(p):
 
 def panel_pixels(png, i, n, w, h):
     """Panel i's image pixels at scale 1 (rows of RGB tuples)."""
-    ox, oy = grid_image_origin(i, n, png[0], png[1])
+    ox, oy = grid_image_origin(i, n, png[0], png[1], w, h)
     return [[rgb_at(png, ox + x, oy + y) for x in range(w)] for y in range(h)]
 
 
@@ -859,7 +877,7 @@ def check_split(png, images, a, b, position, what):
     slider column itself one uniform line.  a, b: 0-based panel indices."""
     width, height = png[0], png[1]
     split_x = math.floor(width * position + 0.5)  # lround, position >= 0
-    area = panel_area(0, 1, width, height)
+    area = panel_area(0, 1, width, height, len(images[0][0]), len(images[0]))
     tm_a, tm_b = images[a], images[b]
     iw = len(tm_a[0])
     s, ox, oy = placement(area, iw, len(tm_a))
@@ -1043,7 +1061,7 @@ def test_raster_matches_chapter1(ctx):
     # Panel 2 is chapter 1 run by the viewer with the viewer's camera: it must
     # be the image we rendered ourselves, tone-mapped.
     png = read_png(shot)
-    ox, oy = grid_image_origin(1, 2, png[0], png[1])
+    ox, oy = grid_image_origin(1, 2, png[0], png[1], n, n)
     for y in range(0, n, 3):
         for x in range(0, n, 3):
             expected = [tonemap(v) for v in cpu.at(x, y)]
@@ -1212,18 +1230,55 @@ def test_status_line_and_heat_legend_stay_with_the_mouse_over(ctx):
     inputs = reference_inputs(ctx, w, h)
     size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
     height = 2 * (h + LABEL_BAND) + STATUS_BAND
-    yellow = (255, 217, 77)
     for options in ([], ["--heat"]):
         out = ctx.path(f"status-{len(options)}.png")
         ok(run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", size, "--cursor", "40,50", *options,
                       "--out", out, *inputs), "viewer --cursor")
         png = read_png(out)
         strip = [rgb_at(png, x, y) for y in range(height - STATUS_BAND, height) for x in range(png[0])]
-        assert sum(1 for p in strip if max(abs(a - b) for a, b in zip(p, yellow)) <= 2) > 50, \
+        # yellow text, anti-aliased: red and green well above blue
+        assert sum(1 for p in strip if p[0] > 120 and p[1] > 0.7 * p[0] and p[0] > p[2] + 80) > 50, \
             f"{options}: no status text in the bottom {STATUS_BAND} pixels with the pointer over panel 1"
         top = (252, 255, 163)  # heat(1): vec3(0.99, 1.0, 0.64)
         has_top = any(max(abs(a - b) for a, b in zip(p, top)) <= 2 for p in strip)
         assert has_top == bool(options), f"{options}: the legend's top colour {'missing' if options else 'shown'}"
+
+
+# ---- layout and font ---------------------------------------------------------------------------------
+
+def test_layout_fills_the_window_and_labels_are_readable(ctx):
+    """The demo's case: four square images in a 1280x720 window.  The grid
+    and the label's place (above, or beside the image) are chosen so that the
+    images are as large as the window allows: they cover more than half the
+    frame (a 2x2 grid with 3 lines of label above each covered 46 %).  The
+    labels are DejaVu Sans through stb_truetype at 14 px (the viewer says
+    so), so the text of a label line is more than 8 pixels tall."""
+    side = 256
+    inputs = []
+    for k in range(4):
+        path = ctx.path(f"square{k}.pfm")
+        write_pfm(path, side, side, lambda x, y: (0.5, 0.5, 0.5))
+        inputs.append(path)
+    out = ctx.path("layout.png")
+    result = run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", "1280x720", "--out", out, *inputs)
+    ok(result, "viewer, 4 squares in 1280x720")
+    assert "font: /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf, 14 px" in result.stdout, \
+        f"the labels must use DejaVu Sans (fonts-dejavu-core): {result.stdout}"
+    png = read_png(out)
+    grey = tonemap(0.5)
+    covered = sum(1 for row in png[2] for x in range(png[0]) if row[3 * x:3 * x + 3] == bytes((grey, grey, grey)))
+    fraction = covered / (png[0] * png[1])
+    assert fraction > 0.5, f"the images cover {100 * fraction:.1f} % of the frame (more than 50 % possible)"
+    cols, rows, beside = choose_grid(4, png[0], png[1], side, side)
+    x0, y0, w, h = panel_area(0, 4, png[0], png[1], side, side)
+    s, ox, oy = placement((x0, y0, w, h), side, side)
+    assert rgb_at(png, ox + 1, oy + 1) == (grey, grey, grey) and rgb_at(png, ox - 1, oy + 1) != (grey, grey, grey), \
+        f"panel 1's image must sit where the documented layout puts it ({cols}x{rows}, label beside: {beside})"
+    # the label of panel 1: its first text line, rows with bright text pixels
+    label_x0 = 0
+    label_x1 = LABEL_COLUMN if beside else png[0] // cols
+    lit = [y for y in range(0, LINE + 4) if any(max(rgb_at(png, x, y)) > 150 for x in range(label_x0, label_x1))]
+    assert lit and lit[-1] - lit[0] + 1 > 8, f"label text spans rows {lit[:1]}..{lit[-1:]}: not readable"
 
 
 # ---- the key table ---------------------------------------------------------------------------------

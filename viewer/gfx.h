@@ -20,7 +20,8 @@ typedef struct { int x, y, w, h; } rect;
 /* Compile the shaders and make the font atlas.  raster_shader: a file that
  * replaces the built-in Blinn-Phong fragment shader (NULL: built-in).
  * Returns 0, or 2 with "file:line: message" in err. */
-int gfx_init(const char *raster_shader, char *err, size_t err_size);
+int gfx_init(const char *raster_shader, const char *font_path, int font_px, char *err, size_t err_size);
+const char *gfx_font(void); /* the font file in use, or "8x8 bitmap" */
 void gfx_shutdown(void);
 const char *gfx_renderer(void); /* GL_RENDERER, e.g. "llvmpipe (LLVM 15.0.6, 256 bits)" */
 
@@ -33,9 +34,11 @@ void target_destroy(target *t);
 /* Start a frame on framebuffer fbo (0: the window) of size width x height. */
 void gfx_begin(GLuint fbo, int width, int height);
 void gfx_fill(rect r, const float rgba[4]);
-/* 8x8 text at (x, y) top-left, scale 1 or 2, clipped to clip. */
-void gfx_text(int x, int y, int scale, const char *text, const float rgba[4], rect clip);
-int gfx_text_width(const char *text, int scale);
+/* One line of text, its top-left at (x, y), clipped to clip; the baseline
+ * is gfx_text_ascent() pixels lower.  Printable ASCII only. */
+void gfx_text(int x, int y, const char *text, const float rgba[4], rect clip);
+int gfx_text_width(const char *text);
+int gfx_text_ascent(void);
 
 typedef enum { PANEL_RADIANCE, PANEL_HEAT, PANEL_LEGEND } panel_mode;
 /* Draw image texture (w x h) inside area: image pixel (i, j) covers

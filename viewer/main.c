@@ -23,6 +23,7 @@
 #include <unistd.h>
 
 #include "backend.h"
+#include "font.h"
 #include "viewer.h"
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
@@ -31,8 +32,14 @@
 
 typedef enum { MODE_COMPARE, MODE_LIVE, MODE_RASTER, MODE_PLY } viewer_mode;
 
-enum { LABEL_BAND = 34 };  /* pixels of label at the top of every panel: 3 lines of 8x8 text */
-enum { STATUS_BAND = 14 }; /* pixels of status line at the bottom of the window */
+/* Text metrics, from --font-size PX (default 14): a line of text is PX + 4
+ * pixels; a label is 3 lines (+ 4) above its image or a column 18 PX wide
+ * beside it (one field a line); the status line is 1 line (+ 4). */
+enum { FONT_PX_DEFAULT = 14 };
+#define LINE (V.font_px + 4)
+#define LABEL_BAND (3 * LINE + 4)
+#define STATUS_BAND (LINE + 4)
+#define LABEL_COLUMN (18 * V.font_px)
 
 static struct {
     /* options */
@@ -49,6 +56,8 @@ static struct {
     int exit_after_updates, frames;
     bool no_shadows, verbose;
     double ambient;
+    const char *font_path;
+    int font_px;
     camera cam, scene_cam, cam_option;
     int camera_given; /* bits: 1 eye, 2 look, 4 up, 8 fov */
 
@@ -72,6 +81,7 @@ static struct {
     scene scene;
     bool scene_loaded;
     mesh_uniforms uniforms;
+    int aspect_w, aspect_h;        /* of the images, for the layout */
     vec3 bounds_lo, bounds_hi;
     char temp_dir[PATH_LEN];
     child_spec spec;
@@ -120,14 +130,20 @@ static void usage(void)
            "  --exit-after-updates N  headless live: stop after N image updates from every chapter\n"
            "  --no-shadows --ambient LA  chapter 1's options, for the raster and passed to 01_local\n"
            "  --raster-shader FILE.frag  replace the built-in Blinn-Phong fragment shader\n"
+           "  --font FILE.ttf      the labels' font (default " FONT_DEFAULT_PATH ";\n"
+           "                       missing: the 8x8 bitmap font)\n"
+           "  --font-size PX       its pixel height (default 14); the layout below scales with it\n"
            "  --verbose            print the layout, every update and (window) every camera move\n"
-           "Layout: the bottom %d pixels of the window are the status line; above it ceil(sqrt(n)) columns;\n"
-           "each panel's top %d pixels are its label, the image is scaled to fit the rest (zoom 1), centred,\n"
-           "its corner on a whole pixel, nearest-neighbour sampled.\n"
+           "Layout: the bottom %d pixels of the window are the status line (font size + 8).  Above it a grid of\n"
+           "n panels: the columns (rows = ceil(n / columns)) and the label's place -- a band of %d pixels above\n"
+           "the image (3 lines of font size + 4, + 4) or a column of %d pixels (18 x font size) on its left --\n"
+           "that make panel 1's image the largest in the nominal cell (width / columns x height / rows, rounded\n"
+           "down); ties keep fewer columns and the label above.  The image is scaled to fit the rest of its\n"
+           "cell (zoom 1), centred, its corner on a whole pixel, nearest-neighbour sampled.\n"
            "Default reference: the lowest stats rmse; else a path tracer over all bounces with the most\n"
            "samples (then mis > light > cosine > hemisphere); else the most samples; else panel 1.\n"
            "Exit status: 0, 2 bad input or shader error (file:line: message), 3 no such backend here.\n",
-           STATUS_BAND, LABEL_BAND);
+           STATUS_BAND, LABEL_BAND, LABEL_COLUMN);
 }
 
 static int bad(char *err, size_t err_size, int i, const char *what, const char *value)
@@ -198,6 +214,7 @@ static int parse_options(int argc, char **argv, char *err, size_t err_size)
     V.width = 1280, V.height = 720;
     V.zoom = 1.0, V.cx = V.cy = 0.5;
     V.live_time = 10.0;
+    V.font_path = FONT_DEFAULT_PATH, V.font_px = FONT_PX_DEFAULT;
     V.split_position = 0.5;
     V.reference = 0, V.split_b = 1;
     const char *scene_name = NULL, *dir = "out";
@@ -346,6 +363,15 @@ static int parse_options(int argc, char **argv, char *err, size_t err_size)
             NEED_VALUE;
             if (!parse_number(value, 0, 1e6, &V.ambient))
                 return bad(err, err_size, i, "--ambient wants a radiance >= 0, not", value);
+        } else if (!strcmp(a, "--font")) {
+            NEED_VALUE;
+            V.font_path = value;
+        } else if (!strcmp(a, "--font-size")) {
+            double px;
+            NEED_VALUE;
+            if (!parse_number(value, 6, 96, &px) || px != floor(px))
+                return bad(err, err_size, i, "--font-size wants whole pixels in [6, 96], not", value);
+            V.font_px = (int)px;
         } else if (!strcmp(a, "--verbose")) {
             V.verbose = true;
         } else if (a[0] == '-' && a[1]) {
@@ -394,16 +420,50 @@ static int write_rgb8(const char *path, int w, int h, const unsigned char *rgb, 
 
 /* ---- layout ------------------------------------------------------------------------------------ */
 
-static void panel_rects(int i, int n, int width, int height, rect *whole, rect *area)
+/* The grid: the columns (rows follow) and the label's place (above the
+ * image, or a column beside it) that make the images largest for their
+ * aspect ratio, judged on the nominal cell (width / cols, height / rows,
+ * rounded down); ties keep fewer columns, and the label above. */
+typedef struct { int cols, rows; bool beside; } grid;
+
+static double fitted_height(int area_w, int area_h)
 {
-    int cols = (int)ceil(sqrt((double)n)), rows = (n + cols - 1) / cols;
-    int c = i % cols, r = i / cols;
+    if (area_w < 1 || area_h < 1)
+        return 0.0;
+    return fmin((double)area_w * V.aspect_h / V.aspect_w, (double)area_h);
+}
+
+static grid choose_grid(int n, int width, int height)
+{
+    grid best = {1, n > 0 ? n : 1, false};
+    double best_h = -1.0;
+    for (int cols = 1; cols <= (n > 0 ? n : 1); cols++) {
+        int rows = (n + cols - 1) / cols, cw = width / cols, ch = (height - STATUS_BAND) / (rows > 0 ? rows : 1);
+        double above = fitted_height(cw, ch - LABEL_BAND), beside = fitted_height(cw - LABEL_COLUMN, ch);
+        if (above > best_h)
+            best = (grid){cols, rows, false}, best_h = above;
+        if (beside > best_h)
+            best = (grid){cols, rows, true}, best_h = beside;
+    }
+    return best;
+}
+
+/* Panel i of n: its whole cell, its label and its image area. */
+static void panel_rects(int i, int n, int width, int height, rect *whole, rect *label, rect *area)
+{
+    grid g = choose_grid(n, width, height);
+    int c = i % g.cols, r = i / g.cols;
     height -= STATUS_BAND;
-    whole->x = c * width / cols, whole->w = (c + 1) * width / cols - whole->x;
-    whole->y = r * height / rows, whole->h = (r + 1) * height / rows - whole->y;
-    *area = (rect){whole->x, whole->y + LABEL_BAND, whole->w, whole->h - LABEL_BAND};
-    if (area->h < 1)
-        area->h = 1;
+    whole->x = c * width / g.cols, whole->w = (c + 1) * width / g.cols - whole->x;
+    whole->y = r * height / g.rows, whole->h = (r + 1) * height / g.rows - whole->y;
+    if (g.beside) {
+        *label = (rect){whole->x, whole->y, LABEL_COLUMN, whole->h};
+        *area = (rect){whole->x + LABEL_COLUMN, whole->y, whole->w - LABEL_COLUMN, whole->h};
+    } else {
+        *label = (rect){whole->x, whole->y, whole->w, LABEL_BAND};
+        *area = (rect){whole->x, whole->y + LABEL_BAND, whole->w, whole->h - LABEL_BAND};
+    }
+    area->w = area->w < 1 ? 1 : area->w, area->h = area->h < 1 ? 1 : area->h;
 }
 
 static int shown_panels(void) { return V.split ? 1 : V.panel_count; }
@@ -422,8 +482,8 @@ static int panel_at(double x, double y, double *u, double *v)
 {
     int W = V.width, H = V.height, n = shown_panels();
     for (int i = 0; i < n; i++) {
-        rect whole, area;
-        panel_rects(i, n, W, H, &whole, &area);
+        rect whole, label, area;
+        panel_rects(i, n, W, H, &whole, &label, &area);
         if (x < area.x || y < area.y || x >= area.x + area.w || y >= area.y + area.h)
             continue;
         int index = V.split ? (x < W * V.split_position ? V.reference : V.split_b) : i;
@@ -469,27 +529,46 @@ static void label_lines(int index, char *title, size_t title_size, char *numbers
         snprintf(numbers, numbers_size, "%s%s%s", p->detail, p->file[0] ? "  " : "", p->file);
 }
 
-static void draw_label(int index, rect whole, const char *title_suffix)
+/* Label line 3: the radiance under the pointer (at the same image point
+ * in every panel), or with the heat map the error against the reference. */
+static void readout_line(int index, char *line, size_t line_size)
 {
     const panel *p = &V.panels[index];
-    gfx_fill((rect){whole.x, whole.y, whole.w, LABEL_BAND}, BAND);
-    char title[256], numbers[256], line[512];
-    label_lines(index, title, sizeof title, numbers, sizeof numbers);
-    snprintf(line, sizeof line, "%s%s", title, title_suffix);
-    gfx_text(whole.x + 4, whole.y + 3, 1, line, WHITE, whole);
-    gfx_text(whole.x + 4, whole.y + 13, 1, numbers, GREY, whole);
-
     double u, v;
     line[0] = '\0';
     int under = V.mouse_inside ? panel_at(V.mouse_x, V.mouse_y, &u, &v) : -1;
     if (under >= 0 && p->img.pixels && u >= 0 && v >= 0 && u < 1 && v < 1) {
         int x = (int)floor(u * p->img.width), y = (int)floor(v * p->img.height);
         vec3 c = image_get(&p->img, x, y);
-        snprintf(line, sizeof line, "(%d,%d) %.4g %.4g %.4g", x, y, c.x, c.y, c.z);
+        snprintf(line, line_size, "(%d,%d) %.4g %.4g %.4g", x, y, c.x, c.y, c.z);
     } else if (V.diff && !V.split && index != V.reference && V.reference < V.panel_count) {
-        snprintf(line, sizeof line, "heat vs [%d]  rmse %.4g", V.reference + 1, rmse_against(p, &V.panels[V.reference]));
+        snprintf(line, line_size, "heat vs [%d]  rmse %.4g", V.reference + 1, rmse_against(p, &V.panels[V.reference]));
     }
-    gfx_text(whole.x + 4, whole.y + 23, 1, line, YELLOW, whole);
+}
+
+/* Above the image: 3 lines.  Beside it: every field (the parts of a line
+ * between double spaces) on a line of its own, so nothing is clipped. */
+static void draw_label(int index, rect label, bool beside, const char *title_suffix)
+{
+    gfx_fill(label, BAND);
+    char title[256], numbers[256], lines[3][512];
+    label_lines(index, title, sizeof title, numbers, sizeof numbers);
+    snprintf(lines[0], sizeof lines[0], "%s%s", title, title_suffix);
+    snprintf(lines[1], sizeof lines[1], "%s", numbers);
+    readout_line(index, lines[2], sizeof lines[2]);
+    const float *colours[3] = {WHITE, GREY, YELLOW};
+    int y = label.y + 2;
+    for (int k = 0; k < 3; k++) {
+        char *field = lines[k], *next;
+        do {
+            next = beside ? strstr(field, "  ") : NULL;
+            if (next)
+                *next = '\0', next += 2;
+            if (*field || !beside)
+                gfx_text(label.x + 4, y, field, colours[k], label), y += LINE;
+            field = next;
+        } while (field);
+    }
 }
 
 static void draw_help(int width, int height);
@@ -502,20 +581,20 @@ static void draw_status(int width, int height)
 {
     rect band = {0, height - STATUS_BAND, width, STATUS_BAND};
     gfx_fill(band, BAND);
-    int x = 4, y = band.y + (STATUS_BAND - 8) / 2;
+    int x = 4, y = band.y + (STATUS_BAND - LINE) / 2 + 2;
     char line[256];
     if (V.diff && !V.split && V.reference < V.panel_count) {
         snprintf(line, sizeof line, "heat vs [%d]  1e-3", V.reference + 1);
-        gfx_text(x, y, 1, line, YELLOW, band);
-        rect bar = {x + gfx_text_width(line, 1) + 4, band.y + 2, 120, STATUS_BAND - 4};
+        gfx_text(x, y, line, YELLOW, band);
+        rect bar = {x + gfx_text_width(line) + 6, band.y + 4, 10 * V.font_px, STATUS_BAND - 8};
         gfx_heat_legend(bar);
         for (int k = 1; k < 3; k++)
             gfx_fill((rect){bar.x + k * bar.w / 3, bar.y + bar.h - 3, 1, 3}, WHITE);
-        gfx_text(bar.x + bar.w + 4, y, 1, "1", YELLOW, band);
-        x = bar.x + bar.w + 4 + 3 * 8;
+        gfx_text(bar.x + bar.w + 6, y, "1", YELLOW, band);
+        x = bar.x + bar.w + 6 + 3 * V.font_px;
     }
     snprintf(line, sizeof line, "exposure %+.1f  zoom %.2fx  H: help", V.exposure, V.zoom);
-    gfx_text(x, y, 1, line, YELLOW, band);
+    gfx_text(x, y, line, YELLOW, band);
 }
 
 static void draw_frame(GLuint fbo, int width, int height)
@@ -523,9 +602,10 @@ static void draw_frame(GLuint fbo, int width, int height)
     V.width = width, V.height = height;
     gfx_begin(fbo, width, height);
     int n = shown_panels();
+    bool beside = choose_grid(n, width, height).beside;
     for (int i = 0; i < n; i++) {
-        rect whole, area;
-        panel_rects(i, n, width, height, &whole, &area);
+        rect whole, label, area;
+        panel_rects(i, n, width, height, &whole, &label, &area);
         if (V.split) {
             panel *a = &V.panels[V.reference], *b = &V.panels[V.split_b];
             int split_x = (int)lround(width * V.split_position);
@@ -538,7 +618,7 @@ static void draw_frame(GLuint fbo, int width, int height)
             gfx_fill((rect){split_x, area.y, 1, area.h}, WHITE);
             char suffix[160];
             snprintf(suffix, sizeof suffix, "  |  [%d] %s", V.split_b + 1, b->method);
-            draw_label(V.reference, whole, suffix);
+            draw_label(V.reference, label, beside, suffix);
             continue;
         }
         panel *p = &V.panels[i];
@@ -549,8 +629,8 @@ static void draw_frame(GLuint fbo, int width, int height)
             gfx_image(area, p->texture, ox, oy, s, V.exposure, heat ? PANEL_HEAT : PANEL_RADIANCE,
                       heat ? V.panels[V.reference].texture : 0);
         else
-            gfx_text(area.x + 8, area.y + 8, 1, p->pid > 0 ? "waiting for the first image ..." : "no image", GREY, area);
-        draw_label(i, whole, V.diff && i == V.reference ? "  (reference)" : "");
+            gfx_text(area.x + 8, area.y + 8, p->pid > 0 ? "waiting for the first image ..." : "no image", GREY, area);
+        draw_label(i, label, beside, V.diff && i == V.reference ? "  (reference)" : "");
     }
     draw_status(width, height);
     if (V.help)
@@ -786,6 +866,7 @@ static int set_up(char *err, size_t err_size)
             printf("panel %d %s %dx%d\n", i + 1, V.panels[i].path, V.panels[i].img.width, V.panels[i].img.height);
             printf("label %d: %s | %s\n", i + 1, title, numbers);
         }
+        V.aspect_w = V.panels[0].img.width, V.aspect_h = V.panels[0].img.height; /* the layout fits panel 1 */
         auto_reference();
         return 0;
     }
@@ -828,9 +909,10 @@ static int set_up(char *err, size_t err_size)
 
     /* Render size: given, or the scene's aspect fitted into panel 1's area. */
     int rw = V.render_width, rh = V.render_height;
+    V.aspect_w = rw ? rw : aspect_w, V.aspect_h = rw ? rh : aspect_h;
     if (!rw) {
-        rect whole, area;
-        panel_rects(0, V.panel_count, V.width, V.height, &whole, &area);
+        rect whole, label, area;
+        panel_rects(0, V.panel_count, V.width, V.height, &whole, &label, &area);
         rw = area.w, rh = (int)lround((double)area.w * aspect_h / aspect_w);
         if (rh > area.h)
             rh = area.h, rw = (int)lround((double)area.h * aspect_w / aspect_h);
@@ -948,8 +1030,8 @@ static void zoom_at(double factor, double x, double y)
 
 static void pan_pixels(double dx, double dy)
 {
-    rect whole, area;
-    panel_rects(0, shown_panels(), V.width, V.height, &whole, &area);
+    rect whole, label, area;
+    panel_rects(0, shown_panels(), V.width, V.height, &whole, &label, &area);
     const panel *p = &V.panels[V.split ? V.reference : 0];
     double ox, oy, s;
     placement(p, area, &ox, &oy, &s);
@@ -1098,17 +1180,17 @@ static void draw_help(int width, int height)
 {
     int label_width = 0, help_width = 0;
     for (int k = 0; k < KEY_COUNT; k++) {
-        int lw = gfx_text_width(KEYS[k].label, 1), hw = gfx_text_width(KEYS[k].help, 1);
+        int lw = gfx_text_width(KEYS[k].label), hw = gfx_text_width(KEYS[k].help);
         label_width = lw > label_width ? lw : label_width;
         help_width = hw > help_width ? hw : help_width;
     }
-    int w = label_width + help_width + 16 + 24, h = KEY_COUNT * 12 + 16;
+    int w = label_width + help_width + 16 + 24, h = KEY_COUNT * LINE + 16;
     rect box = {(width - w) / 2, (height - h) / 2, w, h};
     const float shade[4] = {0.0f, 0.0f, 0.0f, 0.8f};
     gfx_fill(box, shade);
     for (int k = 0; k < KEY_COUNT; k++) {
-        gfx_text(box.x + 8, box.y + 8 + 12 * k, 1, KEYS[k].label, YELLOW, box);
-        gfx_text(box.x + 8 + label_width + 16, box.y + 8 + 12 * k, 1, KEYS[k].help, WHITE, box);
+        gfx_text(box.x + 8, box.y + 8 + LINE * k, KEYS[k].label, YELLOW, box);
+        gfx_text(box.x + 8 + label_width + 16, box.y + 8 + LINE * k, KEYS[k].help, WHITE, box);
     }
 }
 
@@ -1406,9 +1488,10 @@ int main(int argc, char **argv)
         glfwGetFramebufferSize(backend_window(), &fw, &fh);
         V.width = fw, V.height = fh;
     }
-    status = gfx_init(V.raster_shader, err, sizeof err);
+    status = gfx_init(V.raster_shader, V.font_path, V.font_px, err, sizeof err);
     if (!status) {
         printf("backend %s: %s\n", backend_name(V.backend), gfx_renderer());
+        printf("font: %s, %d px\n", gfx_font(), V.font_px);
         print_gl_libraries();
         status = set_up(err, sizeof err);
     }
