@@ -1376,6 +1376,111 @@ def test_live_progressive_updates(ctx):
     assert "exit 01_local" not in result.stdout, "the 20 s budget cannot have run out: updates came from --time passes"
 
 
+FAKE_CHAPTER = """#!/usr/bin/python3
+# A stand-in chapter for the live tests: logs its arguments, warns on stderr
+# (after a line that is not a warning), writes one grey image (0.5) with its
+# stats, and waits to be stopped.  Runs after the first wait DELAY seconds
+# before their first pass, so the restarted panel is stale that long.
+import json, os, struct, sys, time
+args = sys.argv[1:]
+def opt(name):
+    return args[args.index(name) + 1] if name in args else None
+with open(LOG, "a") as f:
+    f.write(" ".join(args) + "\\n")
+with open(LOG) as f:
+    run = len(f.read().splitlines())
+sys.stderr.write("note: not a warning\\nwarning: the fake chapter warns (run %d)\\n" % run)
+sys.stderr.flush()
+if run > 1:
+    time.sleep(DELAY)
+w, h = map(int, opt("--size").split("x"))
+with open(opt("--out") + ".tmp", "wb") as f:
+    f.write(b"PF\\n%d %d\\n-1.0\\n" % (w, h) + struct.pack("<3f", 0.5, 0.5, 0.5) * (w * h))
+os.replace(opt("--out") + ".tmp", opt("--out"))
+with open(opt("--stats") + ".tmp", "w") as f:
+    json.dump({"chapter": "09_fake", "spp": 1, "bounces": [0, 1000000]}, f)
+os.replace(opt("--stats") + ".tmp", opt("--stats"))
+time.sleep(600)
+"""
+
+
+def fake_chapter(ctx, delay=2.0):
+    """build-like directory with the fake chapter 09_fake; the file its runs log their arguments to."""
+    directory = ctx.path("chapters")
+    os.makedirs(directory, exist_ok=True)
+    log = ctx.path("fake-args.log")
+    path = os.path.join(directory, "09_fake")
+    with open(path, "w") as f:
+        f.write(FAKE_CHAPTER.replace("LOG", repr(log)).replace("DELAY", repr(delay)))
+    os.chmod(path, 0o755)
+    return directory, log
+
+
+def image_centre(png, i, n, side):
+    area = panel_area(i, n, png[0], png[1], side, side)
+    s, ox, oy = placement(area, side, side)
+    return rgb_at(png, ox + int(s * side / 2), oy + int(s * side / 2))
+
+
+def orange_in(png, rect):
+    x0, y0, w, h = rect
+    return sum(1 for y in range(y0, y0 + h) for x in range(x0, x0 + w)
+               if (lambda p: p[0] > 150 and p[1] < 0.6 * p[0] and p[2] < 0.4 * p[0])(rgb_at(png, x, y)))
+
+
+def test_window_live_restart_is_stale_and_warnings_show(ctx):
+    """--live with a fake chapter whose runs after the first wait 2 s before
+    their first pass: after a drag restarts it, its panel shows the old image
+    dimmed ("restarting") until the new run's first pass, then the plain image
+    again; each run's stderr line starting "warning:" is reported (stdout
+    `09_fake: warning: ...`) and shown in its panel's label (orange), the
+    line before it (no warning) is not."""
+    chapters, _ = fake_chapter(ctx)
+    side, n = 48, 2
+    grey = tonemap(0.5)
+    with WindowSession(ctx, "--live", os.path.join(lib.ROOT, "scenes", "cornell-point.scene"), "--chapters",
+                       chapters, "--chapter", "09_fake", "--size", "400x200", "--render-size", f"{side}x{side}",
+                       "--verbose") as s:
+        s.wait_line("update 09_fake 1 ")
+        s.wait_line("09_fake: warning: the fake chapter warns (run 1)")
+        assert not any(line.startswith("09_fake: note:") for line in s.lines), "a line without warning: reported"
+        png, after = shoot(s, ctx, [], 1, 0)
+        assert image_centre(png, 1, n, side) == (grey, grey, grey), "the first pass must show plainly"
+        label = panel_area(1, n, png[0], png[1], side, side)
+        assert orange_in(png, (label[0], 0, label[2], label[1])) > 20, "the warning is not in the panel's label"
+        s.xdo("mousemove", "--window", s.window, 60, 120)
+        s.xdo("mousedown", 1)
+        for step in (10, 20, 30):
+            s.xdo("mousemove", "--window", s.window, 60 + step, 120)
+        s.xdo("mouseup", 1)
+        _, at = s.wait_line("live: restart ", after)
+        png, after = shoot(s, ctx, [], 2, at)
+        assert not any(line.startswith("update 09_fake 2 ") for line in s.lines), "the 2 s delay did not hold"
+        centre = image_centre(png, 1, n, side)
+        assert max(centre) < 0.5 * grey, f"the restarted panel must be dimmed until its first pass: {centre}"
+        s.wait_line("update 09_fake 2 ", at)
+        s.wait_line("09_fake: warning: the fake chapter warns (run 2)", at)
+        png, after = shoot(s, ctx, [], 3, after)
+        assert image_centre(png, 1, n, side) == (grey, grey, grey), "after the first new pass: plain again"
+        status = s.finish("q")
+    assert status == 0, f"Q: exit {status}\n{s.describe()}"
+
+
+def test_live_budget_option(ctx):
+    """--budget SECONDS is each child's --time; without it 30 s."""
+    chapters, log = fake_chapter(ctx)
+    for options, expected in ((["--budget", "0.5"], "--time 0.5 "), ([], "--time 30 ")):
+        if os.path.exists(log):
+            os.remove(log)
+        result = run_viewer(ctx, "--live", "scenes/cornell-point.scene", "--chapters", chapters, "--chapter", "09_fake",
+                            "--headless", "--backend", "osmesa", "--size", "200x150", "--exit-after-updates", "1",
+                            *options, "--out", ctx.path("budget.png"), timeout=60)
+        ok(result, f"viewer --live {' '.join(options)}")
+        with open(log) as f:
+            args = f.read()
+        assert expected in args, f"{options or 'default'}: the child got {args!r}, expected {expected!r}"
+
+
 def process_gone(pid):
     try:
         with open(f"/proc/{pid}/status") as f:

@@ -126,7 +126,8 @@ static void usage(void)
            "3D and live:\n"
            "  --eye X,Y,Z --look X,Y,Z --up X,Y,Z --fov DEG   camera (default: the scene's)\n"
            "  --chapter NAME       only this chapter (repeatable); --chapters DIR where they are\n"
-           "  --live-time S        the children's --time budget (default 10)\n"
+           "  --budget SECONDS     each child's --time budget per camera (default 30: the path tracer\n"
+           "                       converged enough to judge); --live-time is the same\n"
            "  --exit-after-updates N  headless live: stop after N image updates from every chapter\n"
            "  --no-shadows --ambient LA  chapter 1's options, for the raster and passed to 01_local\n"
            "  --raster-shader FILE.frag  replace the built-in Blinn-Phong fragment shader\n"
@@ -213,7 +214,7 @@ static int parse_options(int argc, char **argv, char *err, size_t err_size)
 {
     V.width = 1280, V.height = 720;
     V.zoom = 1.0, V.cx = V.cy = 0.5;
-    V.live_time = 10.0;
+    V.live_time = 30.0;
     V.font_path = FONT_DEFAULT_PATH, V.font_px = FONT_PX_DEFAULT;
     V.split_position = 0.5;
     V.reference = 0, V.split_b = 1;
@@ -347,10 +348,10 @@ static int parse_options(int argc, char **argv, char *err, size_t err_size)
         } else if (!strcmp(a, "--chapters")) {
             NEED_VALUE;
             V.chapters_dir = value;
-        } else if (!strcmp(a, "--live-time")) {
+        } else if (!strcmp(a, "--budget") || !strcmp(a, "--live-time")) {
             NEED_VALUE;
             if (!parse_number(value, 0.01, 1e6, &V.live_time))
-                return bad(err, err_size, i, "--live-time wants seconds, not", value);
+                return bad(err, err_size, i, "--budget wants seconds, not", value);
         } else if (!strcmp(a, "--exit-after-updates")) {
             double n;
             NEED_VALUE;
@@ -501,7 +502,8 @@ static int panel_at(double x, double y, double *u, double *v)
 /* ---- drawing a frame ------------------------------------------------------------------------- */
 
 static const float WHITE[4] = {0.95f, 0.95f, 0.95f, 1.0f}, GREY[4] = {0.7f, 0.7f, 0.7f, 1.0f},
-                   YELLOW[4] = {1.0f, 0.85f, 0.3f, 1.0f}, BAND[4] = {0.08f, 0.08f, 0.1f, 1.0f};
+                   YELLOW[4] = {1.0f, 0.85f, 0.3f, 1.0f}, BAND[4] = {0.08f, 0.08f, 0.1f, 1.0f},
+                   ORANGE[4] = {1.0f, 0.45f, 0.2f, 1.0f}, DIM[4] = {0.0f, 0.0f, 0.0f, 0.65f};
 
 static double rmse_against(const panel *a, const panel *b)
 {
@@ -536,6 +538,10 @@ static void readout_line(int index, char *line, size_t line_size)
     const panel *p = &V.panels[index];
     double u, v;
     line[0] = '\0';
+    if (p->warning[0]) { /* a child's warning: more than anything else */
+        snprintf(line, line_size, "%s%s", p->warnings > 1 ? "(+more) " : "", p->warning);
+        return;
+    }
     int under = V.mouse_inside ? panel_at(V.mouse_x, V.mouse_y, &u, &v) : -1;
     if (under >= 0 && p->img.pixels && u >= 0 && v >= 0 && u < 1 && v < 1) {
         int x = (int)floor(u * p->img.width), y = (int)floor(v * p->img.height);
@@ -556,7 +562,7 @@ static void draw_label(int index, rect label, bool beside, const char *title_suf
     snprintf(lines[0], sizeof lines[0], "%s%s", title, title_suffix);
     snprintf(lines[1], sizeof lines[1], "%s", numbers);
     readout_line(index, lines[2], sizeof lines[2]);
-    const float *colours[3] = {WHITE, GREY, YELLOW};
+    const float *colours[3] = {WHITE, GREY, V.panels[index].warning[0] ? ORANGE : YELLOW};
     int y = label.y + 2;
     for (int k = 0; k < 3; k++) {
         char *field = lines[k], *next;
@@ -630,7 +636,11 @@ static void draw_frame(GLuint fbo, int width, int height)
                       heat ? V.panels[V.reference].texture : 0);
         else
             gfx_text(area.x + 8, area.y + 8, p->pid > 0 ? "waiting for the first image ..." : "no image", GREY, area);
-        draw_label(i, label, beside, V.diff && i == V.reference ? "  (reference)" : "");
+        if (p->stale) { /* restarted: the old camera's image, dimmed, until the first new pass */
+            gfx_fill(area, DIM);
+            gfx_text(area.x + 8, area.y + 8, "restarting ...", WHITE, area);
+        }
+        draw_label(i, label, beside, p->stale ? "  (restarting)" : V.diff && i == V.reference ? "  (reference)" : "");
     }
     draw_status(width, height);
     if (V.help)
@@ -674,7 +684,8 @@ static int start_children(char *err, size_t err_size)
             if (child_start(&V.panels[i], &V.spec, err, err_size))
                 return 2;
             if (V.verbose)
-                printf("spawn %s pid %ld\n", V.panels[i].method, (long)V.panels[i].pid);
+                printf("spawn %s pid %ld%s\n", V.panels[i].method, (long)V.panels[i].pid,
+                       V.panels[i].stale ? " (the old image stale until its first pass)" : "");
             if (used < sizeof pids)
                 used += (size_t)snprintf(pids + used, sizeof pids - used, "%s%ld", count ? "," : "",
                                          (long)V.panels[i].pid);
@@ -754,6 +765,10 @@ static bool poll_sources(void)
         if (panel_poll(p)) {
             changed = true;
             printf("update %s %d %dx%d\n", p->method, p->updates, p->img.width, p->img.height);
+        }
+        if (child_poll_warnings(p)) {
+            changed = true;
+            printf("%s: %s\n", p->method, p->warning);
         }
         if (child_reap(p)) {
             changed = true;

@@ -202,6 +202,7 @@ int panel_load_pfm(panel *p, const char *path, char *err, size_t err_size)
         panel_read_stats(p, p->stats_path);
     } else if (p->kind == SOURCE_CHILD) {
         panel_read_stats(p, p->stats_path); /* the chapters rewrite the stats with every pass */
+        p->stale = false;                   /* a pass of the current run */
     }
     return 0;
 }
@@ -236,6 +237,12 @@ int child_start(panel *p, const child_spec *spec, char *err, size_t err_size)
     snprintf(p->stats_path, sizeof p->stats_path, "%.3000s/%.900s.json", spec->directory, name);
     snprintf(p->log_path, sizeof p->log_path, "%.3000s/%.900s.log", spec->directory, name);
     unlink(p->stats_path);
+    /* A restart: the old image stays on screen, marked stale, until the new
+     * run's first pass replaces the file (the old one is removed, so it
+     * cannot be mistaken for the new run's). */
+    p->stale = p->img.pixels != NULL;
+    unlink(p->path);
+    p->warning[0] = '\0', p->warnings = 0, p->log_read = 0;
 
     char size[64], budget[64], eye[128], look[128], up[128], fov[64];
     snprintf(size, sizeof size, "%dx%d", spec->width, spec->height);
@@ -306,6 +313,30 @@ int child_start(panel *p, const child_spec *spec, char *err, size_t err_size)
     p->generation++;
     snprintf(p->detail, sizeof p->detail, "running");
     return 0;
+}
+
+bool child_poll_warnings(panel *p)
+{
+    FILE *f = fopen(p->log_path, "r");
+    if (!f)
+        return false;
+    bool found = false;
+    char line[512];
+    if (fseek(f, p->log_read, SEEK_SET) == 0)
+        while (fgets(line, sizeof line, f)) {
+            size_t n = strlen(line);
+            if (n == 0 || (line[n - 1] != '\n' && n + 1 < sizeof line))
+                break; /* a line still being written: read it next time */
+            p->log_read += (long)n; /* (a longer line: the rest is read as a line of its own) */
+            line[strcspn(line, "\n")] = '\0';
+            if (strncmp(line, "warning:", 8) == 0) {
+                snprintf(p->warning, sizeof p->warning, "%.159s", line);
+                p->warnings++;
+                found = true;
+            }
+        }
+    fclose(f);
+    return found;
 }
 
 void child_stop(panel *p)

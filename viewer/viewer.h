@@ -45,6 +45,10 @@ typedef struct {
     int exit_status;   /* of the last run; -1 while running or never run */
     double started;
     int generation;    /* restarts (a new camera) */
+    bool stale;        /* restarted: the image is the old camera's until the first new pass */
+    char warning[160]; /* the child's last stderr line starting "warning:" ("" none) */
+    int warnings;      /* how many of them this run */
+    long log_read;     /* bytes of the log already scanned */
     /* 3D sources */
     target target;
     mesh mesh;
@@ -75,6 +79,8 @@ int child_start(panel *p, const child_spec *spec, char *err, size_t err_size);
 void child_stop(panel *p);
 /* Reap a child that ended; returns true if it did now. */
 bool child_reap(panel *p);
+/* Scan the child's new log lines for "warning:"; returns true if one came. */
+bool child_poll_warnings(panel *p);
 
 /* 3D: scene and PLY meshes, the camera. */
 int scene_mesh(const scene *s, mesh *m, mesh_uniforms *u, vec3 ambient, char *err, size_t err_size);
