@@ -1320,6 +1320,29 @@ def test_help_keys_match_readme(ctx):
     assert documented == rows, "viewer/README.md lists the keys in another order than --help-keys"
 
 
+def test_help_lists_exactly_the_options_the_parser_takes(ctx):
+    """--help is printed from the parser's own option table: every option it
+    lists is accepted (whatever else then goes wrong, never "unknown option"),
+    and a name it does not list is refused."""
+    result = run_viewer(ctx, "--help")
+    ok(result, "--help")
+    options = []
+    for line in result.stdout.splitlines():
+        if line.startswith("  --"):
+            head = line[2:].split("  ")[0]  # "--name VALUE", two spaces before the help
+            options.append((head.split()[0], " " in head))
+    assert len(options) > 30, f"--help lists only {len(options)} options"
+    for name, takes_value in options:
+        if name in ("--help", "--help-keys"):
+            continue
+        args = [name, "1"] if takes_value else [name]
+        r = run_viewer(ctx, *args, timeout=30)
+        assert "unknown option" not in r.stderr and "missing value" not in r.stderr, \
+            f"--help lists {name}{' VALUE' if takes_value else ''} but the parser says: {r.stderr.strip()}"
+    r = run_viewer(ctx, "--no-such-option")
+    assert r.returncode == 2 and "unknown option" in r.stderr, r.stderr
+
+
 # ---- PLY ------------------------------------------------------------------------------------------------
 
 def test_ply_per_vertex_radiance(ctx):

@@ -91,92 +91,6 @@ static struct {
 static volatile sig_atomic_t quit_requested;
 static void on_signal(int sig) { (void)sig; quit_requested = 1; }
 
-static void print_keys_markdown(void);
-
-static void usage(void)
-{
-    printf("usage: build/viewer [A.pfm B.pfm ...] [--scene NAME [--dir DIR]]\n"
-           "                    [--live SCENE | --raster SCENE | --ply FILE.ply] [options]\n"
-           "modes:\n"
-           "  A.pfm B.pfm ...      compare: the images in a grid, with the stats JSON beside each (same name .json)\n"
-           "  --scene NAME         compare DIR/NAME-NN_*.pfm (DIR: --dir, default out)\n"
-           "  --live SCENE         run every chapter (build/0*_*) as a child with the viewer's camera and show\n"
-           "                       its progressive images; orbiting restarts them.  A GLSL raster is panel 1.\n"
-           "  --raster SCENE       the scene rasterised by a GLSL Blinn-Phong shader (chapter 1's local model,\n"
-           "                       no shadows) beside chapter 1's ray-cast image of the same camera\n"
-           "  --ply FILE.ply       radiosity's mesh with smooth per-vertex radiance, orbitable\n"
-           "display:\n"
-           "  --backend glfw|egl|osmesa  context (default glfw with a display, else egl, else osmesa)\n"
-           "  --headless           no window (egl or osmesa); needs --out or --frames\n"
-           "  --size WxH           window / framebuffer size (default 1280x720)\n"
-           "  --render-size WxH    size of 3D panels and children's images (default: fit the panel)\n"
-           "  --out FILE.png|.ppm  write what the window shows (headless: the first complete frame)\n"
-           "  --screenshot FILE    in a window: save the first complete frame there and exit\n"
-           "  --panel-out FILE.pfm write panel 1's linear radiance (the GLSL raster, the PLY view ...)\n"
-           "  --exposure STOPS     shared exposure (as the chapters' --exposure)\n"
-           "  --diff N             error heat map of every panel against panel N\n"
-           "  --heat               error heat map against the default reference (the best image: see below)\n"
-           "  --reference N        the reference panel for the heat map and the split (default: the best image)\n"
-           "  --split A,B[,POS]    A/B split slider between panels A and B at POS (0..1, default 0.5)\n"
-           "  --zoom Z --center U,V  shared zoom (1 = fit) and image point (0..1) at the panel centres\n"
-           "  --cursor X,Y         cursor position in pixels (shows the radiance under it in every panel)\n"
-           "  --help-overlay       show the key help\n"
-           "  --help-keys          print the keys (and mouse) as a Markdown table and exit\n"
-           "  --frames N           render N frames, print frames per second and exit\n"
-           "3D and live:\n"
-           "  --eye X,Y,Z --look X,Y,Z --up X,Y,Z --fov DEG   camera (default: the scene's)\n"
-           "  --chapter NAME       only this chapter (repeatable); --chapters DIR where they are\n"
-           "  --budget SECONDS     each child's --time budget per camera (default 30: the path tracer\n"
-           "                       converged enough to judge); --live-time is the same\n"
-           "  --exit-after-updates N  headless live: stop after N image updates from every chapter\n"
-           "  --no-shadows --ambient LA  chapter 1's options, for the raster and passed to 01_local\n"
-           "  --raster-shader FILE.frag  replace the built-in Blinn-Phong fragment shader\n"
-           "  --font FILE.ttf      the labels' font (default " FONT_DEFAULT_PATH ";\n"
-           "                       missing: the 8x8 bitmap font)\n"
-           "  --font-size PX       its pixel height (default 14); the layout below scales with it\n"
-           "  --verbose            print the layout, every update and (window) every camera move\n"
-           "Layout: the bottom %d pixels of the window are the status line (font size + 8).  Above it a grid of\n"
-           "n panels: the columns (rows = ceil(n / columns)) and the label's place -- a band of %d pixels above\n"
-           "the image (3 lines of font size + 4, + 4) or a column of %d pixels (18 x font size) on its left --\n"
-           "that make panel 1's image the largest in the nominal cell (width / columns x height / rows, rounded\n"
-           "down); ties keep fewer columns and the label above.  The image is scaled to fit the rest of its\n"
-           "cell (zoom 1), centred, its corner on a whole pixel, nearest-neighbour sampled.\n"
-           "Default reference: the lowest stats rmse; else a path tracer over all bounces with the most\n"
-           "samples (then mis > light > cosine > hemisphere); else the most samples; else panel 1.\n"
-           "Exit status: 0, 2 bad input or shader error (file:line: message), 3 no such backend here.\n",
-           STATUS_BAND, LABEL_BAND, LABEL_COLUMN);
-}
-
-static int bad(char *err, size_t err_size, int i, const char *what, const char *value)
-{
-    snprintf(err, err_size, "argv:%d: %s%s%s%s", i, what, value ? " '" : "", value ? value : "", value ? "'" : "");
-    return 2;
-}
-
-static bool parse_size(const char *s, int *w, int *h)
-{
-    char tail;
-    return s && sscanf(s, "%dx%d%c", w, h, &tail) == 2 && *w > 0 && *h > 0 && *w <= 16384 && *h <= 16384;
-}
-
-static bool parse_vec(const char *s, vec3 *v)
-{
-    char tail;
-    return s && sscanf(s, "%lf,%lf,%lf%c", &v->x, &v->y, &v->z, &tail) == 3 && v3_is_finite(*v);
-}
-
-static bool parse_number(const char *s, double lo, double hi, double *out)
-{
-    if (!s)
-        return false;
-    char *end;
-    double v = strtod(s, &end);
-    if (end == s || *end || !(v >= lo && v <= hi))
-        return false;
-    *out = v;
-    return true;
-}
-
 static int add_file_panel(const char *path, char *err, size_t err_size)
 {
     if (V.panel_count >= PANEL_MAX) {
@@ -210,6 +124,310 @@ static int add_scene_panels(const char *name, const char *dir, int arg, char *er
     return status;
 }
 
+/* ---- the option table ----------------------------------------------------------------------------
+ * One table: the parser reads it and `build/viewer --help` prints it.  Most
+ * options store into a field of V (a flag, a string, a number in a range);
+ * the others have a handler. */
+
+typedef enum { OPT_SECTION, OPT_DOC, OPT_FLAG, OPT_STRING, OPT_NUMBER, OPT_INT, OPT_CUSTOM } option_kind;
+
+typedef int option_handler(const char *name, const char *value, int arg, char *err, size_t err_size);
+
+typedef struct {
+    const char *name, *alias; /* alias: the same option under an older name */
+    const char *value;        /* what follows it, as shown ("WxH"); NULL: a flag */
+    option_kind kind;
+    void *target;             /* bool *, const char **, double *, int * */
+    double lo, hi;            /* OPT_NUMBER, OPT_INT */
+    option_handler *handle;   /* OPT_CUSTOM */
+    const char *help;         /* '\n' starts an indented continuation line */
+} option;
+
+static struct {
+    const char *scene_name, *dir;
+    int scene_arg;
+} compare_args = {NULL, "out", 0};
+
+static int bad(char *err, size_t err_size, int i, const char *what, const char *value)
+{
+    snprintf(err, err_size, "argv:%d: %s%s%s%s", i, what, value ? " '" : "", value ? value : "", value ? "'" : "");
+    return 2;
+}
+
+static bool parse_size(const char *s, int *w, int *h)
+{
+    char tail;
+    return s && sscanf(s, "%dx%d%c", w, h, &tail) == 2 && *w > 0 && *h > 0 && *w <= 16384 && *h <= 16384;
+}
+
+static bool parse_vec(const char *s, vec3 *v)
+{
+    char tail;
+    return s && sscanf(s, "%lf,%lf,%lf%c", &v->x, &v->y, &v->z, &tail) == 3 && v3_is_finite(*v);
+}
+
+static bool parse_number(const char *s, double lo, double hi, double *out)
+{
+    if (!s)
+        return false;
+    char *end;
+    double v = strtod(s, &end);
+    if (end == s || *end || !(v >= lo && v <= hi))
+        return false;
+    *out = v;
+    return true;
+}
+
+static bool parse_panel_number(const char *s, int *index)
+{
+    double n;
+    if (!parse_number(s, 1, PANEL_MAX, &n) || n != floor(n))
+        return false;
+    *index = (int)n - 1;
+    return true;
+}
+
+static void usage(void);
+static void print_keys_markdown(void);
+
+static int opt_help(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    (void)value, (void)arg, (void)err, (void)err_size;
+    if (!strcmp(name, "--help-keys"))
+        print_keys_markdown();
+    else
+        usage();
+    exit(0);
+}
+
+static int opt_backend(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    if (!backend_parse(value, &V.backend))
+        return bad(err, err_size, arg, "--backend wants glfw, egl or osmesa, not", value);
+    (void)name, V.backend_given = true;
+    return 0;
+}
+
+static int opt_size(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    bool window = !strcmp(name, "--size");
+    if (!parse_size(value, window ? &V.width : &V.render_width, window ? &V.height : &V.render_height))
+        return bad(err, err_size, arg, window ? "--size wants WxH, not" : "--render-size wants WxH, not", value);
+    return 0;
+}
+
+static int opt_mode(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    (void)arg, (void)err, (void)err_size;
+    V.mode = name[2] == 'l' ? MODE_LIVE : name[2] == 'r' ? MODE_RASTER : MODE_PLY;
+    if (V.mode == MODE_PLY)
+        V.ply_path = value;
+    else
+        V.scene_path = value;
+    return 0;
+}
+
+static int opt_scene(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    (void)name, (void)err, (void)err_size;
+    compare_args.scene_name = value, compare_args.scene_arg = arg;
+    return 0;
+}
+
+static int opt_reference(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    if (!parse_panel_number(value, &V.reference))
+        return bad(err, err_size, arg, !strcmp(name, "--diff") ? "--diff wants a panel number, not"
+                                                                : "--reference wants a panel number, not", value);
+    V.reference_given = true;
+    V.diff |= !strcmp(name, "--diff");
+    return 0;
+}
+
+static int opt_split(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    int pa, pb;
+    double pos = 0.5;
+    char tail;
+    int n = sscanf(value, "%d,%d,%lf%c", &pa, &pb, &pos, &tail);
+    if ((n != 2 && n != 3) || pa < 1 || pb < 1 || pa > PANEL_MAX || pb > PANEL_MAX || !(pos >= 0 && pos <= 1))
+        return bad(err, err_size, arg, "--split wants A,B[,POS] (panel numbers, 0 <= POS <= 1), not", value);
+    (void)name;
+    V.split = true, V.reference = pa - 1, V.split_b = pb - 1, V.split_position = pos, V.reference_given = true;
+    return 0;
+}
+
+static int opt_point(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    char tail;
+    bool centre = !strcmp(name, "--center");
+    double *x = centre ? &V.cx : &V.mouse_x, *y = centre ? &V.cy : &V.mouse_y;
+    if (sscanf(value, "%lf,%lf%c", x, y, &tail) != 2 || !isfinite(*x) || !isfinite(*y))
+        return bad(err, err_size, arg, centre ? "--center wants U,V, not" : "--cursor wants X,Y in pixels, not", value);
+    if (!centre)
+        V.cursor_given = V.mouse_inside = true;
+    return 0;
+}
+
+static int opt_camera(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    vec3 v;
+    if (!strcmp(name, "--fov")) {
+        if (!parse_number(value, 1e-3, 179, &V.cam_option.fov_degrees))
+            return bad(err, err_size, arg, "--fov wants degrees in (0, 179], not", value);
+        V.camera_given |= 8;
+        return 0;
+    }
+    if (!parse_vec(value, &v))
+        return bad(err, err_size, arg, "wants X,Y,Z, not", value);
+    if (name[2] == 'e')
+        V.cam_option.eye = v, V.camera_given |= 1;
+    else if (name[2] == 'l')
+        V.cam_option.look = v, V.camera_given |= 2;
+    else
+        V.cam_option.up = v, V.camera_given |= 4;
+    return 0;
+}
+
+static int opt_chapter(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    (void)name, (void)arg, (void)err, (void)err_size;
+    if (V.chapter_filter_count < PANEL_MAX)
+        V.chapter_filter[V.chapter_filter_count++] = value;
+    return 0;
+}
+
+#define SECTION(title) {NULL, NULL, NULL, OPT_SECTION, NULL, 0, 0, NULL, title}
+#define FLAG(name, field, help) {name, NULL, NULL, OPT_FLAG, &V.field, 0, 0, NULL, help}
+#define STRING(name, value, field, help) {name, NULL, value, OPT_STRING, &V.field, 0, 0, NULL, help}
+#define NUMBER(name, value, field, lo, hi, help) {name, NULL, value, OPT_NUMBER, &V.field, lo, hi, NULL, help}
+#define INT(name, value, field, lo, hi, help) {name, NULL, value, OPT_INT, &V.field, lo, hi, NULL, help}
+#define CUSTOM(name, value, handler, help) {name, NULL, value, OPT_CUSTOM, NULL, 0, 0, handler, help}
+
+static const option OPTIONS[] = {
+    SECTION("modes:"),
+    {"A.pfm B.pfm ...", NULL, NULL, OPT_DOC, NULL, 0, 0, NULL,
+     "compare: the images in a grid, with the stats JSON beside each (same name .json)"},
+    CUSTOM("--scene", "NAME", opt_scene, "compare DIR/NAME-NN_*.pfm (DIR: --dir, default out)"),
+    {"--dir", NULL, "DIR", OPT_STRING, &compare_args.dir, 0, 0, NULL, "where --scene looks (default out)"},
+    CUSTOM("--live", "SCENE", opt_mode, "run every chapter (build/0*_*) as a child with the viewer's camera and show\n"
+                                        "its progressive images; orbiting restarts them.  A GLSL raster is panel 1."),
+    CUSTOM("--raster", "SCENE", opt_mode, "the scene rasterised by a GLSL Blinn-Phong shader (chapter 1's local model,\n"
+                                          "no shadows) beside chapter 1's ray-cast image of the same camera"),
+    CUSTOM("--ply", "FILE.ply", opt_mode, "radiosity's mesh with smooth per-vertex radiance, orbitable"),
+    SECTION("display:"),
+    CUSTOM("--backend", "glfw|egl|osmesa", opt_backend, "context (default glfw with a display, else egl, else osmesa)"),
+    FLAG("--headless", headless, "no window (egl or osmesa); needs --out or --frames"),
+    CUSTOM("--size", "WxH", opt_size, "window / framebuffer size (default 1280x720)"),
+    CUSTOM("--render-size", "WxH", opt_size, "size of 3D panels and children's images (default: fit the panel)"),
+    STRING("--out", "FILE.png|.ppm", out_path, "write what the window shows (headless: the first complete frame)"),
+    STRING("--screenshot", "FILE", screenshot_path, "in a window: save the first complete frame there and exit"),
+    STRING("--panel-out", "FILE.pfm", panel_out_path, "write panel 1's linear radiance (the GLSL raster, the PLY view ...)"),
+    NUMBER("--exposure", "STOPS", exposure, -64, 64, "shared exposure (as the chapters' --exposure)"),
+    CUSTOM("--diff", "N", opt_reference, "error heat map of every panel against panel N"),
+    FLAG("--heat", diff, "error heat map against the default reference (the best image: see below)"),
+    CUSTOM("--reference", "N", opt_reference, "the reference panel for the heat map and the split (default: the best)"),
+    CUSTOM("--split", "A,B[,POS]", opt_split, "A/B split slider between panels A and B at POS (0..1, default 0.5)"),
+    NUMBER("--zoom", "Z", zoom, 1e-3, 1e4, "shared zoom (1 = fit)"),
+    CUSTOM("--center", "U,V", opt_point, "image point (0..1) at the panel centres"),
+    CUSTOM("--cursor", "X,Y", opt_point, "cursor position in pixels (shows the radiance under it in every panel)"),
+    FLAG("--help-overlay", help, "show the key help"),
+    CUSTOM("--help-keys", NULL, opt_help, "print the keys (and mouse) as a Markdown table and exit"),
+    INT("--frames", "N", frames, 1, 1e6, "render N frames, print frames per second and exit"),
+    STRING("--font", "FILE.ttf", font_path, "the labels' font (default " FONT_DEFAULT_PATH ";\n"
+                                            "missing: the 8x8 bitmap font)"),
+    INT("--font-size", "PX", font_px, 6, 96, "its pixel height (default 14); the layout below scales with it"),
+    CUSTOM("--help", NULL, opt_help, "this list (also -h)"),
+    SECTION("3D and live:"),
+    CUSTOM("--eye", "X,Y,Z", opt_camera, "camera position (default: the scene's camera)"),
+    CUSTOM("--look", "X,Y,Z", opt_camera, "the point looked at"),
+    CUSTOM("--up", "X,Y,Z", opt_camera, "the up direction"),
+    CUSTOM("--fov", "DEG", opt_camera, "vertical field of view"),
+    CUSTOM("--chapter", "NAME", opt_chapter, "only this chapter (repeatable)"),
+    STRING("--chapters", "DIR", chapters_dir, "where the chapters are (default: beside the viewer)"),
+    {"--budget", "--live-time", "SECONDS", OPT_NUMBER, &V.live_time, 0.01, 1e6, NULL,
+     "each child's --time per camera (default 30: the path tracer converged\n"
+     "enough to judge); --live-time is the same"},
+    INT("--exit-after-updates", "N", exit_after_updates, 1, 1e6, "headless live: stop after N updates of every chapter"),
+    FLAG("--no-shadows", no_shadows, "chapter 1's option, for the raster and passed to 01_local"),
+    NUMBER("--ambient", "LA", ambient, 0, 1e6, "chapter 1's ambient radiance, likewise"),
+    STRING("--raster-shader", "FILE.frag", raster_shader, "replace the built-in Blinn-Phong fragment shader"),
+    FLAG("--verbose", verbose, "print the layout, every update and (window) every camera move"),
+};
+enum { OPTION_COUNT = sizeof OPTIONS / sizeof *OPTIONS };
+
+static void usage(void)
+{
+    printf("usage: build/viewer [A.pfm B.pfm ...] [--scene NAME [--dir DIR]]\n"
+           "                    [--live SCENE | --raster SCENE | --ply FILE.ply] [options]\n");
+    for (int k = 0; k < OPTION_COUNT; k++) {
+        const option *o = &OPTIONS[k];
+        if (o->kind == OPT_SECTION) {
+            printf("%s\n", o->help);
+            continue;
+        }
+        char head[64];
+        snprintf(head, sizeof head, "%s%s%s", o->name, o->value ? " " : "", o->value ? o->value : "");
+        printf(strlen(head) > 20 ? "  %s  " : "  %-20s ", head);
+        for (const char *line = o->help;;) {
+            const char *end = strchr(line, '\n');
+            printf("%.*s\n", end ? (int)(end - line) : (int)strlen(line), line);
+            if (!end)
+                break;
+            printf("%23s", "");
+            line = end + 1;
+        }
+    }
+    printf("Layout: the bottom %d pixels of the window are the status line (font size + 8).  Above it a grid of\n"
+           "n panels: the columns (rows = ceil(n / columns)) and the label's place -- a band of %d pixels above\n"
+           "the image (3 lines of font size + 4, + 4) or a column of %d pixels (18 x font size) on its left --\n"
+           "that make panel 1's image the largest in the nominal cell (width / columns x height / rows, rounded\n"
+           "down); ties keep fewer columns and the label above.  The image is scaled to fit the rest of its\n"
+           "cell (zoom 1), centred, its corner on a whole pixel, nearest-neighbour sampled.\n"
+           "Default reference: the lowest stats rmse; else a path tracer over all bounces with the most\n"
+           "samples (then mis > light > cosine > hemisphere); else the most samples; else panel 1.\n"
+           "Exit status: 0, 2 bad input or shader error (file:line: message), 3 no such backend here.\n",
+           STATUS_BAND, LABEL_BAND, LABEL_COLUMN);
+}
+
+static const option *find_option(const char *name)
+{
+    if (!strcmp(name, "-h"))
+        name = "--help";
+    for (int k = 0; k < OPTION_COUNT; k++)
+        if (OPTIONS[k].name && OPTIONS[k].kind != OPT_DOC &&
+            (!strcmp(OPTIONS[k].name, name) || (OPTIONS[k].alias && !strcmp(OPTIONS[k].alias, name))))
+            return &OPTIONS[k];
+    return NULL;
+}
+
+/* One option of the table with its value (NULL for a flag). */
+static int apply_option(const option *o, const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    double x;
+    char what[160];
+    switch (o->kind) {
+    case OPT_FLAG: *(bool *)o->target = true; return 0;
+    case OPT_STRING: *(const char **)o->target = value; return 0;
+    case OPT_CUSTOM: return o->handle(name, value, arg, err, err_size);
+    case OPT_NUMBER:
+    case OPT_INT:
+        if (parse_number(value, o->lo, o->hi, &x) && (o->kind == OPT_NUMBER || x == floor(x))) {
+            if (o->kind == OPT_NUMBER)
+                *(double *)o->target = x;
+            else
+                *(int *)o->target = (int)x;
+            return 0;
+        }
+        snprintf(what, sizeof what, "%s wants %s%s in [%g, %g], not", name, o->kind == OPT_INT ? "a whole " : "",
+                 o->value, o->lo, o->hi);
+        return bad(err, err_size, arg, what, value);
+    default: return 0;
+    }
+}
+
+static int check_options(char *err, size_t err_size);
+
 static int parse_options(int argc, char **argv, char *err, size_t err_size)
 {
     V.width = 1280, V.height = 720;
@@ -218,172 +436,32 @@ static int parse_options(int argc, char **argv, char *err, size_t err_size)
     V.font_path = FONT_DEFAULT_PATH, V.font_px = FONT_PX_DEFAULT;
     V.split_position = 0.5;
     V.reference = 0, V.split_b = 1;
-    const char *scene_name = NULL, *dir = "out";
-    int scene_arg = 0;
     for (int i = 1; i < argc; i++) {
-        const char *a = argv[i], *value = i + 1 < argc ? argv[i + 1] : NULL;
-#define NEED_VALUE                                                                                                     \
-    do {                                                                                                               \
-        if (!value)                                                                                                    \
-            return bad(err, err_size, i, "missing value after", a);                                                    \
-        i++;                                                                                                           \
-    } while (0)
-        if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
-            usage();
-            exit(0);
-        } else if (!strcmp(a, "--help-keys")) {
-            print_keys_markdown();
-            exit(0);
-        } else if (!strcmp(a, "--backend")) {
-            NEED_VALUE;
-            if (!backend_parse(value, &V.backend))
-                return bad(err, err_size, i, "--backend wants glfw, egl or osmesa, not", value);
-            V.backend_given = true;
-        } else if (!strcmp(a, "--headless")) {
-            V.headless = true;
-        } else if (!strcmp(a, "--size")) {
-            NEED_VALUE;
-            if (!parse_size(value, &V.width, &V.height))
-                return bad(err, err_size, i, "--size wants WxH, not", value);
-        } else if (!strcmp(a, "--render-size")) {
-            NEED_VALUE;
-            if (!parse_size(value, &V.render_width, &V.render_height))
-                return bad(err, err_size, i, "--render-size wants WxH, not", value);
-        } else if (!strcmp(a, "--out")) {
-            NEED_VALUE;
-            V.out_path = value;
-        } else if (!strcmp(a, "--screenshot")) {
-            NEED_VALUE;
-            V.screenshot_path = value;
-        } else if (!strcmp(a, "--panel-out")) {
-            NEED_VALUE;
-            V.panel_out_path = value;
-        } else if (!strcmp(a, "--raster-shader")) {
-            NEED_VALUE;
-            V.raster_shader = value;
-        } else if (!strcmp(a, "--scene")) {
-            NEED_VALUE;
-            scene_name = value, scene_arg = i;
-        } else if (!strcmp(a, "--dir")) {
-            NEED_VALUE;
-            dir = value;
-        } else if (!strcmp(a, "--live") || !strcmp(a, "--raster") || !strcmp(a, "--ply")) {
-            NEED_VALUE;
-            V.mode = a[2] == 'l' ? MODE_LIVE : a[2] == 'r' ? MODE_RASTER : MODE_PLY;
-            if (V.mode == MODE_PLY)
-                V.ply_path = value;
-            else
-                V.scene_path = value;
-        } else if (!strcmp(a, "--exposure")) {
-            NEED_VALUE;
-            if (!parse_number(value, -64, 64, &V.exposure))
-                return bad(err, err_size, i, "--exposure wants stops in [-64, 64], not", value);
-        } else if (!strcmp(a, "--diff")) {
-            double n;
-            NEED_VALUE;
-            if (!parse_number(value, 1, PANEL_MAX, &n) || n != floor(n))
-                return bad(err, err_size, i, "--diff wants a panel number, not", value);
-            V.diff = true, V.reference = (int)n - 1, V.reference_given = true;
-        } else if (!strcmp(a, "--reference")) {
-            double n;
-            NEED_VALUE;
-            if (!parse_number(value, 1, PANEL_MAX, &n) || n != floor(n))
-                return bad(err, err_size, i, "--reference wants a panel number, not", value);
-            V.reference = (int)n - 1, V.reference_given = true;
-        } else if (!strcmp(a, "--heat")) {
-            V.diff = true;
-        } else if (!strcmp(a, "--split")) {
-            int pa, pb;
-            double pos = 0.5;
-            char tail;
-            NEED_VALUE;
-            int n = sscanf(value, "%d,%d,%lf%c", &pa, &pb, &pos, &tail);
-            if ((n != 2 && n != 3) || pa < 1 || pb < 1 || pa > PANEL_MAX || pb > PANEL_MAX || !(pos >= 0 && pos <= 1))
-                return bad(err, err_size, i, "--split wants A,B[,POS] (panel numbers, 0 <= POS <= 1), not", value);
-            V.split = true, V.reference = pa - 1, V.split_b = pb - 1, V.split_position = pos;
-            V.reference_given = true;
-        } else if (!strcmp(a, "--zoom")) {
-            NEED_VALUE;
-            if (!parse_number(value, 1e-3, 1e4, &V.zoom))
-                return bad(err, err_size, i, "--zoom wants a factor in [0.001, 10000], not", value);
-        } else if (!strcmp(a, "--center")) {
-            char tail;
-            NEED_VALUE;
-            if (sscanf(value, "%lf,%lf%c", &V.cx, &V.cy, &tail) != 2 || !isfinite(V.cx) || !isfinite(V.cy))
-                return bad(err, err_size, i, "--center wants U,V, not", value);
-        } else if (!strcmp(a, "--cursor")) {
-            char tail;
-            NEED_VALUE;
-            if (sscanf(value, "%lf,%lf%c", &V.mouse_x, &V.mouse_y, &tail) != 2)
-                return bad(err, err_size, i, "--cursor wants X,Y in pixels, not", value);
-            V.cursor_given = V.mouse_inside = true;
-        } else if (!strcmp(a, "--help-overlay")) {
-            V.help = true;
-        } else if (!strcmp(a, "--frames")) {
-            double n;
-            NEED_VALUE;
-            if (!parse_number(value, 1, 1e6, &n))
-                return bad(err, err_size, i, "--frames wants a count, not", value);
-            V.frames = (int)n;
-        } else if (!strcmp(a, "--eye") || !strcmp(a, "--look") || !strcmp(a, "--up")) {
-            vec3 v;
-            NEED_VALUE;
-            if (!parse_vec(value, &v))
-                return bad(err, err_size, i, "wants X,Y,Z, not", value);
-            if (a[2] == 'e')
-                V.cam_option.eye = v, V.camera_given |= 1;
-            else if (a[2] == 'l')
-                V.cam_option.look = v, V.camera_given |= 2;
-            else
-                V.cam_option.up = v, V.camera_given |= 4;
-        } else if (!strcmp(a, "--fov")) {
-            NEED_VALUE;
-            if (!parse_number(value, 1e-3, 179, &V.cam_option.fov_degrees))
-                return bad(err, err_size, i, "--fov wants degrees in (0, 179], not", value);
-            V.camera_given |= 8;
-        } else if (!strcmp(a, "--chapter")) {
-            NEED_VALUE;
-            if (V.chapter_filter_count < PANEL_MAX)
-                V.chapter_filter[V.chapter_filter_count++] = value;
-        } else if (!strcmp(a, "--chapters")) {
-            NEED_VALUE;
-            V.chapters_dir = value;
-        } else if (!strcmp(a, "--budget") || !strcmp(a, "--live-time")) {
-            NEED_VALUE;
-            if (!parse_number(value, 0.01, 1e6, &V.live_time))
-                return bad(err, err_size, i, "--budget wants seconds, not", value);
-        } else if (!strcmp(a, "--exit-after-updates")) {
-            double n;
-            NEED_VALUE;
-            if (!parse_number(value, 1, 1e6, &n))
-                return bad(err, err_size, i, "--exit-after-updates wants a count, not", value);
-            V.exit_after_updates = (int)n;
-        } else if (!strcmp(a, "--no-shadows")) {
-            V.no_shadows = true;
-        } else if (!strcmp(a, "--ambient")) {
-            NEED_VALUE;
-            if (!parse_number(value, 0, 1e6, &V.ambient))
-                return bad(err, err_size, i, "--ambient wants a radiance >= 0, not", value);
-        } else if (!strcmp(a, "--font")) {
-            NEED_VALUE;
-            V.font_path = value;
-        } else if (!strcmp(a, "--font-size")) {
-            double px;
-            NEED_VALUE;
-            if (!parse_number(value, 6, 96, &px) || px != floor(px))
-                return bad(err, err_size, i, "--font-size wants whole pixels in [6, 96], not", value);
-            V.font_px = (int)px;
-        } else if (!strcmp(a, "--verbose")) {
-            V.verbose = true;
-        } else if (a[0] == '-' && a[1]) {
-            return bad(err, err_size, i, "unknown option", a);
-        } else {
+        const char *a = argv[i];
+        if (a[0] != '-' || !a[1]) {
             if (add_file_panel(a, err, err_size))
                 return 2;
+            continue;
         }
-#undef NEED_VALUE
+        const option *o = find_option(a);
+        if (!o)
+            return bad(err, err_size, i, "unknown option", a);
+        const char *value = NULL;
+        if (o->value) {
+            if (i + 1 >= argc)
+                return bad(err, err_size, i, "missing value after", a);
+            value = argv[++i];
+        }
+        if (apply_option(o, a, value, i, err, err_size))
+            return 2;
     }
-    if (scene_name && add_scene_panels(scene_name, dir, scene_arg, err, err_size))
+    return check_options(err, err_size);
+}
+
+static int check_options(char *err, size_t err_size)
+{
+    if (compare_args.scene_name &&
+        add_scene_panels(compare_args.scene_name, compare_args.dir, compare_args.scene_arg, err, err_size))
         return 2;
     if (V.mode != MODE_COMPARE && V.panel_count)
         return bad(err, err_size, 0, "image files and --live/--raster/--ply do not mix", NULL);
@@ -865,26 +943,32 @@ static int find_chapters(const char *only_chapter, char *err, size_t err_size)
 static void apply_camera_options(void);
 
 /* Set up the panels of each mode (the GL context exists). */
+static int set_up_compare(char *err, size_t err_size)
+{
+    for (int i = 0; i < V.panel_count; i++) {
+        panel *p = &V.panels[i];
+        char path[PATH_LEN];
+        snprintf(path, sizeof path, "%s", p->path);
+        if (panel_load_pfm(p, path, err, err_size))
+            return 2;
+    }
+    for (int i = 0; i < V.panel_count && V.verbose; i++) {
+        char title[256], numbers[256];
+        label_lines(i, title, sizeof title, numbers, sizeof numbers);
+        printf("panel %d %s %dx%d\n", i + 1, V.panels[i].path, V.panels[i].img.width, V.panels[i].img.height);
+        printf("label %d: %s | %s\n", i + 1, title, numbers);
+    }
+    V.aspect_w = V.panels[0].img.width, V.aspect_h = V.panels[0].img.height; /* the layout fits panel 1 */
+    auto_reference();
+    return 0;
+}
+
+static int set_up_children(int rw, int rh, char *err, size_t err_size);
+
 static int set_up(char *err, size_t err_size)
 {
-    if (V.mode == MODE_COMPARE) {
-        for (int i = 0; i < V.panel_count; i++) {
-            panel *p = &V.panels[i];
-            char path[PATH_LEN];
-            snprintf(path, sizeof path, "%s", p->path);
-            if (panel_load_pfm(p, path, err, err_size))
-                return 2;
-        }
-        for (int i = 0; i < V.panel_count && V.verbose; i++) {
-            char title[256], numbers[256];
-            label_lines(i, title, sizeof title, numbers, sizeof numbers);
-            printf("panel %d %s %dx%d\n", i + 1, V.panels[i].path, V.panels[i].img.width, V.panels[i].img.height);
-            printf("label %d: %s | %s\n", i + 1, title, numbers);
-        }
-        V.aspect_w = V.panels[0].img.width, V.aspect_h = V.panels[0].img.height; /* the layout fits panel 1 */
-        auto_reference();
-        return 0;
-    }
+    if (V.mode == MODE_COMPARE)
+        return set_up_compare(err, err_size);
 
     /* 3D modes: the scene (or the PLY) and the camera. */
     int aspect_w = 1, aspect_h = 1;
@@ -940,8 +1024,12 @@ static int set_up(char *err, size_t err_size)
     }
     if (V.verbose)
         printf("render size %dx%d\n", rw, rh);
+    return set_up_children(rw, rh, err, err_size);
+}
 
-    /* Children: outputs in a private temporary directory. */
+/* Children (live and raster modes): outputs in a private temporary directory. */
+static int set_up_children(int rw, int rh, char *err, size_t err_size)
+{
     if (V.mode == MODE_LIVE || V.mode == MODE_RASTER) {
         snprintf(V.temp_dir, sizeof V.temp_dir, "%s/viewer-XXXXXX", getenv("TMPDIR") ? getenv("TMPDIR") : "/tmp");
         if (!mkdtemp(V.temp_dir)) {

@@ -229,6 +229,40 @@ bool panel_poll(panel *p)
 
 /* ---- children ------------------------------------------------------------------------------- */
 
+/* The chapter's command line: its scene, outputs, size, budget, the
+ * viewer's camera and the mode's extra options. */
+typedef struct {
+    char size[64], budget[64], eye[128], look[128], up[128], fov[64];
+    const char *argv[40];
+} child_args;
+
+static const char **child_argv(child_args *a, const panel *p, const child_spec *spec)
+{
+    snprintf(a->size, sizeof a->size, "%dx%d", spec->width, spec->height);
+    snprintf(a->budget, sizeof a->budget, "%g", spec->time_budget);
+    snprintf(a->eye, sizeof a->eye, "%.17g,%.17g,%.17g", spec->cam.eye.x, spec->cam.eye.y, spec->cam.eye.z);
+    snprintf(a->look, sizeof a->look, "%.17g,%.17g,%.17g", spec->cam.look.x, spec->cam.look.y, spec->cam.look.z);
+    snprintf(a->up, sizeof a->up, "%.17g,%.17g,%.17g", spec->cam.up.x, spec->cam.up.y, spec->cam.up.z);
+    snprintf(a->fov, sizeof a->fov, "%.17g", spec->cam.fov_degrees);
+    const char **argv = a->argv;
+    int argc = 0;
+    const char *fixed[] = {p->exe, spec->scene_path, "--quiet", "--out", p->path, "--stats", p->stats_path,
+                           "--size", a->size};
+    for (size_t k = 0; k < sizeof fixed / sizeof *fixed; k++)
+        argv[argc++] = fixed[k];
+    if (spec->time_budget > 0) {
+        argv[argc++] = "--time";
+        argv[argc++] = a->budget;
+    }
+    const char *camera[] = {"--eye", a->eye, "--look", a->look, "--up", a->up, "--fov", a->fov};
+    for (size_t k = 0; k < sizeof camera / sizeof *camera; k++)
+        argv[argc++] = camera[k];
+    for (int i = 0; i < spec->extra_count; i++)
+        argv[argc++] = spec->extra[i];
+    argv[argc] = NULL;
+    return argv;
+}
+
 int child_start(panel *p, const child_spec *spec, char *err, size_t err_size)
 {
     const char *name = strrchr(p->exe, '/') ? strrchr(p->exe, '/') + 1 : p->exe;
@@ -244,40 +278,8 @@ int child_start(panel *p, const child_spec *spec, char *err, size_t err_size)
     unlink(p->path);
     p->warning[0] = '\0', p->warnings = 0, p->log_read = 0;
 
-    char size[64], budget[64], eye[128], look[128], up[128], fov[64];
-    snprintf(size, sizeof size, "%dx%d", spec->width, spec->height);
-    snprintf(budget, sizeof budget, "%g", spec->time_budget);
-    snprintf(eye, sizeof eye, "%.17g,%.17g,%.17g", spec->cam.eye.x, spec->cam.eye.y, spec->cam.eye.z);
-    snprintf(look, sizeof look, "%.17g,%.17g,%.17g", spec->cam.look.x, spec->cam.look.y, spec->cam.look.z);
-    snprintf(up, sizeof up, "%.17g,%.17g,%.17g", spec->cam.up.x, spec->cam.up.y, spec->cam.up.z);
-    snprintf(fov, sizeof fov, "%.17g", spec->cam.fov_degrees);
-    const char *argv[40];
-    int argc = 0;
-    argv[argc++] = p->exe;
-    argv[argc++] = spec->scene_path;
-    argv[argc++] = "--quiet";
-    argv[argc++] = "--out";
-    argv[argc++] = p->path;
-    argv[argc++] = "--stats";
-    argv[argc++] = p->stats_path;
-    argv[argc++] = "--size";
-    argv[argc++] = size;
-    if (spec->time_budget > 0) {
-        argv[argc++] = "--time";
-        argv[argc++] = budget;
-    }
-    argv[argc++] = "--eye";
-    argv[argc++] = eye;
-    argv[argc++] = "--look";
-    argv[argc++] = look;
-    argv[argc++] = "--up";
-    argv[argc++] = up;
-    argv[argc++] = "--fov";
-    argv[argc++] = fov;
-    for (int i = 0; i < spec->extra_count; i++)
-        argv[argc++] = spec->extra[i];
-    argv[argc] = NULL;
-
+    child_args args;
+    const char **argv = child_argv(&args, p, spec);
     int log_fd = open(p->log_path, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
     pid_t parent = getpid();
     fflush(stdout);
