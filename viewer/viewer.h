@@ -25,7 +25,14 @@ typedef enum { SOURCE_FILE, SOURCE_CHILD, SOURCE_RASTER, SOURCE_PLY } source_kin
 typedef struct {
     source_kind kind;
     char method[64];   /* label line 1: chapter / method */
+    char variant[96];  /* label line 1 after the method: estimator, solver, model, bounces (stats JSON) */
     char detail[160];  /* label line 2: samples or patches, time, error */
+    char file[128];    /* label line 2 after the detail: the PFM's file name (compare mode) */
+    /* from the stats JSON, to pick the default reference (NAN: not given) */
+    bool has_stats;
+    double spp, rmse;
+    int estimator_rank; /* 0 none, 1 hemisphere, 2 cosine, 3 light, 4 mis */
+    bool all_bounces;   /* "bounces": [0, 1000000] */
     image img;         /* linear radiance, top row first */
     GLuint texture;    /* RGB32F copy of img (or the 3D target's colour) */
     int updates;       /* how often the image changed */
@@ -38,6 +45,10 @@ typedef struct {
     int exit_status;   /* of the last run; -1 while running or never run */
     double started;
     int generation;    /* restarts (a new camera) */
+    bool stale;        /* restarted: the image is the old camera's until the first new pass */
+    char warning[160]; /* the child's last stderr line starting "warning:" ("" none) */
+    int warnings;      /* how many of them this run */
+    long log_read;     /* bytes of the log already scanned */
     /* 3D sources */
     target target;
     mesh mesh;
@@ -68,6 +79,8 @@ int child_start(panel *p, const child_spec *spec, char *err, size_t err_size);
 void child_stop(panel *p);
 /* Reap a child that ended; returns true if it did now. */
 bool child_reap(panel *p);
+/* Scan the child's new log lines for "warning:"; returns true if one came. */
+bool child_poll_warnings(panel *p);
 
 /* 3D: scene and PLY meshes, the camera. */
 int scene_mesh(const scene *s, mesh *m, mesh_uniforms *u, vec3 ambient, char *err, size_t err_size);
