@@ -1,0 +1,73 @@
+/* radiosity_cli.h — chapter 3's command line and statistics: its options
+ * (--patch-size, --solver ...), their defaults and help text, and the
+ * radiosity members of the --stats JSON.  Kept out of the chapter so that
+ * it reads as the lecture; the driver's common options are in render.h. */
+#ifndef COMMON_RADIOSITY_CLI_H
+#define COMMON_RADIOSITY_CLI_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+
+typedef enum { SOLVER_JACOBI, SOLVER_GAUSS_SEIDEL, SOLVER_SHOOTING, SOLVER_DIRECT } solver_kind;
+extern const char *const solver_names[4]; /* "jacobi", "gauss-seidel", "shooting", "direct" */
+
+typedef struct {
+    double patch_size;
+    bool adaptive;
+    int adaptive_levels;
+    double adaptive_threshold;
+    solver_kind solver;
+    double tolerance;
+    int max_iterations;
+    int max_patches;
+    int quadrature;    /* M: each patch triangle is sampled at the centroids of M x M sub-triangles */
+    bool smooth;       /* --shading smooth: interpolate per-vertex radiance */
+    bool enforce_reciprocity;
+    const char *formfactors_path;
+    int patch_size_argv; /* where --patch-size was given, for error messages */
+} radiosity_options;
+
+#define RADIOSITY_DEFAULT_OPTIONS                                                                              \
+    {                                                                                                          \
+        .patch_size = 50.0, .adaptive = false, .adaptive_levels = 2, .adaptive_threshold = 0.1,               \
+        .solver = SOLVER_JACOBI, .tolerance = 1e-4, .max_iterations = 1000,                                   \
+        .max_patches = 16384, /* 16384^2 doubles = 2 GiB (the direct solve's matrix; F itself is float) */   \
+        .quadrature = 4, .smooth = false,                                                                      \
+    }
+
+/* For chapter.options_help. */
+extern const char radiosity_options_help[];
+
+/* chapter.parse_option: state points to a radiosity_options (the first
+ * member of the chapter's state). */
+int radiosity_parse_option(void *state_pointer, int argc, char **argv, int *i, char *err, size_t err_size);
+
+/* What a solve reports. */
+typedef struct {
+    const char *solver_used;
+    int refinements, iterations, shots;
+    double residual;  /* the last one recorded */
+    double *history;  /* every residual recorded */
+    int history_count, history_capacity;
+    bool converged, no_light;
+    double formfactor_s, solve_s;
+    uint64_t visibility_rays;
+    bool have_matrix_checks;
+    double reciprocity_error, row_sum_min, row_sum_max;
+} radiosity_stats;
+
+/* stats->residual = residual, and append it to the history. */
+void record_residual(radiosity_stats *stats, double residual);
+
+/* The chapter's members of the stats JSON, up to "matrix_bytes" (the
+ * per-surface radiance follows, from mesh_io.h). */
+void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosity_stats *r, int patches,
+                           bool have_matrix);
+
+/* After the solve, on stderr: a warning when nothing emits or the solver
+ * stopped at its iteration cap, and (unless quiet) a one-line summary. */
+void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int patches, bool quiet);
+
+#endif
