@@ -1,10 +1,10 @@
 /* 03_radiosity.c — Lectures 3-5: the rendering equation as a linear system.
  *
  * For diffuse (Lambertian) surfaces the exitant radiance does not depend on
- * direction, and the rendering equation in its area form (R9) becomes an
+ * direction, and the area form of the rendering equation (R9) becomes an
  * equation for one number per point.  Split the surfaces into patches i,
  * assume the radiance L_i is constant on each, and (R9) becomes the
- * radiosity system of Lecture 5,
+ * radiosity system
  *
  *   L_i = Le_i + rho_i * Sum_j F_ij L_j          i.e.  L = E + K L   (R4)
  *
@@ -12,40 +12,32 @@
  *
  *   F_ij = 1/A_i Int_{A_i} Int_{A_j} cos(theta) cos(theta') / (pi r^2) V dA' dA.
  *
- * We work in radiance units throughout: the scene gives emitted radiance,
- * and L_i is exitant radiance (the classical radiosity B_i = pi L_i; the
- * factor pi cancels on both sides, so the system is the same).
- *
- * Read top to bottom: the form factors (R10); the Neumann series (R6), term
- * by term; the solvers, which make the operator view tangible:
+ * (Radiance units throughout: the classical radiosity is B_i = pi L_i; the
+ * factor pi cancels on both sides.)  Read top to bottom: the form factors
+ * (R10); the Neumann series (R6) term by term; the solvers:
  *   - Jacobi, L <- E + K L from L = 0: after k iterations L is the Neumann
- *     series (R6) cut after k terms, E + KE + ... + K^(k-1) E, and each
- *     iteration computes the next term, K^k E, which is exactly the residual;
+ *     series (R6) cut after k terms, and the next term K^k E is the residual;
  *   - Gauss-Seidel: the same update using the newest values as soon as known;
- *   - shooting (progressive refinement, Southwell): the residual is light
- *     not yet distributed ("unshot"); the patch with the most unshot power
- *     shoots it to every other patch.  Form factors are computed per shot,
- *     so no n x n matrix is stored;
+ *   - shooting (progressive refinement, Southwell): the residual is light not
+ *     yet distributed; the patch with the most unshot power shoots it to all
+ *     others, with form factors computed per shot (no n x n matrix);
  *   - direct: (I - K) L = E (R5) by Gaussian elimination, the reference;
- * then prepare(), which like DoRad in Chen's rad.c (Graphics Gems II) is a
- * few named steps: mesh, form factors, solve, the image.
+ * then prepare(), a few named steps like DoRad in Chen's rad.c (Graphics
+ * Gems II): mesh the scene, compute form factors, solve, prepare the image.
  *
- * What the lecture does not teach lives in helpers: the mesh of patches,
- * adaptive splitting and the image lookup in common/patch_mesh.[ch]; the
- * PLY mesh, the form-factor table and per-surface stats in
- * common/mesh_io.[ch]; Gaussian elimination in common/dense_solve.[ch];
- * the options and stats JSON in common/radiosity_cli.[ch].
+ * What the lecture does not teach lives in helpers: the patch mesh, adaptive
+ * splitting, the image lookup and the probes in common/patch_mesh.[ch]; the
+ * PLY mesh, form-factor table and per-surface stats in common/mesh_io.[ch];
+ * Gaussian elimination in common/dense_solve.[ch]; the options and the stats
+ * JSON in common/radiosity_support.[ch].
  *
- * Modelling choices (each said once on stderr where it matters):
- *   - patches are one-sided: they receive and send light on the side their
- *     normal points to (the file's vertex order); the back of a surface
- *     renders black;
- *   - spheres are not meshed: they still block light, but carry no
- *     radiance (black in the image);
- *   - mirrors and glass are diffuse with their colour as albedo; Phong
- *     surfaces keep only kd;
- *   - the background lights camera rays only; point lights light the patches
- *     by a first shot (I cos / r^2, R1) but are invisible to the camera.
+ * Modelling choices (each said once on stderr where it matters): patches are
+ * one-sided (they receive and send light on the side their normal points to;
+ * backs render black); spheres are not meshed (they block light but carry no
+ * radiance); mirrors and glass are diffuse with their colour as albedo, Phong
+ * surfaces keep only kd; the background lights camera rays only; point
+ * lights light the patches by a first shot (I cos / r^2, R1) but are
+ * invisible to the camera.
  */
 #include <omp.h>
 #include <stdlib.h>
@@ -54,29 +46,25 @@
 #include "dense_solve.h"
 #include "mesh_io.h"
 #include "patch_mesh.h"
-#include "radiosity_cli.h"
+#include "radiosity_support.h"
 #include "render.h"
 
 typedef struct {
-    radiosity_options opt; /* first: the command line fills it (radiosity_cli.c) */
+    radiosity_options opt;      /* first: the command line fills it (radiosity_support.c) */
     int bounce_min, bounce_max; /* --bounces: the Neumann terms kept (R6) */
     double exposure;
     bool quiet;
     const scene *scene;
-
-    patch_mesh mesh;     /* the patches i: corners, normal, area A_i, rho_i, Le_i */
+    patch_mesh mesh;     /* the patches i: corners, normal, area A_i, albedo rho_i, emission Le_i */
     float *form_factors; /* F_ij at [i * n + j], or NULL (shooting computes them per shot) */
-    vec3 *emitted;       /* Le_i: term 0 of (R6) */
-    vec3 *first_shot;    /* light from point lights reflected once: part of term 1 */
-    vec3 *source;        /* emitted + first_shot, and its size in power_norm() */
+    vec3 *first_shot;    /* light from point lights reflected once: part of term 1 of (R6) */
+    vec3 *source;        /* Le + first_shot: the right-hand side E of (R4), and its power_norm() */
     double source_norm;
-    vec3 *radiance;      /* the solution shown (the --bounces window) */
+    vec3 *radiance;      /* L: the solution shown (the --bounces window) */
     radiosity_stats stats;
 } radiosity_state;
 
 static int warned_specular, warned_phong, warned_spheres, warned_back;
-
-static double now_seconds(void) { return omp_get_wtime(); }
 
 /* ---- form factors (R10) ------------------------------------------------------------------ */
 
@@ -186,16 +174,16 @@ static double form_factor(const radiosity_state *st, const scene *s, int i, int 
 }
 
 /* F_ij from the matrix when there is one, otherwise computed on the spot. */
-static double form_factor_at(const radiosity_state *st, const scene *s, int i, int j, uint64_t *rays)
+static double form_factor_at(const void *state_pointer, int i, int j, uint64_t *rays)
 {
+    const radiosity_state *st = state_pointer;
     if (st->form_factors)
         return st->form_factors[(size_t)i * (size_t)st->mesh.patch_count + (size_t)j];
-    return form_factor(st, s, i, j, rays);
+    return form_factor(st, st->scene, i, j, rays);
 }
 
 /* The n x n matrix, row by row in parallel, and the checks the solution
- * depends on: row sums (1 in a closed scene, R10 is a fraction of the light
- * leaving i) and reciprocity A_i F_ij = A_j F_ji (mesh_io.h). */
+ * depends on: row sums (1 in a closed scene) and reciprocity (mesh_io.h). */
 static int compute_form_factor_matrix(radiosity_state *st, const scene *s)
 {
     size_t n = (size_t)st->mesh.patch_count;
@@ -206,47 +194,17 @@ static int compute_form_factor_matrix(radiosity_state *st, const scene *s)
     for (int i = 0; i < (int)n; i++)
         for (int j = 0; j < (int)n; j++)
             st->form_factors[(size_t)i * n + (size_t)j] = (float)form_factor(st, s, i, j, &rays);
-    st->stats.visibility_rays += rays;
     radiosity_stats *r = &st->stats;
+    r->visibility_rays += rays, r->have_matrix_checks = true;
     form_factor_checks(st->form_factors, &st->mesh, &r->reciprocity_error, &r->row_sum_min, &r->row_sum_max);
-    r->have_matrix_checks = true;
     return 0;
-}
-
-/* Point lights shoot first: each patch receives E = I cos(theta) / r^2 (R1)
- * at its quadrature points (with a shadow ray each) and reflects rho E / pi
- * as radiance.  This is light that has bounced once, part of the term K E
- * of (R6). */
-static void shoot_point_lights(radiosity_state *st, const scene *s)
-{
-    const patch_mesh *m = &st->mesh;
-    uint64_t rays = 0;
-#pragma omp parallel for schedule(dynamic, 16) reduction(+ : rays)
-    for (int i = 0; i < m->patch_count; i++) {
-        const patch *p = &m->patches[i];
-        vec3 irradiance = v3_splat(0.0);
-        for (int l = 0; l < s->light_count; l++)
-            for (int k = 0; k < p->point_count; k++) {
-                vec3 x = m->points[p->first_point + k];
-                vec3 to_light = v3_sub(s->lights[l].position, x);
-                double r2 = v3_dot(to_light, to_light), cos_theta = v3_dot(p->normal, to_light) / sqrt(r2);
-                if (cos_theta <= 0.0)
-                    continue;
-                rays++;
-                if (!scene_occluded(s, x, s->lights[l].position))
-                    irradiance = v3_add(irradiance, v3_scale(s->lights[l].intensity,
-                                                             m->weights[p->first_point + k] * cos_theta / r2));
-            }
-        st->first_shot[i] = v3_mul(p->albedo, v3_scale(irradiance, 1.0 / M_PI));
-    }
-    st->stats.visibility_rays += rays;
 }
 
 /* ---- the Neumann series (R6) ------------------------------------------------------------- */
 
 /* out = K x, i.e. out_i = rho_i Sum_j F_ij x_j: one application of the
  * transport operator (one more bounce). */
-static void apply_transport(radiosity_state *st, const scene *s, const vec3 *x, vec3 *out)
+static void apply_transport(radiosity_state *st, const vec3 *x, vec3 *out)
 {
     int n = st->mesh.patch_count;
     uint64_t rays = 0;
@@ -254,7 +212,7 @@ static void apply_transport(radiosity_state *st, const scene *s, const vec3 *x, 
     for (int i = 0; i < n; i++) {
         vec3 sum = v3_splat(0.0);
         for (int j = 0; j < n; j++)
-            sum = v3_madd(sum, x[j], form_factor_at(st, s, i, j, &rays));
+            sum = v3_madd(sum, x[j], form_factor_at(st, i, j, &rays));
         out[i] = v3_mul(st->mesh.patches[i].albedo, sum);
     }
     st->stats.visibility_rays += rays;
@@ -273,26 +231,22 @@ static double power_norm(const radiosity_state *st, const vec3 *x)
 }
 
 /* The Neumann series (R6) term by term, adding sign x term k to L for k in
- * [first, last]:
- *   term 0 = E,   term 1 = K E + (first shot of the point lights),   term k = K term k-1.
- * As Jacobi's iteration (jacobi = true) it also records, after each term,
- * the size of the next one, which is exactly the residual E + K L - L of
- * the sum so far, and stops when that falls below --tol or after
- * --iterations terms.  Returns 0, or -1 when out of memory. */
-static int neumann_terms(radiosity_state *st, const scene *s, int first, int last, double sign, bool jacobi, vec3 *L)
+ * [first, last]:  term 0 = E,  term 1 = K E + the point lights' first shot,
+ * term k = K term k-1.  As Jacobi's iteration (jacobi = true) it records
+ * after each term the size of the next, which is exactly the residual
+ * E + K L - L of the sum so far, and stops early when that is below --tol
+ * or after --iterations terms.  Returns 0, or -1 when out of memory. */
+static int neumann_terms(radiosity_state *st, int first, int last, double sign, bool jacobi, vec3 *L)
 {
     int n = st->mesh.patch_count;
     vec3 *term = malloc((size_t)n * sizeof *term + 1), *next = malloc((size_t)n * sizeof *next + 1);
-    if (!term || !next) {
-        free(term), free(next);
-        return -1;
-    }
-    memcpy(term, st->emitted, (size_t)n * sizeof *term);
-    for (int k = 0;; k++) {
+    for (int i = 0; term && i < n; i++)
+        term[i] = st->mesh.patches[i].emission;
+    for (int k = 0; term && next; k++) {
         if (k >= first)
             for (int i = 0; i < n; i++)
                 L[i] = v3_madd(L[i], term[i], sign);
-        apply_transport(st, s, term, next); /* (R6): the next term, one more bounce */
+        apply_transport(st, term, next); /* (R6): the next term, one more bounce */
         if (k == 0)
             for (int i = 0; i < n; i++)
                 next[i] = v3_add(next[i], st->first_shot[i]);
@@ -302,36 +256,34 @@ static int neumann_terms(radiosity_state *st, const scene *s, int first, int las
             st->stats.iterations = k + 1;
             record_residual(&st->stats, power_norm(st, term) / st->source_norm);
             st->stats.converged = k >= last || st->stats.residual <= st->opt.tolerance;
-            if (st->stats.converged || st->stats.iterations >= st->opt.max_iterations)
-                break;
-        } else if (k >= last) {
-            break;
         }
+        if (jacobi ? st->stats.converged || st->stats.iterations >= st->opt.max_iterations : k >= last)
+            break;
     }
-    free(term);
-    free(next);
-    return 0;
+    int failed = !term || !next;
+    free(term), free(next);
+    return failed ? -1 : 0;
 }
 
 /* ---- the solvers (R5, R6) ------------------------------------------------------------------ */
 
 /* Jacobi: L <- E + K L from L = 0.  After k iterations L holds the first k
- * terms of (R6), so it is exactly neumann_terms() over the --bounces window. */
-static int solve_jacobi(radiosity_state *st, const scene *s, vec3 *L)
+ * terms of (R6): exactly neumann_terms() over the --bounces window. */
+static int solve_jacobi(radiosity_state *st, vec3 *L)
 {
     for (int i = 0; i < st->mesh.patch_count; i++)
         L[i] = v3_splat(0.0);
-    return neumann_terms(st, s, st->bounce_min, st->bounce_max, 1.0, true, L);
+    return neumann_terms(st, st->bounce_min, st->bounce_max, 1.0, true, L);
 }
 
 /* Residual r = E + K L - L of the full system, as a fraction of the source power. */
-static double full_residual(radiosity_state *st, const scene *s, const vec3 *L)
+static double full_residual(radiosity_state *st, const vec3 *L)
 {
     int n = st->mesh.patch_count;
     vec3 *r = malloc((size_t)n * sizeof *r + 1);
     if (!r)
         return INFINITY; /* out of memory: reported as not converged */
-    apply_transport(st, s, L, r);
+    apply_transport(st, L, r);
     for (int i = 0; i < n; i++)
         r[i] = v3_sub(v3_add(st->source[i], r[i]), L[i]);
     double norm = power_norm(st, r) / st->source_norm;
@@ -342,7 +294,7 @@ static double full_residual(radiosity_state *st, const scene *s, const vec3 *L)
 /* Gauss-Seidel: the Jacobi update, but each L_i uses the values already
  * updated in this sweep.  Each update zeroes r_i and moves at most rho of
  * it to the others, so the residual falls every sweep. */
-static int solve_gauss_seidel(radiosity_state *st, const scene *s, vec3 *L)
+static int solve_gauss_seidel(radiosity_state *st, vec3 *L)
 {
     int n = st->mesh.patch_count;
     for (int i = 0; i < n; i++)
@@ -351,32 +303,19 @@ static int solve_gauss_seidel(radiosity_state *st, const scene *s, vec3 *L)
         for (int i = 0; i < n; i++) {
             vec3 gathered = v3_splat(0.0);
             for (int j = 0; j < n; j++)
-                gathered = v3_madd(gathered, L[j], form_factor_at(st, s, i, j, NULL));
+                gathered = v3_madd(gathered, L[j], form_factor_at(st, i, j, NULL));
             L[i] = v3_add(st->source[i], v3_mul(st->mesh.patches[i].albedo, gathered));
         }
-        record_residual(&st->stats, full_residual(st, s, L));
+        record_residual(&st->stats, full_residual(st, L));
         st->stats.converged = st->stats.residual <= st->opt.tolerance;
         if (st->stats.converged || st->stats.iterations >= st->opt.max_iterations)
             return 0;
     }
 }
 
-/* The patch with the most unshot power A_j (r + g + b) (Chen's FindShootPatch). */
-static int brightest_unshot(const radiosity_state *st, const vec3 *unshot)
-{
-    int j = 0;
-    double most = -1.0;
-    for (int i = 0; i < st->mesh.patch_count; i++) {
-        double power = st->mesh.patches[i].area * (unshot[i].x + unshot[i].y + unshot[i].z);
-        if (power > most)
-            most = power, j = i;
-    }
-    return j;
-}
-
-/* For display, the received-but-unshot light is already radiance of its
- * patch, and the light still to come is guessed by the ambient term of
- * Cohen et al.: the mean unshot radiance, reflected 1/(1 - rho_avg) times. */
+/* For display after shooting, the received-but-unshot light is radiance of
+ * its patch already, and the light still to come is guessed by the ambient
+ * term of Cohen et al.: the mean unshot radiance, reflected 1/(1 - rho_avg) times. */
 static void add_unshot_and_ambient(const radiosity_state *st, const vec3 *unshot, vec3 *L)
 {
     const patch *P = st->mesh.patches;
@@ -413,7 +352,11 @@ static int solve_shooting(radiosity_state *st, const scene *s, vec3 *L)
     long max_shots = (long)st->opt.max_iterations * n, shot = 0;
     double residual = power_norm(st, unshot) / st->source_norm;
     while (residual > st->opt.tolerance && shot < max_shots) {
-        int j = brightest_unshot(st, unshot);
+        int j = 0; /* the patch with the most unshot power shoots (Chen's FindShootPatch) */
+        for (int i = 0; i < n; i++)
+            if (st->mesh.patches[i].area * (unshot[i].x + unshot[i].y + unshot[i].z) >
+                st->mesh.patches[j].area * (unshot[j].x + unshot[j].y + unshot[j].z))
+                j = i;
         vec3 shooting = unshot[j];
         L[j] = v3_add(L[j], shooting);
         unshot[j] = v3_splat(0.0);
@@ -435,25 +378,20 @@ static int solve_shooting(radiosity_state *st, const scene *s, vec3 *L)
     st->stats.iterations = (int)((shot + n - 1) / n);
     st->stats.converged = residual <= st->opt.tolerance;
     add_unshot_and_ambient(st, unshot, L);
-    free(unshot);
-    free(column);
+    free(unshot), free(column);
     return 0;
 }
 
 /* (R5) directly: (I - K) L = source, one channel at a time, by Gaussian
- * elimination (O(n^3): the reference for small n). */
-static int solve_direct(radiosity_state *st, const scene *s, vec3 *L)
+ * elimination (dense_solve.h; O(n^3): the reference for small n). */
+static int solve_direct(radiosity_state *st, vec3 *L)
 {
     size_t n = (size_t)st->mesh.patch_count;
     if (n > 4000 && !st->quiet)
         fprintf(stderr, "03_radiosity: direct solve of %zu patches: O(n^3) = %.2g operations per channel; "
                         "this will take a while\n", n, (double)n * n * n / 3.0);
     double *a = malloc(n * n * sizeof *a + 1), *b = malloc(n * sizeof *b + 1);
-    if (!a || !b) {
-        free(a), free(b);
-        return -1;
-    }
-    for (int channel = 0; channel < 3; channel++) {
+    for (int channel = 0; a && b && channel < 3; channel++) {
         for (size_t i = 0; i < n; i++) {
             double rho = v3_get(st->mesh.patches[i].albedo, channel);
             for (size_t j = 0; j < n; j++)
@@ -464,54 +402,43 @@ static int solve_direct(radiosity_state *st, const scene *s, vec3 *L)
         for (size_t i = 0; i < n; i++)
             L[i] = v3(channel == 0 ? b[i] : L[i].x, channel == 1 ? b[i] : L[i].y, channel == 2 ? b[i] : L[i].z);
     }
-    free(a);
-    free(b);
+    int failed = !a || !b;
+    free(a), free(b);
     st->stats.iterations = 1;
-    record_residual(&st->stats, full_residual(st, s, L));
+    record_residual(&st->stats, failed ? INFINITY : full_residual(st, L));
     st->stats.converged = st->stats.residual <= fmax(st->opt.tolerance, 1e-9);
-    return 0;
+    return failed ? -1 : 0;
 }
 
-/* ---- prepare: mesh, form factors, solve, the image ------------------------------------------ */
+/* ---- prepare: mesh the scene, compute form factors, solve, prepare the image ---------------- */
 
-enum { MESH_CELL_LIMIT = 4000000 }; /* beyond this even shooting would take hours */
-
-/* The surface's reflectance rho_i and emission Le_i as this chapter models them. */
-static void patch_material(const scene *s, patch *p)
-{
-    const material *m = &s->materials[s->surfaces[p->surface].material];
-    p->albedo = m->albedo;
-    p->emission = m->kind == MATERIAL_EMITTER ? m->emission : v3_splat(0.0);
-    if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS) {
-        warn_once(&warned_specular, "03_radiosity: radiosity models diffuse reflection only; mirrors and glass "
-                                    "are treated as diffuse surfaces with their colour as albedo");
-        p->albedo = m->specular;
-    } else if (m->kind == MATERIAL_PHONG) {
-        warn_once(&warned_phong, "03_radiosity: Phong surfaces are treated as diffuse with albedo kd (ks dropped)");
-    }
-}
-
-/* The leaves of the mesh become the patches, the unknowns of (R4). */
+/* The leaves of the mesh become the patches, the unknowns of (R4), with
+ * albedo and emission as this chapter models the materials: diffuse only. */
 static int collect_patches(radiosity_state *st, const scene *s, char *err, size_t err_size)
 {
     if (patch_mesh_collect(&st->mesh, st->opt.quadrature)) {
         snprintf(err, err_size, "argv:0: out of memory for the patches");
         return 2;
     }
-    for (int i = 0; i < st->mesh.patch_count; i++)
-        patch_material(s, &st->mesh.patches[i]);
+    for (int i = 0; i < st->mesh.patch_count; i++) {
+        patch *p = &st->mesh.patches[i];
+        const material *m = &s->materials[s->surfaces[p->surface].material];
+        p->albedo = m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS ? m->specular : m->albedo;
+        p->emission = m->kind == MATERIAL_EMITTER ? m->emission : v3_splat(0.0);
+        if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS)
+            warn_once(&warned_specular, "03_radiosity: radiosity models diffuse reflection only; mirrors and glass "
+                                        "are treated as diffuse surfaces with their colour as albedo");
+        else if (m->kind == MATERIAL_PHONG)
+            warn_once(&warned_phong, "03_radiosity: Phong surfaces are treated as diffuse with albedo kd (ks dropped)");
+    }
     return 0;
 }
 
-/* Step 1: cut the surfaces into patches of about --patch-size. */
+/* Step 1: cut the surfaces into patches of about --patch-size (patch_mesh.h). */
 static int mesh_scene(radiosity_state *st, const scene *s, char *err, size_t err_size)
 {
-    double estimate = patch_mesh_estimate(s, st->opt.patch_size); /* fail at once, not out of memory */
-    if (estimate > MESH_CELL_LIMIT) {
-        snprintf(err, err_size, "argv:%d: --patch-size %g gives about %.3g patches, more than this chapter meshes (%d)",
-                 st->opt.patch_size_argv, st->opt.patch_size, estimate, MESH_CELL_LIMIT);
+    if (radiosity_check_mesh_size(&st->opt, patch_mesh_estimate(s, st->opt.patch_size), err, err_size))
         return 2;
-    }
     for (int i = 0; i < s->surface_count; i++)
         if (s->surfaces[i].kind == SURFACE_SPHERE)
             warn_once(&warned_spheres, "03_radiosity: spheres are not meshed into patches; they block light "
@@ -523,38 +450,29 @@ static int mesh_scene(radiosity_state *st, const scene *s, char *err, size_t err
     return collect_patches(st, s, err, err_size);
 }
 
-/* Step 2: the sources (emission, and the point lights' first shot) and the
- * n x n matrix of form factors (R10), row by row in parallel; shooting
- * needs no matrix. */
+/* Step 2: the sources and the form factors.  Point lights shoot first: each
+ * patch reflects rho E / pi of the irradiance E = I cos / r^2 (R1) they give
+ * it, light that has bounced once (part of K E).  Then F_ij (R10) for every
+ * pair, unless the solver is shooting (it computes them shot by shot). */
 static int compute_form_factors(radiosity_state *st, const scene *s, char *err, size_t err_size)
 {
     int n = st->mesh.patch_count;
-    bool need_matrix = st->opt.solver != SOLVER_SHOOTING;
-    if (need_matrix && n > st->opt.max_patches) {
-        snprintf(err, err_size, "argv:0: %d patches need a %d x %d matrix (%.2f GiB as doubles), over the limit "
-                 "--max-patches %d (2 GiB); use --solver shooting, a larger --patch-size, or raise --max-patches",
-                 n, n, n, (double)n * n * 8.0 / 1073741824.0, st->opt.max_patches);
+    if (radiosity_check_matrix_size(&st->opt, n, err, err_size))
         return 2;
-    }
-    free(st->form_factors), free(st->emitted), free(st->first_shot), free(st->radiance), free(st->source);
+    free(st->form_factors), free(st->first_shot), free(st->source), free(st->radiance);
     st->form_factors = NULL;
-    st->emitted = calloc((size_t)n + 1, sizeof *st->emitted);
     st->first_shot = calloc((size_t)n + 1, sizeof *st->first_shot);
-    st->radiance = calloc((size_t)n + 1, sizeof *st->radiance);
     st->source = calloc((size_t)n + 1, sizeof *st->source);
-    if (!st->emitted || !st->first_shot || !st->radiance || !st->source) {
-        snprintf(err, err_size, "argv:0: out of memory for %d patches", n);
-        return 2;
-    }
-    double start = now_seconds();
+    st->radiance = calloc((size_t)n + 1, sizeof *st->radiance);
+    if (!st->first_shot || !st->source || !st->radiance)
+        return snprintf(err, err_size, "argv:0: out of memory for %d patches", n), 2;
+    double start = omp_get_wtime();
+    st->stats.visibility_rays += patch_mesh_point_lights(&st->mesh, s, st->first_shot);
     for (int i = 0; i < n; i++)
-        st->emitted[i] = st->mesh.patches[i].emission;
-    shoot_point_lights(st, s);
-    if (need_matrix && compute_form_factor_matrix(st, s)) {
-        snprintf(err, err_size, "argv:0: out of memory for the %d x %d form-factor matrix", n, n);
-        return 2;
-    }
-    st->stats.formfactor_s += now_seconds() - start;
+        st->first_shot[i] = v3_mul(st->mesh.patches[i].albedo, v3_scale(st->first_shot[i], 1.0 / M_PI));
+    if (st->opt.solver != SOLVER_SHOOTING && compute_form_factor_matrix(st, s))
+        return snprintf(err, err_size, "argv:0: out of memory for the %d x %d form-factor matrix", n, n), 2;
+    st->stats.formfactor_s += omp_get_wtime() - start;
     return 0;
 }
 
@@ -562,9 +480,9 @@ static int compute_form_factors(radiosity_state *st, const scene *s, char *err, 
 static int solve(radiosity_state *st, const scene *s, char *err, size_t err_size)
 {
     int n = st->mesh.patch_count, failed = 0;
-    double start = now_seconds();
+    double start = omp_get_wtime();
     for (int i = 0; i < n; i++)
-        st->source[i] = v3_add(st->emitted[i], st->first_shot[i]);
+        st->source[i] = v3_add(st->mesh.patches[i].emission, st->first_shot[i]);
     st->source_norm = power_norm(st, st->source);
     radiosity_stats *r = &st->stats;
     r->history_count = 0, r->converged = false, r->shots = 0, r->no_light = !(st->source_norm > 0.0);
@@ -576,37 +494,28 @@ static int solve(radiosity_state *st, const scene *s, char *err, size_t err_size
         /* A window with an upper end is a finite sum of Neumann terms: computed
          * as such whatever the solver (the other solvers do not separate bounces). */
         r->solver_used = "jacobi";
-        failed = solve_jacobi(st, s, st->radiance);
+        failed = solve_jacobi(st, st->radiance);
     } else {
-        failed = st->opt.solver == SOLVER_GAUSS_SEIDEL ? solve_gauss_seidel(st, s, st->radiance)
+        failed = st->opt.solver == SOLVER_GAUSS_SEIDEL ? solve_gauss_seidel(st, st->radiance)
                  : st->opt.solver == SOLVER_SHOOTING   ? solve_shooting(st, s, st->radiance)
-                                                       : solve_direct(st, s, st->radiance);
+                                                       : solve_direct(st, st->radiance);
         if (!failed && st->bounce_min > 0) /* --bounces A: the full solution minus terms 0 .. A-1 */
-            failed = neumann_terms(st, s, 0, st->bounce_min - 1, -1.0, false, st->radiance);
+            failed = neumann_terms(st, 0, st->bounce_min - 1, -1.0, false, st->radiance);
     }
-    r->solve_s += now_seconds() - start;
+    r->solve_s += omp_get_wtime() - start;
     if (failed)
         snprintf(err, err_size, "argv:0: out of memory while solving for %d patches", n);
     return failed ? 2 : 0;
 }
 
-/* --adaptive, between steps 3 and 2: split the patches where the solution
- * is poorly represented: where a patch's radiance differs from the mean of
- * its corners' smooth-shading values by more than --adaptive-threshold times
- * the mean reflected radiance of the scene.  A smooth gradient (the 1/r^2
- * falloff) leaves that difference small, a jump (a shadow edge, light
- * leaking into a corner) does not.  Returns how many patches were split
+/* --adaptive: split the patches where the radiance jumps (shadow edges;
+ * patch_mesh_refine), then back to step 2.  Returns how many were split
  * (0: done), or -1 with a message. */
 static int refine(radiosity_state *st, const scene *s, char *err, size_t err_size)
 {
     if (!st->opt.adaptive || st->stats.refinements == st->opt.adaptive_levels || st->stats.no_light)
         return 0;
-    double area = 0.0, sum = 0.0; /* mean reflected radiance: the light sources' own glow would swamp it */
-    for (int p = 0; p < st->mesh.patch_count; p++) {
-        area += st->mesh.patches[p].area;
-        sum += st->mesh.patches[p].area * v3_luminance(v3_sub(st->radiance[p], st->emitted[p]));
-    }
-    int split = patch_mesh_split_where(&st->mesh, st->radiance, st->opt.adaptive_threshold * sum / area);
+    int split = patch_mesh_refine(&st->mesh, st->radiance, st->opt.adaptive_threshold);
     if (split < 0)
         snprintf(err, err_size, "argv:0: out of memory while refining the mesh");
     if (split <= 0)
@@ -616,12 +525,6 @@ static int refine(radiosity_state *st, const scene *s, char *err, size_t err_siz
         fprintf(stderr, "03_radiosity: refinement %d split %d of %d patches\n", st->stats.refinements, split,
                 st->mesh.patch_count);
     return collect_patches(st, s, err, err_size) ? -1 : split;
-}
-
-static double form_factor_entry(const void *state, int i, int j, uint64_t *rays)
-{
-    const radiosity_state *st = state;
-    return form_factor_at(st, st->scene, i, j, rays);
 }
 
 static int prepare(void *state_pointer, const scene *s, const render_options *o, char *err, size_t err_size)
@@ -639,19 +542,16 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
         if ((split = refine(st, s, err, err_size)) < 0) /* --adaptive: split patches, back to 2 */
             return 2;
     }
-    if (patch_mesh_vertex_radiance(&st->mesh, st->radiance)) { /* 4. the image lookup (smooth shading) */
-        snprintf(err, err_size, "argv:0: out of memory");
-        return 2;
-    }
-    if (st->opt.formfactors_path &&
-        write_surface_form_factors(st->opt.formfactors_path, s, &st->mesh, form_factor_entry, st,
-                                   &st->stats.visibility_rays, err, err_size))
+    if (patch_mesh_vertex_radiance(&st->mesh, st->radiance)) /* 4. the image lookup (smooth shading) */
+        return snprintf(err, err_size, "argv:0: out of memory"), 2;
+    if (st->opt.formfactors_path && write_surface_form_factors(st->opt.formfactors_path, s, &st->mesh,
+                                                               form_factor_at, st, &st->stats.visibility_rays, err, err_size))
         return 2;
     radiosity_report(&st->opt, &st->stats, st->mesh.patch_count, st->quiet);
     return 0;
 }
 
-/* ---- the image and the probes ---------------------------------------------------------------- */
+/* ---- the image, probes, outputs ---------------------------------------------------------------- */
 
 static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, render_counters *counters)
 {
@@ -672,42 +572,18 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
                           : st->radiance[st->mesh.cells[cell].patch];
 }
 
-/* Irradiance at a probe from the solution: E = Sum_j L_j pi F_dA->j (the
- * contour formula again, visibility by rays to j's quadrature points) plus
- * the point lights' I cos / r^2 (R1).  The patches' radiance is the window
- * shown in the image; point lights count as term 0, like an emitter.
- * Deterministic, so the standard error is 0; its error is the
- * discretisation's. */
+/* A probe's irradiance E = Sum_j L_j pi F_dA->j by point_to_polygon, plus
+ * the point lights' I cos / r^2 (R1), which count as term 0 like an emitter.
+ * Deterministic: its error is the discretisation's, not a standard error. */
 static probe_result probe_irradiance(const void *state_pointer, const scene *s, const probe *pr, uint64_t seed,
                                      render_counters *counters)
 {
     const radiosity_state *st = state_pointer;
     (void)seed, (void)counters;
-    vec3 x = pr->position, n = pr->normal;
-    vec3 total = v3_splat(0.0);
-    if (st->bounce_min == 0)
-        for (int l = 0; l < s->light_count; l++) {
-            vec3 d = v3_sub(s->lights[l].position, x);
-            double r2 = v3_dot(d, d), cos_theta = v3_dot(n, d) / sqrt(r2);
-            if (cos_theta > 0.0 && !scene_occluded(s, x, s->lights[l].position))
-                total = v3_madd(total, s->lights[l].intensity, cos_theta / r2);
-        }
-    for (int j = 0; j < st->mesh.patch_count; j++) {
-        const patch *p = &st->mesh.patches[j];
-        if (v3_dot(p->normal, v3_sub(x, p->centroid)) <= s->epsilon)
-            continue; /* behind the one-sided patch */
-        double f = point_to_polygon(x, n, p->corner, p->corner_count);
-        if (f <= 0.0)
-            continue;
-        int visible = 0;
-        for (int k = 0; k < p->point_count; k++)
-            visible += !scene_occluded(s, x, st->mesh.points[p->first_point + k]);
-        total = v3_madd(total, st->radiance[j], M_PI * f * visible / p->point_count);
-    }
-    return (probe_result){.irradiance = total, .standard_error = v3_splat(0.0)};
+    vec3 E = patch_mesh_irradiance(&st->mesh, s, st->radiance, pr->position, pr->normal, st->bounce_min == 0,
+                                   point_to_polygon);
+    return (probe_result){.irradiance = E, .standard_error = v3_splat(0.0)};
 }
-
-/* ---- outputs and main ----------------------------------------------------------------------- */
 
 static int write_output(const void *state_pointer, const scene *s, const char *path, char *err, size_t err_size)
 {
@@ -730,8 +606,7 @@ static void finish(void *state_pointer)
 {
     radiosity_state *st = state_pointer;
     patch_mesh_free(&st->mesh);
-    free(st->form_factors), free(st->emitted), free(st->first_shot), free(st->source), free(st->radiance);
-    free(st->stats.history);
+    free(st->form_factors), free(st->first_shot), free(st->source), free(st->radiance), free(st->stats.history);
 }
 
 int main(int argc, char **argv)

@@ -273,10 +273,16 @@ static int split_cell(patch_mesh *m, int cell_index)
     return 0;
 }
 
-int patch_mesh_split_where(patch_mesh *m, const vec3 *radiance, double threshold)
+int patch_mesh_refine(patch_mesh *m, const vec3 *radiance, double relative_threshold)
 {
     if (patch_mesh_vertex_radiance(m, radiance))
         return -1;
+    double area = 0.0, sum = 0.0; /* mean reflected radiance: the light sources' own glow would swamp it */
+    for (int p = 0; p < m->patch_count; p++) {
+        area += m->patches[p].area;
+        sum += m->patches[p].area * v3_luminance(v3_sub(radiance[p], m->patches[p].emission));
+    }
+    double threshold = relative_threshold * sum / area;
     int split = 0, patches = m->patch_count;
     for (int p = 0; p < patches; p++) {
         const mesh_cell *c = &m->cells[m->patches[p].cell];
@@ -456,6 +462,56 @@ vec3 patch_mesh_interpolate(const patch_mesh *m, int cell, vec3 normal, vec3 p)
     double wb = v3_dot(v3_cross(v3_sub(cc, p), v3_sub(a, p)), normal) / area;
     double wc = 1.0 - wa - wb;
     return v3_add(v3_add(v3_scale(R[c->vertex[0]], wa), v3_scale(R[c->vertex[1]], wb)), v3_scale(R[c->vertex[2]], wc));
+}
+
+uint64_t patch_mesh_point_lights(const patch_mesh *m, const scene *s, vec3 *irradiance_out)
+{
+    uint64_t rays = 0;
+#pragma omp parallel for schedule(dynamic, 16) reduction(+ : rays)
+    for (int i = 0; i < m->patch_count; i++) {
+        const patch *p = &m->patches[i];
+        vec3 irradiance = v3_splat(0.0);
+        for (int l = 0; l < s->light_count; l++)
+            for (int k = 0; k < p->point_count; k++) {
+                vec3 x = m->points[p->first_point + k];
+                vec3 to_light = v3_sub(s->lights[l].position, x);
+                double r2 = v3_dot(to_light, to_light), cos_theta = v3_dot(p->normal, to_light) / sqrt(r2);
+                if (cos_theta <= 0.0)
+                    continue;
+                rays++;
+                if (!scene_occluded(s, x, s->lights[l].position))
+                    irradiance = v3_add(irradiance, v3_scale(s->lights[l].intensity,
+                                                             m->weights[p->first_point + k] * cos_theta / r2));
+            }
+        irradiance_out[i] = irradiance;
+    }
+    return rays;
+}
+
+vec3 patch_mesh_irradiance(const patch_mesh *m, const scene *s, const vec3 *radiance, vec3 x, vec3 n,
+                           bool point_lights, point_to_polygon_fn point_to_polygon)
+{
+    vec3 total = v3_splat(0.0);
+    if (point_lights)
+        for (int l = 0; l < s->light_count; l++) {
+            vec3 d = v3_sub(s->lights[l].position, x);
+            double r2 = v3_dot(d, d), cos_theta = v3_dot(n, d) / sqrt(r2);
+            if (cos_theta > 0.0 && !scene_occluded(s, x, s->lights[l].position))
+                total = v3_madd(total, s->lights[l].intensity, cos_theta / r2);
+        }
+    for (int j = 0; j < m->patch_count; j++) {
+        const patch *p = &m->patches[j];
+        if (v3_dot(p->normal, v3_sub(x, p->centroid)) <= s->epsilon)
+            continue; /* behind the one-sided patch */
+        double f = point_to_polygon(x, n, p->corner, p->corner_count);
+        if (f <= 0.0)
+            continue;
+        int visible = 0;
+        for (int k = 0; k < p->point_count; k++)
+            visible += !scene_occluded(s, x, m->points[p->first_point + k]);
+        total = v3_madd(total, radiance[j], M_PI * f * visible / p->point_count);
+    }
+    return total;
 }
 
 void patch_mesh_free(patch_mesh *m)

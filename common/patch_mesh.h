@@ -21,6 +21,7 @@
 #define COMMON_PATCH_MESH_H
 
 #include <stdbool.h>
+#include <stdint.h>
 
 #include "scene.h"
 #include "vec.h"
@@ -83,11 +84,15 @@ int patch_mesh_build(patch_mesh *m, const scene *s, double patch_size);
  * quadrature points (M x M sub-triangles per triangle of the patch). */
 int patch_mesh_collect(patch_mesh *m, int quadrature);
 
-/* Split every patch whose radiance differs from the mean of its corners'
- * smooth-shading values (luminance) by more than threshold.  Computes the
- * vertex radiance first.  Returns the number of patches split, or -1.
- * Call patch_mesh_collect() afterwards. */
-int patch_mesh_split_where(patch_mesh *m, const vec3 *radiance, double threshold);
+/* Adaptive refinement: split the patches where the solution is poorly
+ * represented, where a patch's radiance differs from the mean of its
+ * corners' smooth-shading values (luminance) by more than `threshold` times
+ * the mean reflected radiance (radiance - emission, area-weighted) of the
+ * scene.  A smooth gradient (the 1/r^2 falloff) leaves that difference
+ * small, a jump (a shadow edge, light leaking into a corner) does not.
+ * Returns the number of patches split, or -1; call patch_mesh_collect()
+ * afterwards. */
+int patch_mesh_refine(patch_mesh *m, const vec3 *radiance, double threshold);
 
 /* Per-vertex radiance for smooth shading: the area-weighted mean of the
  * patches around each vertex, on the same surface only. */
@@ -99,6 +104,19 @@ int patch_mesh_locate(const patch_mesh *m, const scene *s, const hit *h);
 /* Smooth shading: the vertex radiance interpolated over a cell at p
  * (bilinear on quads, barycentric on triangles). */
 vec3 patch_mesh_interpolate(const patch_mesh *m, int cell, vec3 normal, vec3 p);
+
+/* The irradiance each patch receives from the scene's point lights,
+ * E = I cos(theta) / r^2 (R1) at its quadrature points (a shadow ray each),
+ * averaged over the patch, into irradiance[patch].  Returns the rays cast. */
+uint64_t patch_mesh_point_lights(const patch_mesh *m, const scene *s, vec3 *irradiance);
+
+/* Irradiance at x (unit normal n) from the patches' radiance, as a probe
+ * measures it: E = Sum_j L_j pi F_dA->j, the point-to-polygon form factor
+ * given by the caller, visibility by rays to j's quadrature points; plus,
+ * with point_lights, the scene's point lights' I cos / r^2 (R1). */
+typedef double (*point_to_polygon_fn)(vec3 x, vec3 n, const vec3 *polygon, int count);
+vec3 patch_mesh_irradiance(const patch_mesh *m, const scene *s, const vec3 *radiance, vec3 x, vec3 n,
+                           bool point_lights, point_to_polygon_fn point_to_polygon);
 
 void patch_mesh_free(patch_mesh *m);
 

@@ -1,9 +1,9 @@
-/* radiosity_cli.h — chapter 3's command line and statistics: its options
+/* radiosity_support.h — chapter 3's command line and statistics: its options
  * (--patch-size, --solver ...), their defaults and help text, and the
  * radiosity members of the --stats JSON.  Kept out of the chapter so that
  * it reads as the lecture; the driver's common options are in render.h. */
-#ifndef COMMON_RADIOSITY_CLI_H
-#define COMMON_RADIOSITY_CLI_H
+#ifndef COMMON_RADIOSITY_SUPPORT_H
+#define COMMON_RADIOSITY_SUPPORT_H
 
 #include <stdbool.h>
 #include <stddef.h>
@@ -65,6 +65,13 @@ void record_residual(radiosity_stats *stats, double residual);
  * per-surface radiance follows, from mesh_io.h). */
 void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosity_stats *r, int patches,
                            bool have_matrix);
+
+/* Refuse what would not fit, before trying: about `cells` patches from
+ * --patch-size (over 4,000,000 even shooting would take hours), or a matrix
+ * solver (all but shooting) over --max-patches.  Return 0, or 2 with the
+ * message. */
+int radiosity_check_mesh_size(const radiosity_options *o, double cells, char *err, size_t err_size);
+int radiosity_check_matrix_size(const radiosity_options *o, int patches, char *err, size_t err_size);
 
 /* After the solve, on stderr: a warning when nothing emits or the solver
  * stopped at its iteration cap, and (unless quiet) a one-line summary. */

@@ -1,5 +1,5 @@
-/* radiosity_cli.c — chapter 3's options and statistics (see radiosity_cli.h). */
-#include "radiosity_cli.h"
+/* radiosity_support.c — chapter 3's options and statistics (see radiosity_support.h). */
+#include "radiosity_support.h"
 
 #include <stdlib.h>
 #include <string.h>
@@ -149,4 +149,25 @@ void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int 
     if (!quiet)
         fprintf(stderr, "03_radiosity: %d patches, form factors %.2f s, %s %d iterations %.2f s, residual %.3g\n",
                 patches, r->formfactor_s, r->solver_used, r->iterations, r->solve_s, r->residual);
+}
+
+enum { MESH_CELL_LIMIT = 4000000 }; /* beyond this even shooting would take hours */
+
+int radiosity_check_mesh_size(const radiosity_options *o, double cells, char *err, size_t err_size)
+{
+    if (!(cells > MESH_CELL_LIMIT))
+        return 0;
+    snprintf(err, err_size, "argv:%d: --patch-size %g gives about %.3g patches, more than this chapter meshes (%d)",
+             o->patch_size_argv, o->patch_size, cells, MESH_CELL_LIMIT);
+    return 2;
+}
+
+int radiosity_check_matrix_size(const radiosity_options *o, int n, char *err, size_t err_size)
+{
+    if (o->solver == SOLVER_SHOOTING || n <= o->max_patches)
+        return 0;
+    snprintf(err, err_size, "argv:0: %d patches need a %d x %d matrix (%.2f GiB as doubles), over the limit "
+             "--max-patches %d (2 GiB); use --solver shooting, a larger --patch-size, or raise --max-patches",
+             n, n, n, (double)n * n * 8.0 / 1073741824.0, o->max_patches);
+    return 2;
 }
