@@ -1,43 +1,31 @@
 /* 03_radiosity.c — Lectures 3-5: the rendering equation as a linear system.
  *
  * For diffuse (Lambertian) surfaces the exitant radiance does not depend on
- * direction, and the area form of the rendering equation (R9) becomes an
- * equation for one number per point.  Split the surfaces into patches i,
- * assume the radiance L_i is constant on each, and (R9) becomes the
- * radiosity system
+ * direction.  Split the surfaces into patches i, assume the radiance L_i is
+ * constant on each, and the area form of the rendering equation (R9) becomes
+ * the radiosity system
  *
  *   L_i = Le_i + rho_i * Sum_j F_ij L_j          i.e.  L = E + K L   (R4)
  *
  * with K = diag(rho) F and the form factors (R10)
  *
- *   F_ij = 1/A_i Int_{A_i} Int_{A_j} cos(theta) cos(theta') / (pi r^2) V dA' dA.
+ *   F_ij = 1/A_i Int_{A_i} Int_{A_j} cos(theta) cos(theta') / (pi r^2) V dA' dA
  *
- * (Radiance units throughout: the classical radiosity is B_i = pi L_i; the
- * factor pi cancels on both sides.)  Read top to bottom: the form factors
- * (R10); the Neumann series (R6) term by term; the solvers:
- *   - Jacobi, L <- E + K L from L = 0: after k iterations L is the Neumann
- *     series (R6) cut after k terms, and the next term K^k E is the residual;
- *   - Gauss-Seidel: the same update using the newest values as soon as known;
- *   - shooting (progressive refinement, Southwell): the residual is light not
- *     yet distributed; the patch with the most unshot power shoots it to all
- *     others, with form factors computed per shot (no n x n matrix);
- *   - direct: (I - K) L = E (R5) by Gaussian elimination, the reference;
- * then prepare(), a few named steps like DoRad in Chen's rad.c (Graphics
- * Gems II): mesh the scene, compute form factors, solve, prepare the image.
+ * (in radiance units: the classical radiosity B_i = pi L_i; pi cancels).
+ * Top to bottom: the form factors (R10); the Neumann series (R6) term by
+ * term, which is Jacobi's iteration L <- E + K L; Gauss-Seidel, shooting
+ * (progressive refinement) and the direct solve of (I - K) L = E (R5); then
+ * prepare(), named steps like DoRad in Chen's rad.c (Graphics Gems II).
  *
- * What the lecture does not teach lives in helpers: the patch mesh, adaptive
- * splitting, the image lookup and the probes in common/patch_mesh.[ch]; the
- * PLY mesh, form-factor table and per-surface stats in common/mesh_io.[ch];
- * Gaussian elimination in common/dense_solve.[ch]; the options and the stats
- * JSON in common/radiosity_support.[ch].
+ * Around the lecture, in helpers: the patch mesh, adaptive splitting, the
+ * image lookup and the probes in common/patch_mesh.[ch]; the PLY mesh, the
+ * form-factor table, per-surface stats in common/mesh_io.[ch]; Gaussian
+ * elimination in common/dense_solve.[ch]; the options, the meshing steps
+ * (limits, material model) and the stats in common/radiosity_support.[ch].
  *
- * Modelling choices (each said once on stderr where it matters): patches are
- * one-sided (they receive and send light on the side their normal points to;
- * backs render black); spheres are not meshed (they block light but carry no
- * radiance); mirrors and glass are diffuse with their colour as albedo, Phong
- * surfaces keep only kd; the background lights camera rays only; point
- * lights light the patches by a first shot (I cos / r^2, R1) but are
- * invisible to the camera.
+ * Modelling choices (said once on stderr): one-sided patches (backs black);
+ * spheres unmeshed (they block light, carry none); mirrors, glass and Phong
+ * diffuse; background seen only by camera rays; point lights shoot once (R1).
  */
 #include <omp.h>
 #include <stdlib.h>
@@ -58,20 +46,20 @@ typedef struct {
     patch_mesh mesh;     /* the patches i: corners, normal, area A_i, albedo rho_i, emission Le_i */
     float *form_factors; /* F_ij at [i * n + j], or NULL (shooting computes them per shot) */
     vec3 *first_shot;    /* light from point lights reflected once: part of term 1 of (R6) */
-    vec3 *source;        /* Le + first_shot: the right-hand side E of (R4), and its power_norm() */
+    vec3 *source;        /* Le + first_shot: the right-hand side E of (R4), and its size as power */
     double source_norm;
     vec3 *radiance;      /* L: the solution shown (the --bounces window) */
     radiosity_stats stats;
 } radiosity_state;
 
-static int warned_specular, warned_phong, warned_spheres, warned_back;
+static int warned_back;
 
 /* ---- form factors (R10) ------------------------------------------------------------------ */
 
 /* The inner integral of (R10) in closed form: the form factor from a
  * differential area at x (unit normal n) to a polygon, by Lambert's contour
- * formula (1760; Cohen & Wallace eq. 4.18, Baum et al. 1989)
- *
+ * formula (1760; Cohen & Wallace eq. 4.18, Baum et al. 1989):
+
  *   F_dA->P = 1/(2 pi) Sum_k  gamma_k  n . (r_k x r_k+1) / |r_k x r_k+1|,
  *
  * r_k the vectors from x to the corners, gamma_k the angle between r_k and
@@ -105,8 +93,7 @@ static double point_to_polygon(vec3 x, vec3 n, const vec3 *polygon, int count)
     return fabs(sum) / (2.0 * M_PI);
 }
 
-/* Is any corner of p strictly in front of the plane through `origin` with
- * normal n?  (scene.epsilon absorbs rounding for coplanar patches.) */
+/* Is a corner of p in front of the plane (origin, n)?  epsilon: rounding. */
 static bool any_corner_in_front(const patch *p, vec3 origin, vec3 n, double epsilon)
 {
     for (int k = 0; k < p->corner_count; k++)
@@ -115,16 +102,14 @@ static bool any_corner_in_front(const patch *p, vec3 origin, vec3 n, double epsi
     return false;
 }
 
-/* Patches closer than this many radii get every quadrature point; farther
- * ones the centroid only (the integrand is smooth there). */
+/* Pairs closer than this many radii get every quadrature point, others the centroid. */
 static const double NEAR_FACTOR = 6.0;
 
 /* F_ij (R10): the outer integral over patch i by its quadrature points x_k,
  * the inner one by point_to_polygon, and visibility V by one ray from each
- * x_k to a quadrature point of j (the pairing is shifted by a hash of
- * (i, j) so that neighbouring pairs do not all test the same line).
- * Deterministic: the same (i, j) always gives the same number, so the
- * matrix, the per-shot columns and the probes all agree. */
+ * x_k to a quadrature point of j (the pairing shifted by a hash of (i, j) so
+ * that neighbouring pairs do not all test the same line).  Deterministic:
+ * the matrix, the per-shot columns and the probes all agree. */
 static double form_factor_estimate(const radiosity_state *st, const scene *s, int i, int j, uint64_t *rays)
 {
     if (i == j)
@@ -161,9 +146,8 @@ static double form_factor_estimate(const radiosity_state *st, const scene *s, in
     return total;
 }
 
-/* The F_ij the solvers use: the estimate as it is (reciprocity checked in
- * the stats), or with --reciprocity enforce the mean of the two estimates of
- * A_i F_ij = A_j F_ji divided by A_i. */
+/* The F_ij the solvers use: the estimate (reciprocity checked in the stats),
+ * or with --reciprocity enforce the mean of A_i F_ij and A_j F_ji over A_i. */
 static double form_factor(const radiosity_state *st, const scene *s, int i, int j, uint64_t *rays)
 {
     double f = form_factor_estimate(st, s, i, j, rays);
@@ -182,28 +166,9 @@ static double form_factor_at(const void *state_pointer, int i, int j, uint64_t *
     return form_factor(st, st->scene, i, j, rays);
 }
 
-/* The n x n matrix, row by row in parallel, and the checks the solution
- * depends on: row sums (1 in a closed scene) and reciprocity (mesh_io.h). */
-static int compute_form_factor_matrix(radiosity_state *st, const scene *s)
-{
-    size_t n = (size_t)st->mesh.patch_count;
-    if (!(st->form_factors = malloc(n * n * sizeof *st->form_factors + 1)))
-        return -1;
-    uint64_t rays = 0;
-#pragma omp parallel for schedule(dynamic, 8) reduction(+ : rays)
-    for (int i = 0; i < (int)n; i++)
-        for (int j = 0; j < (int)n; j++)
-            st->form_factors[(size_t)i * n + (size_t)j] = (float)form_factor(st, s, i, j, &rays);
-    radiosity_stats *r = &st->stats;
-    r->visibility_rays += rays, r->have_matrix_checks = true;
-    form_factor_checks(st->form_factors, &st->mesh, &r->reciprocity_error, &r->row_sum_min, &r->row_sum_max);
-    return 0;
-}
+/* ---- the Neumann series (R6) and the solvers (R5) ----------------------------------------- */
 
-/* ---- the Neumann series (R6) ------------------------------------------------------------- */
-
-/* out = K x, i.e. out_i = rho_i Sum_j F_ij x_j: one application of the
- * transport operator (one more bounce). */
+/* out = K x, i.e. out_i = rho_i Sum_j F_ij x_j: one more bounce. */
 static void apply_transport(radiosity_state *st, const vec3 *x, vec3 *out)
 {
     int n = st->mesh.patch_count;
@@ -218,31 +183,22 @@ static void apply_transport(radiosity_state *st, const vec3 *x, vec3 *out)
     st->stats.visibility_rays += rays;
 }
 
-/* The size of a radiance vector as power: Sum_i A_i (|r| + |g| + |b|).  In
- * this norm ||K|| <= max rho < 1 (a patch cannot send out more than it
- * receives), so Jacobi, Gauss-Seidel and shooting residuals all fall
- * monotonically in it. */
-static double power_norm(const radiosity_state *st, const vec3 *x)
-{
-    double sum = 0.0;
-    for (int i = 0; i < st->mesh.patch_count; i++)
-        sum += st->mesh.patches[i].area * (fabs(x[i].x) + fabs(x[i].y) + fabs(x[i].z));
-    return sum;
-}
-
 /* The Neumann series (R6) term by term, adding sign x term k to L for k in
  * [first, last]:  term 0 = E,  term 1 = K E + the point lights' first shot,
- * term k = K term k-1.  As Jacobi's iteration (jacobi = true) it records
- * after each term the size of the next, which is exactly the residual
- * E + K L - L of the sum so far, and stops early when that is below --tol
- * or after --iterations terms.  Returns 0, or -1 when out of memory. */
+ * term k = K term k-1.  As Jacobi (jacobi = true) it records the size of the
+ * next term, exactly the residual E + K L - L, as power (patch_mesh_power;
+ * ||K|| <= max rho < 1 in that norm, so residuals fall monotonically), and
+ * stops when it is below --tol or after --iterations terms.  0, or -1: OOM. */
 static int neumann_terms(radiosity_state *st, int first, int last, double sign, bool jacobi, vec3 *L)
 {
     int n = st->mesh.patch_count;
-    vec3 *term = malloc((size_t)n * sizeof *term + 1), *next = malloc((size_t)n * sizeof *next + 1);
-    for (int i = 0; term && i < n; i++)
+    vec3 *both = malloc(2 * (size_t)n * sizeof *both + 1);
+    if (!both)
+        return -1;
+    vec3 *term = both, *next = both + n;
+    for (int i = 0; i < n; i++)
         term[i] = st->mesh.patches[i].emission;
-    for (int k = 0; term && next; k++) {
+    for (int k = 0;; k++) {
         if (k >= first)
             for (int i = 0; i < n; i++)
                 L[i] = v3_madd(L[i], term[i], sign);
@@ -252,27 +208,24 @@ static int neumann_terms(radiosity_state *st, int first, int last, double sign, 
                 next[i] = v3_add(next[i], st->first_shot[i]);
         vec3 *swap = term;
         term = next, next = swap;
-        if (jacobi) {
+        if (jacobi) { /* the next term is the residual of the sum so far */
             st->stats.iterations = k + 1;
-            record_residual(&st->stats, power_norm(st, term) / st->source_norm);
+            record_residual(&st->stats, patch_mesh_power(&st->mesh, term) / st->source_norm);
             st->stats.converged = k >= last || st->stats.residual <= st->opt.tolerance;
-        }
-        if (jacobi ? st->stats.converged || st->stats.iterations >= st->opt.max_iterations : k >= last)
+            if (st->stats.converged || st->stats.iterations >= st->opt.max_iterations)
+                break;
+        } else if (k >= last)
             break;
     }
-    int failed = !term || !next;
-    free(term), free(next);
-    return failed ? -1 : 0;
+    free(both);
+    return 0;
 }
 
-/* ---- the solvers (R5, R6) ------------------------------------------------------------------ */
-
-/* Jacobi: L <- E + K L from L = 0.  After k iterations L holds the first k
- * terms of (R6): exactly neumann_terms() over the --bounces window. */
+/* Jacobi: L <- E + K L from L = 0 (every solver starts there: step 2 zeroes
+ * L).  After k iterations L holds the first k terms of (R6): exactly
+ * neumann_terms() over the --bounces window. */
 static int solve_jacobi(radiosity_state *st, vec3 *L)
 {
-    for (int i = 0; i < st->mesh.patch_count; i++)
-        L[i] = v3_splat(0.0);
     return neumann_terms(st, st->bounce_min, st->bounce_max, 1.0, true, L);
 }
 
@@ -286,19 +239,17 @@ static double full_residual(radiosity_state *st, const vec3 *L)
     apply_transport(st, L, r);
     for (int i = 0; i < n; i++)
         r[i] = v3_sub(v3_add(st->source[i], r[i]), L[i]);
-    double norm = power_norm(st, r) / st->source_norm;
+    double norm = patch_mesh_power(&st->mesh, r) / st->source_norm;
     free(r);
     return norm;
 }
 
 /* Gauss-Seidel: the Jacobi update, but each L_i uses the values already
- * updated in this sweep.  Each update zeroes r_i and moves at most rho of
- * it to the others, so the residual falls every sweep. */
+ * updated in this sweep.  Each update zeroes r_i and moves at most rho of it
+ * to the others, so the residual falls every sweep. */
 static int solve_gauss_seidel(radiosity_state *st, vec3 *L)
 {
     int n = st->mesh.patch_count;
-    for (int i = 0; i < n; i++)
-        L[i] = v3_splat(0.0);
     for (st->stats.iterations = 1;; st->stats.iterations++) {
         for (int i = 0; i < n; i++) {
             vec3 gathered = v3_splat(0.0);
@@ -313,30 +264,11 @@ static int solve_gauss_seidel(radiosity_state *st, vec3 *L)
     }
 }
 
-/* For display after shooting, the received-but-unshot light is radiance of
- * its patch already, and the light still to come is guessed by the ambient
- * term of Cohen et al.: the mean unshot radiance, reflected 1/(1 - rho_avg) times. */
-static void add_unshot_and_ambient(const radiosity_state *st, const vec3 *unshot, vec3 *L)
-{
-    const patch *P = st->mesh.patches;
-    double area = 0.0, rho_area = 0.0;
-    vec3 unshot_area = v3_splat(0.0);
-    for (int i = 0; i < st->mesh.patch_count; i++) {
-        area += P[i].area;
-        rho_area += P[i].area * v3_average(P[i].albedo);
-        unshot_area = v3_madd(unshot_area, unshot[i], P[i].area);
-    }
-    vec3 ambient = v3_scale(unshot_area, 1.0 / (area * (1.0 - rho_area / area)));
-    for (int i = 0; i < st->mesh.patch_count; i++)
-        L[i] = v3_add(L[i], v3_add(unshot[i], v3_mul(P[i].albedo, ambient)));
-}
-
 /* Progressive refinement (Cohen et al. 1988) as Southwell relaxation: keep
- * the residual r = E + K L - L, which is exactly the light received but not
- * yet shot.  Start with L = 0, r = source.  A shot from patch j moves r_j
- * into L_j and sends it on: r_i += rho_i F_ij r_j for every i.  The column
- * F_.j is computed for the shot and thrown away: memory O(n), not O(n^2).
- * One "iteration" is n shots, the work of one Jacobi step. */
+ * the residual r = E + K L - L, exactly the light received but not yet shot.
+ * Start with L = 0, r = source.  A shot from patch j moves r_j into L_j and
+ * sends it on: r_i += rho_i F_ij r_j for every i, with the column F_.j
+ * computed for the shot and thrown away (memory O(n), not O(n^2)). */
 static int solve_shooting(radiosity_state *st, const scene *s, vec3 *L)
 {
     int n = st->mesh.patch_count;
@@ -347,10 +279,8 @@ static int solve_shooting(radiosity_state *st, const scene *s, vec3 *L)
         return -1;
     }
     memcpy(unshot, st->source, (size_t)n * sizeof *unshot);
-    for (int i = 0; i < n; i++)
-        L[i] = v3_splat(0.0);
     long max_shots = (long)st->opt.max_iterations * n, shot = 0;
-    double residual = power_norm(st, unshot) / st->source_norm;
+    double residual = patch_mesh_power(&st->mesh, unshot) / st->source_norm;
     while (residual > st->opt.tolerance && shot < max_shots) {
         int j = 0; /* the patch with the most unshot power shoots (Chen's FindShootPatch) */
         for (int i = 0; i < n; i++)
@@ -367,7 +297,7 @@ static int solve_shooting(radiosity_state *st, const scene *s, vec3 *L)
         st->stats.visibility_rays += rays;
         for (int i = 0; i < n; i++)
             unshot[i] = v3_add(unshot[i], v3_scale(v3_mul(st->mesh.patches[i].albedo, shooting), column[i]));
-        residual = power_norm(st, unshot) / st->source_norm;
+        residual = patch_mesh_power(&st->mesh, unshot) / st->source_norm;
         shot++;
         if (shot % n == 0)
             record_residual(&st->stats, residual);
@@ -377,7 +307,9 @@ static int solve_shooting(radiosity_state *st, const scene *s, vec3 *L)
     st->stats.shots = (int)shot;
     st->stats.iterations = (int)((shot + n - 1) / n);
     st->stats.converged = residual <= st->opt.tolerance;
-    add_unshot_and_ambient(st, unshot, L);
+    /* For display, the unshot light is radiance of its patch already, and the light
+     * still to come is guessed by Cohen et al.'s ambient term (patch_mesh.h). */
+    patch_mesh_add_ambient(&st->mesh, unshot, L);
     free(unshot), free(column);
     return 0;
 }
@@ -412,66 +344,35 @@ static int solve_direct(radiosity_state *st, vec3 *L)
 
 /* ---- prepare: mesh the scene, compute form factors, solve, prepare the image ---------------- */
 
-/* The leaves of the mesh become the patches, the unknowns of (R4), with
- * albedo and emission as this chapter models the materials: diffuse only. */
-static int collect_patches(radiosity_state *st, const scene *s, char *err, size_t err_size)
-{
-    if (patch_mesh_collect(&st->mesh, st->opt.quadrature)) {
-        snprintf(err, err_size, "argv:0: out of memory for the patches");
-        return 2;
-    }
-    for (int i = 0; i < st->mesh.patch_count; i++) {
-        patch *p = &st->mesh.patches[i];
-        const material *m = &s->materials[s->surfaces[p->surface].material];
-        p->albedo = m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS ? m->specular : m->albedo;
-        p->emission = m->kind == MATERIAL_EMITTER ? m->emission : v3_splat(0.0);
-        if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS)
-            warn_once(&warned_specular, "03_radiosity: radiosity models diffuse reflection only; mirrors and glass "
-                                        "are treated as diffuse surfaces with their colour as albedo");
-        else if (m->kind == MATERIAL_PHONG)
-            warn_once(&warned_phong, "03_radiosity: Phong surfaces are treated as diffuse with albedo kd (ks dropped)");
-    }
-    return 0;
-}
-
-/* Step 1: cut the surfaces into patches of about --patch-size (patch_mesh.h). */
-static int mesh_scene(radiosity_state *st, const scene *s, char *err, size_t err_size)
-{
-    if (radiosity_check_mesh_size(&st->opt, patch_mesh_estimate(s, st->opt.patch_size), err, err_size))
-        return 2;
-    for (int i = 0; i < s->surface_count; i++)
-        if (s->surfaces[i].kind == SURFACE_SPHERE)
-            warn_once(&warned_spheres, "03_radiosity: spheres are not meshed into patches; they block light "
-                                       "but carry no radiance (black in the image)");
-    if (patch_mesh_build(&st->mesh, s, st->opt.patch_size)) {
-        snprintf(err, err_size, "argv:0: out of memory while meshing");
-        return 2;
-    }
-    return collect_patches(st, s, err, err_size);
-}
-
 /* Step 2: the sources and the form factors.  Point lights shoot first: each
- * patch reflects rho E / pi of the irradiance E = I cos / r^2 (R1) they give
- * it, light that has bounced once (part of K E).  Then F_ij (R10) for every
- * pair, unless the solver is shooting (it computes them shot by shot). */
+ * patch reflects rho E / pi of their irradiance E = I cos / r^2 (R1), light
+ * bounced once (part of K E).  Then F_ij (R10), unless the solver shoots. */
 static int compute_form_factors(radiosity_state *st, const scene *s, char *err, size_t err_size)
 {
     int n = st->mesh.patch_count;
     if (radiosity_check_matrix_size(&st->opt, n, err, err_size))
         return 2;
-    free(st->form_factors), free(st->first_shot), free(st->source), free(st->radiance);
+    free(st->form_factors), free(st->first_shot); /* from the previous mesh (--adaptive) */
     st->form_factors = NULL;
-    st->first_shot = calloc((size_t)n + 1, sizeof *st->first_shot);
-    st->source = calloc((size_t)n + 1, sizeof *st->source);
-    st->radiance = calloc((size_t)n + 1, sizeof *st->radiance);
-    if (!st->first_shot || !st->source || !st->radiance)
+    if (!(st->first_shot = calloc(3 * (size_t)n + 1, sizeof *st->first_shot))) /* and source, radiance */
         return snprintf(err, err_size, "argv:0: out of memory for %d patches", n), 2;
+    st->source = st->first_shot + n, st->radiance = st->source + n;
     double start = omp_get_wtime();
     st->stats.visibility_rays += patch_mesh_point_lights(&st->mesh, s, st->first_shot);
     for (int i = 0; i < n; i++)
         st->first_shot[i] = v3_mul(st->mesh.patches[i].albedo, v3_scale(st->first_shot[i], 1.0 / M_PI));
-    if (st->opt.solver != SOLVER_SHOOTING && compute_form_factor_matrix(st, s))
-        return snprintf(err, err_size, "argv:0: out of memory for the %d x %d form-factor matrix", n, n), 2;
+    if (st->opt.solver != SOLVER_SHOOTING) { /* F_ij for every pair, row by row in parallel */
+        if (!(st->form_factors = malloc((size_t)n * (size_t)n * sizeof *st->form_factors + 1)))
+            return snprintf(err, err_size, "argv:0: out of memory for the %d x %d form-factor matrix", n, n), 2;
+        uint64_t rays = 0;
+#pragma omp parallel for schedule(dynamic, 8) reduction(+ : rays)
+        for (int i = 0; i < n; i++)
+            for (int j = 0; j < n; j++)
+                st->form_factors[(size_t)i * (size_t)n + (size_t)j] = (float)form_factor(st, s, i, j, &rays);
+        radiosity_stats *r = &st->stats; /* and the checks: row sums, reciprocity (mesh_io.h) */
+        r->visibility_rays += rays, r->have_matrix_checks = true;
+        form_factor_checks(st->form_factors, &st->mesh, &r->reciprocity_error, &r->row_sum_min, &r->row_sum_max);
+    }
     st->stats.formfactor_s += omp_get_wtime() - start;
     return 0;
 }
@@ -483,7 +384,7 @@ static int solve(radiosity_state *st, const scene *s, char *err, size_t err_size
     double start = omp_get_wtime();
     for (int i = 0; i < n; i++)
         st->source[i] = v3_add(st->mesh.patches[i].emission, st->first_shot[i]);
-    st->source_norm = power_norm(st, st->source);
+    st->source_norm = patch_mesh_power(&st->mesh, st->source);
     radiosity_stats *r = &st->stats;
     r->history_count = 0, r->converged = false, r->shots = 0, r->no_light = !(st->source_norm > 0.0);
     r->solver_used = solver_names[st->opt.solver];
@@ -508,73 +409,46 @@ static int solve(radiosity_state *st, const scene *s, char *err, size_t err_size
     return failed ? 2 : 0;
 }
 
-/* --adaptive: split the patches where the radiance jumps (shadow edges;
- * patch_mesh_refine), then back to step 2.  Returns how many were split
- * (0: done), or -1 with a message. */
-static int refine(radiosity_state *st, const scene *s, char *err, size_t err_size)
-{
-    if (!st->opt.adaptive || st->stats.refinements == st->opt.adaptive_levels || st->stats.no_light)
-        return 0;
-    int split = patch_mesh_refine(&st->mesh, st->radiance, st->opt.adaptive_threshold);
-    if (split < 0)
-        snprintf(err, err_size, "argv:0: out of memory while refining the mesh");
-    if (split <= 0)
-        return split;
-    st->stats.refinements++;
-    if (!st->quiet)
-        fprintf(stderr, "03_radiosity: refinement %d split %d of %d patches\n", st->stats.refinements, split,
-                st->mesh.patch_count);
-    return collect_patches(st, s, err, err_size) ? -1 : split;
-}
-
 static int prepare(void *state_pointer, const scene *s, const render_options *o, char *err, size_t err_size)
 {
     radiosity_state *st = state_pointer;
     st->bounce_min = o->bounce_min, st->bounce_max = o->bounce_max;
     st->exposure = o->exposure, st->quiet = o->quiet, st->scene = s;
-    if (mesh_scene(st, s, err, err_size)) /* 1. the surfaces cut into patches */
+    if (radiosity_mesh_scene(&st->mesh, s, &st->opt, err, err_size)) /* 1. the surfaces cut into patches */
         return 2;
     for (int split = 1; split > 0;) {
         if (compute_form_factors(st, s, err, err_size)) /* 2. the sources and F_ij (R10) */
             return 2;
         if (solve(st, s, err, err_size)) /* 3. L = E + K L (R4-R6) */
             return 2;
-        if ((split = refine(st, s, err, err_size)) < 0) /* --adaptive: split patches, back to 2 */
+        split = radiosity_refine(&st->mesh, s, &st->opt, &st->stats, st->radiance, st->quiet, err, err_size);
+        if (split < 0) /* --adaptive: patches split where the radiance jumps, back to 2 */
             return 2;
     }
     if (patch_mesh_vertex_radiance(&st->mesh, st->radiance)) /* 4. the image lookup (smooth shading) */
         return snprintf(err, err_size, "argv:0: out of memory"), 2;
-    if (st->opt.formfactors_path && write_surface_form_factors(st->opt.formfactors_path, s, &st->mesh,
-                                                               form_factor_at, st, &st->stats.visibility_rays, err, err_size))
+    if (write_surface_form_factors(st->opt.formfactors_path, s, &st->mesh, form_factor_at, st,
+                                   &st->stats.visibility_rays, err, err_size)) /* --formfactors F.csv */
         return 2;
     radiosity_report(&st->opt, &st->stats, st->mesh.patch_count, st->quiet);
     return 0;
 }
 
-/* ---- the image, probes, outputs ---------------------------------------------------------------- */
-
+/* What the camera sees: the radiance of the patch under each hit (patch_mesh.h). */
 static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, render_counters *counters)
 {
     const radiosity_state *st = state_pointer;
     (void)g, (void)counters;
-    hit h;
-    if (!scene_intersect(s, r, INFINITY, &h))
-        return s->background;
-    if (s->surfaces[h.surface].kind == SURFACE_SPHERE || !st->radiance)
-        return v3_splat(0.0);
-    if (v3_dot(h.normal, r.direction) >= 0.0) {
+    bool back = false;
+    vec3 L = patch_mesh_seen(&st->mesh, s, r, st->radiance, st->opt.smooth, &back);
+    if (back)
         warn_once(&warned_back, "03_radiosity: the camera sees the back of a surface; patches are one-sided "
                                 "(front = right-hand rule), backs render black");
-        return v3_splat(0.0);
-    }
-    int cell = patch_mesh_locate(&st->mesh, s, &h);
-    return st->opt.smooth ? patch_mesh_interpolate(&st->mesh, cell, h.normal, h.point)
-                          : st->radiance[st->mesh.cells[cell].patch];
+    return L;
 }
 
-/* A probe's irradiance E = Sum_j L_j pi F_dA->j by point_to_polygon, plus
- * the point lights' I cos / r^2 (R1), which count as term 0 like an emitter.
- * Deterministic: its error is the discretisation's, not a standard error. */
+/* A probe: E = Sum_j L_j pi F_dA->j by point_to_polygon, plus the point lights
+ * (R1, term 0); deterministic, its error is the discretisation's. */
 static probe_result probe_irradiance(const void *state_pointer, const scene *s, const probe *pr, uint64_t seed,
                                      render_counters *counters)
 {
@@ -589,24 +463,20 @@ static int write_output(const void *state_pointer, const scene *s, const char *p
 {
     const radiosity_state *st = state_pointer;
     (void)s;
-    if (!path_has_extension(path, ".ply"))
-        return 0;
-    return write_patch_ply(path, &st->mesh, st->radiance, st->opt.smooth, st->exposure, "03_radiosity", err,
-                           err_size) ? 2 : 1;
+    return write_patch_ply(path, &st->mesh, st->radiance, st->opt.smooth, st->exposure, "03_radiosity", err, err_size);
 }
 
 static void write_stats(const void *state_pointer, FILE *json)
 {
     const radiosity_state *st = state_pointer;
-    write_radiosity_stats(json, &st->opt, &st->stats, st->mesh.patch_count, st->form_factors != NULL);
-    json_surface_radiance(json, st->scene, &st->mesh, st->radiance);
+    write_radiosity_stats(json, &st->opt, &st->stats, st->scene, &st->mesh, st->radiance, st->form_factors != NULL);
 }
 
 static void finish(void *state_pointer)
 {
     radiosity_state *st = state_pointer;
     patch_mesh_free(&st->mesh);
-    free(st->form_factors), free(st->first_shot), free(st->source), free(st->radiance), free(st->stats.history);
+    free(st->form_factors), free(st->first_shot), free(st->stats.history); /* first_shot holds source, radiance */
 }
 
 int main(int argc, char **argv)
@@ -618,7 +488,6 @@ int main(int argc, char **argv)
                        "Gauss-Seidel, shooting, or directly (R5)",
         .options_help = radiosity_options_help,
         .default_spp = 1,
-        .counter_names = {NULL},
         .parse_option = radiosity_parse_option, /* fills state.opt, the first member */
         .prepare = prepare,
         .radiance = radiance,

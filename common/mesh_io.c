@@ -10,6 +10,8 @@
 int write_patch_ply(const char *path, const patch_mesh *m, const vec3 *radiance, bool smooth, double exposure,
                     const char *program, char *err, size_t err_size)
 {
+    if (!path_has_extension(path, ".ply"))
+        return 0;
     atomic_file out;
     if (atomic_file_open(&out, path, err, err_size))
         return 2;
@@ -45,12 +47,14 @@ int write_patch_ply(const char *path, const patch_mesh *m, const vec3 *radiance,
             fprintf(f, " %d", smooth ? c->vertex[k] : next++);
         fputc('\n', f);
     }
-    return atomic_file_commit(&out, 0, err, err_size);
+    return atomic_file_commit(&out, 0, err, err_size) ? 2 : 1;
 }
 
 int write_surface_form_factors(const char *path, const scene *s, const patch_mesh *mesh, form_factor_fn form_factor,
                                const void *context, uint64_t *rays_out, char *err, size_t err_size)
 {
+    if (!path)
+        return 0;
     int m = s->surface_count, n = mesh->patch_count;
     const patch *patches = mesh->patches;
     double *sums = calloc((size_t)m * (size_t)m + 1, sizeof *sums);

@@ -19,7 +19,8 @@
  * each patch with its own corners and radiance[patch], so its colour stays
  * flat; smooth shares the vertices and their m->vertex_radiance.  `program`
  * names the writer in the header comment.  Written through a temporary and
- * renamed.  Returns 0, or 2 with a message. */
+ * renamed.  Returns 1 when written, 0 when path does not end in ".ply" (not
+ * this writer's format: nothing done), 2 with a message on error. */
 int write_patch_ply(const char *path, const patch_mesh *m, const vec3 *radiance, bool smooth, double exposure,
                     const char *program, char *err, size_t err_size);
 
@@ -30,7 +31,7 @@ typedef double (*form_factor_fn)(const void *context, int i, int j, uint64_t *ra
  *   F(S -> T) = 1/A_S Sum_{i in S} Sum_{j in T} A_i F_ij
  * for every ordered pair of meshed surfaces, as CSV lines "from,to,F"
  * (all pairs F(i, j) in parallel).  Adds the rays cast to *rays.  Returns
- * 0, or 2 with a message. */
+ * 0 (nothing to do when path is NULL), or 2 with a message. */
 int write_surface_form_factors(const char *path, const scene *s, const patch_mesh *m, form_factor_fn form_factor,
                                const void *context, uint64_t *rays, char *err, size_t err_size);
 

@@ -464,6 +464,44 @@ vec3 patch_mesh_interpolate(const patch_mesh *m, int cell, vec3 normal, vec3 p)
     return v3_add(v3_add(v3_scale(R[c->vertex[0]], wa), v3_scale(R[c->vertex[1]], wb)), v3_scale(R[c->vertex[2]], wc));
 }
 
+vec3 patch_mesh_seen(const patch_mesh *m, const scene *s, ray r, const vec3 *radiance, bool smooth, bool *back)
+{
+    hit h;
+    if (!scene_intersect(s, r, INFINITY, &h))
+        return s->background;
+    if (s->surfaces[h.surface].kind == SURFACE_SPHERE || !radiance)
+        return v3_splat(0.0);
+    if (v3_dot(h.normal, r.direction) >= 0.0) {
+        *back = true;
+        return v3_splat(0.0);
+    }
+    int cell = patch_mesh_locate(m, s, &h);
+    return smooth ? patch_mesh_interpolate(m, cell, h.normal, h.point) : radiance[m->cells[cell].patch];
+}
+
+double patch_mesh_power(const patch_mesh *m, const vec3 *x)
+{
+    double sum = 0.0;
+    for (int i = 0; i < m->patch_count; i++)
+        sum += m->patches[i].area * (fabs(x[i].x) + fabs(x[i].y) + fabs(x[i].z));
+    return sum;
+}
+
+void patch_mesh_add_ambient(const patch_mesh *m, const vec3 *unshot, vec3 *L)
+{
+    double area = 0.0, rho_area = 0.0;
+    vec3 unshot_area = v3_splat(0.0);
+    for (int i = 0; i < m->patch_count; i++) {
+        area += m->patches[i].area;
+        rho_area += m->patches[i].area * v3_average(m->patches[i].albedo);
+        unshot_area = v3_madd(unshot_area, unshot[i], m->patches[i].area);
+    }
+    double rho_average = rho_area / area;
+    vec3 ambient = v3_scale(unshot_area, 1.0 / (area * (1.0 - rho_average)));
+    for (int i = 0; i < m->patch_count; i++)
+        L[i] = v3_add(L[i], v3_add(unshot[i], v3_mul(m->patches[i].albedo, ambient)));
+}
+
 uint64_t patch_mesh_point_lights(const patch_mesh *m, const scene *s, vec3 *irradiance_out)
 {
     uint64_t rays = 0;

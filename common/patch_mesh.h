@@ -105,6 +105,21 @@ int patch_mesh_locate(const patch_mesh *m, const scene *s, const hit *h);
  * (bilinear on quads, barycentric on triangles). */
 vec3 patch_mesh_interpolate(const patch_mesh *m, int cell, vec3 normal, vec3 p);
 
+/* What a camera ray sees: the background when it escapes, black on a
+ * sphere, on the back of a surface (*back set) or before a solution, else
+ * radiance[patch] under the hit, or with smooth the interpolated vertex
+ * radiance. */
+vec3 patch_mesh_seen(const patch_mesh *m, const scene *s, ray r, const vec3 *radiance, bool smooth, bool *back);
+
+/* The size of a per-patch radiance vector x as power: Sum_i A_i (|r| + |g| + |b|). */
+double patch_mesh_power(const patch_mesh *m, const vec3 *x);
+
+/* For display during progressive radiosity (Cohen et al. 1988): L_i +=
+ * unshot_i + rho_i ambient, the ambient term being the area-weighted mean
+ * unshot radiance reflected 1/(1 - rho_avg) times (rho_avg the area-weighted
+ * mean albedo). */
+void patch_mesh_add_ambient(const patch_mesh *m, const vec3 *unshot, vec3 *L);
+
 /* The irradiance each patch receives from the scene's point lights,
  * E = I cos(theta) / r^2 (R1) at its quadrature points (a shadow ray each),
  * averaged over the patch, into irradiance[patch].  Returns the rays cast. */

@@ -4,6 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "mesh_io.h"
 #include "render.h"
 
 const char *const solver_names[4] = {"jacobi", "gauss-seidel", "shooting", "direct"};
@@ -107,9 +108,10 @@ void record_residual(radiosity_stats *stats, double residual)
     stats->history[stats->history_count++] = residual;
 }
 
-void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosity_stats *r, int patches,
-                           bool have_matrix)
+void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosity_stats *r, const scene *s,
+                           const patch_mesh *m, const vec3 *radiance, bool have_matrix)
 {
+    int patches = m->patch_count;
     fprintf(json, ",\n  \"solver\": \"%s\",\n  \"solver_used\": \"%s\",\n  \"patch_size\": ", solver_names[o->solver],
             r->solver_used ? r->solver_used : "none");
     json_number(json, o->patch_size);
@@ -135,6 +137,7 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
         json_field_number(json, "row_sum_max", r->row_sum_max);
     }
     fprintf(json, ",\n  \"matrix_bytes\": %.0f", have_matrix ? (double)patches * patches * 4.0 : 0.0);
+    json_surface_radiance(json, s, m, radiance);
 }
 
 void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int patches, bool quiet)
@@ -153,7 +156,7 @@ void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int 
 
 enum { MESH_CELL_LIMIT = 4000000 }; /* beyond this even shooting would take hours */
 
-int radiosity_check_mesh_size(const radiosity_options *o, double cells, char *err, size_t err_size)
+static int check_mesh_size(const radiosity_options *o, double cells, char *err, size_t err_size)
 {
     if (!(cells > MESH_CELL_LIMIT))
         return 0;
@@ -170,4 +173,59 @@ int radiosity_check_matrix_size(const radiosity_options *o, int n, char *err, si
              "--max-patches %d (2 GiB); use --solver shooting, a larger --patch-size, or raise --max-patches",
              n, n, n, (double)n * n * 8.0 / 1073741824.0, o->max_patches);
     return 2;
+}
+
+static int warned_specular, warned_phong, warned_spheres;
+
+int radiosity_mesh_scene(patch_mesh *m, const scene *s, const radiosity_options *o, char *err, size_t err_size)
+{
+    if (check_mesh_size(o, patch_mesh_estimate(s, o->patch_size), err, err_size))
+        return 2;
+    for (int i = 0; i < s->surface_count; i++)
+        if (s->surfaces[i].kind == SURFACE_SPHERE)
+            warn_once(&warned_spheres, "03_radiosity: spheres are not meshed into patches; they block light "
+                                       "but carry no radiance (black in the image)");
+    if (patch_mesh_build(m, s, o->patch_size)) {
+        snprintf(err, err_size, "argv:0: out of memory while meshing");
+        return 2;
+    }
+    return radiosity_collect_patches(m, s, o, err, err_size);
+}
+
+int radiosity_collect_patches(patch_mesh *mesh, const scene *s, const radiosity_options *o, char *err, size_t err_size)
+{
+    if (patch_mesh_collect(mesh, o->quadrature)) {
+        snprintf(err, err_size, "argv:0: out of memory for the patches");
+        return 2;
+    }
+    for (int i = 0; i < mesh->patch_count; i++) {
+        patch *p = &mesh->patches[i];
+        const material *m = &s->materials[s->surfaces[p->surface].material];
+        p->albedo = m->albedo;
+        p->emission = m->kind == MATERIAL_EMITTER ? m->emission : v3_splat(0.0);
+        if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS) {
+            warn_once(&warned_specular, "03_radiosity: radiosity models diffuse reflection only; mirrors and glass "
+                                        "are treated as diffuse surfaces with their colour as albedo");
+            p->albedo = m->specular;
+        } else if (m->kind == MATERIAL_PHONG) {
+            warn_once(&warned_phong, "03_radiosity: Phong surfaces are treated as diffuse with albedo kd (ks dropped)");
+        }
+    }
+    return 0;
+}
+
+int radiosity_refine(patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *r,
+                     const vec3 *radiance, bool quiet, char *err, size_t err_size)
+{
+    if (!o->adaptive || r->refinements == o->adaptive_levels || r->no_light)
+        return 0;
+    int split = patch_mesh_refine(m, radiance, o->adaptive_threshold);
+    if (split < 0)
+        snprintf(err, err_size, "argv:0: out of memory while refining the mesh");
+    if (split <= 0)
+        return split;
+    r->refinements++;
+    if (!quiet)
+        fprintf(stderr, "03_radiosity: refinement %d split %d of %d patches\n", r->refinements, split, m->patch_count);
+    return radiosity_collect_patches(m, s, o, err, err_size) ? -1 : split;
 }
