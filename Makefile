@@ -50,6 +50,14 @@ $(BUILD)/%: chapters/%.c $(COMMON_OBJ)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) -Icommon $< $(filter %.o,$^) -o $@ $(LDFLAGS) $(LDLIBS)
 
+# A chapter's helper files, chapters/support/NN_name_*.c (what its lecture
+# does not teach: option tables, statistics), are linked into it alone.
+$(BUILD)/chapters/support/%.o: chapters/support/%.c
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -Icommon -c $< -o $@
+$(foreach c,$(CHAPTERS),$(eval $(c): $(patsubst chapters/support/%.c,$(BUILD)/chapters/support/%.o,\
+  $(wildcard chapters/support/$(notdir $(c))_*.c))))
+
 # Chapter 2 shades with chapter 1's local model (chapters/local_model.h):
 # it links chapter 1's object with that chapter's main renamed, so neither
 # chapter includes the other.

@@ -21,7 +21,8 @@
  * image lookup and the probes in common/patch_mesh.[ch]; the PLY mesh, the
  * form-factor table, per-surface stats in common/mesh_io.[ch]; Gaussian
  * elimination in common/dense_solve.[ch]; the options, the meshing steps
- * (limits, material model) and the stats in common/radiosity_support.[ch].
+ * (limits, material model), the option table and the stats in
+ * chapters/support/03_radiosity_support.[ch].
  *
  * Modelling choices (said once on stderr): one-sided patches (backs black);
  * spheres unmeshed (they block light, carry none); mirrors, glass and Phong
@@ -34,11 +35,11 @@
 #include "dense_solve.h"
 #include "mesh_io.h"
 #include "patch_mesh.h"
-#include "radiosity_support.h"
+#include "support/03_radiosity_support.h"
 #include "render.h"
 
 typedef struct {
-    radiosity_options opt;      /* first: the command line fills it (radiosity_support.c) */
+    radiosity_options opt;      /* the command line fills it (RADIOSITY_OPTIONS) */
     int bounce_min, bounce_max; /* --bounces: the Neumann terms kept (R6) */
     double exposure;
     bool quiet;
@@ -481,14 +482,13 @@ static void finish(void *state_pointer)
 
 int main(int argc, char **argv)
 {
-    radiosity_state state = {.opt = RADIOSITY_DEFAULT_OPTIONS};
+    radiosity_state state = {0};
     const chapter radiosity = {
         .name = "03_radiosity",
         .description = "radiosity: patches, form factors (R10), L = E + KL solved by Jacobi (= Neumann series R6), "
-                       "Gauss-Seidel, shooting, or directly (R5)",
-        .options_help = radiosity_options_help,
+                       "Gauss-Seidel, shooting, or directly (R5); --out MESH.ply also writes the patch mesh",
+        .options = {{RADIOSITY_OPTIONS, &state.opt}},
         .default_spp = 1,
-        .parse_option = radiosity_parse_option, /* fills state.opt, the first member */
         .prepare = prepare,
         .radiance = radiance,
         .probe = probe_irradiance,

@@ -224,9 +224,10 @@ void options_print_help(FILE *out, const option *table)
         else
             snprintf(line, sizeof line, "%s%s%s%s", row->help, *parenthesis ? " (" : "", parenthesis,
                      *parenthesis ? ")" : "");
-        fprintf(out, "  %-*s ", NAME_COLUMNS, left);
         if ((int)strlen(left) > NAME_COLUMNS)
-            fprintf(out, "\n%*s", NAME_COLUMNS + 3, "");
+            fprintf(out, "  %s\n%*s", left, NAME_COLUMNS + 3, ""); /* a long name: the help on the next line */
+        else
+            fprintf(out, "  %-*s ", NAME_COLUMNS, left);
         print_wrapped(out, line, NAME_COLUMNS + 3, WIDTH);
     }
 }

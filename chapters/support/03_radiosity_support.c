@@ -1,6 +1,8 @@
-/* radiosity_support.c — chapter 3's options and statistics (see radiosity_support.h). */
-#include "radiosity_support.h"
+/* 03_radiosity_support.c — chapter 3's options and statistics (see 03_radiosity_support.h). */
+#include "03_radiosity_support.h"
 
+#include <math.h>
+#include <stddef.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -9,91 +11,68 @@
 
 const char *const solver_names[4] = {"jacobi", "gauss-seidel", "shooting", "direct"};
 
-const char radiosity_options_help[] =
-    "  --patch-size S         target patch edge in scene units (default 50, for the Cornell box in mm)\n"
-    "  --adaptive             refine patches where the radiance changes fast (shadow edges)\n"
-    "  --adaptive-levels N    refinement rounds, each splitting patches in four (default 2)\n"
-    "  --adaptive-threshold T split where a patch and the mean of its corners differ by T x the mean radiance (default 0.1)\n"
-    "  --solver NAME          jacobi | gauss-seidel | shooting | direct (default jacobi)\n"
-    "  --tol T                stop when the residual falls below T (fraction of source power; default 1e-4)\n"
-    "  --iterations N         at most N iterations (shooting: N x patches shots; default 1000)\n"
-    "  --max-patches N        refuse matrix solvers above N patches (default 16384: 2 GiB of doubles)\n"
-    "  --quadrature M         M x M points per patch triangle for near form factors (default 4)\n"
-    "  --reciprocity check|enforce  report A_i F_ij vs A_j F_ji, or average them (default check)\n"
-    "  --shading flat|smooth  patch colours, or interpolated vertex radiance (default flat)\n"
-    "  --smooth               same as --shading smooth\n"
-    "  --formfactors FILE.csv write surface-to-surface form factors (from,to,F)\n"
-    "  --out FILE.ply         also write the mesh with per-vertex radiance (PLY)\n";
-
-int radiosity_parse_option(void *state_pointer, int argc, char **argv, int *i, char *err, size_t err_size)
+/* --patch-size: a positive length; where it was given is kept for the
+ * message when it makes too many patches. */
+static int parse_patch_size(void *state, const char *value, int argv_index, char *why, size_t why_size)
 {
-    radiosity_options *st = state_pointer;
-    const char *a = argv[*i];
-    if (!strcmp(a, "--patch-size")) {
-        st->patch_size_argv = *i;
-        int status = parse_double_option(argc, argv, i, -1e300, 1e300, &st->patch_size, err, err_size);
-        if (status == 1 && !(st->patch_size > 0.0)) {
-            snprintf(err, err_size, "argv:%d: --patch-size must be positive (scene units), not '%s'", *i, argv[*i]);
-            return 2;
-        }
-        return status;
-    }
-    if (!strcmp(a, "--adaptive")) {
-        st->adaptive = true;
-        return 1;
-    }
-    if (!strcmp(a, "--adaptive-levels")) {
-        st->adaptive = true;
-        return parse_int_option(argc, argv, i, 1, 8, &st->adaptive_levels, err, err_size);
-    }
-    if (!strcmp(a, "--adaptive-threshold"))
-        return parse_double_option(argc, argv, i, 1e-6, 1e6, &st->adaptive_threshold, err, err_size);
-    if (!strcmp(a, "--solver") || !strcmp(a, "--shading") || !strcmp(a, "--reciprocity")) {
-        const char *v = *i + 1 < argc ? argv[++*i] : "";
-        if (!strcmp(a, "--solver")) {
-            for (int k = 0; k < 4; k++)
-                if (!strcmp(v, solver_names[k])) {
-                    st->solver = (solver_kind)k;
-                    return 1;
-                }
-            snprintf(err, err_size, "argv:%d: --solver wants jacobi, gauss-seidel, shooting or direct, not '%s'", *i, v);
-        } else if (!strcmp(a, "--shading")) {
-            if (!strcmp(v, "flat") || !strcmp(v, "smooth")) {
-                st->smooth = !strcmp(v, "smooth");
-                return 1;
-            }
-            snprintf(err, err_size, "argv:%d: --shading wants flat or smooth, not '%s'", *i, v);
-        } else {
-            if (!strcmp(v, "check") || !strcmp(v, "enforce")) {
-                st->enforce_reciprocity = !strcmp(v, "enforce");
-                return 1;
-            }
-            snprintf(err, err_size, "argv:%d: --reciprocity wants check or enforce, not '%s'", *i, v);
-        }
+    radiosity_options *o = state;
+    char *end;
+    double size = strtod(value, &end);
+    if (end == value || *end || !isfinite(size) || !(size > 0.0)) {
+        snprintf(why, why_size, "must be positive (scene units), not '%s'", value);
         return 2;
     }
-    if (!strcmp(a, "--smooth")) {
-        st->smooth = true;
-        return 1;
-    }
-    if (!strcmp(a, "--tol"))
-        return parse_double_option(argc, argv, i, 0.0, 1.0, &st->tolerance, err, err_size);
-    if (!strcmp(a, "--iterations"))
-        return parse_int_option(argc, argv, i, 1, 100000000, &st->max_iterations, err, err_size);
-    if (!strcmp(a, "--max-patches"))
-        return parse_int_option(argc, argv, i, 1, 1 << 30, &st->max_patches, err, err_size);
-    if (!strcmp(a, "--quadrature"))
-        return parse_int_option(argc, argv, i, 1, 16, &st->quadrature, err, err_size);
-    if (!strcmp(a, "--formfactors")) {
-        if (*i + 1 >= argc) {
-            snprintf(err, err_size, "argv:%d: --formfactors needs a file name", *i);
-            return 2;
-        }
-        st->formfactors_path = argv[++*i];
-        return 1;
-    }
+    o->patch_size = size;
+    o->patch_size_argv = argv_index > 0 ? argv_index : 0; /* 0: the default */
     return 0;
 }
+
+/* --adaptive-levels N also turns --adaptive on. */
+static int parse_adaptive_levels(void *state, const char *value, int argv_index, char *why, size_t why_size)
+{
+    radiosity_options *o = state;
+    char *end;
+    long levels = strtol(value, &end, 10);
+    if (end == value || *end || levels < 1 || levels > 8) {
+        snprintf(why, why_size, "wants a whole number in [1, 8], not '%s'", value);
+        return 2;
+    }
+    o->adaptive_levels = (int)levels;
+    if (argv_index > 0) /* given on the command line, not the default */
+        o->adaptive = true;
+    return 0;
+}
+
+#define OPTION_FIELD(field) offsetof(radiosity_options, field)
+const option RADIOSITY_OPTIONS[] = {
+    {"--patch-size", "S", OPTION_CUSTOM, 0, .parse = parse_patch_size, .default_text = "50",
+     .help = "target patch edge in scene units (50 suits the Cornell box in mm)"},
+    {"--adaptive", NULL, OPTION_FLAG, OPTION_FIELD(adaptive),
+     .help = "refine patches where the radiance changes fast (shadow edges)"},
+    {"--adaptive-levels", "N", OPTION_CUSTOM, 0, .parse = parse_adaptive_levels, .default_text = "2",
+     .help = "refinement rounds, 1..8, each splitting patches in four; implies --adaptive"},
+    {"--adaptive-threshold", "T", OPTION_DOUBLE, OPTION_FIELD(adaptive_threshold), .min = 1e-6, .max = 1e6,
+     .default_text = "0.1", .help = "split where a patch and the mean of its corners differ by T x the mean radiance"},
+    {"--solver", NULL, OPTION_CHOICE, OPTION_FIELD(solver), .choices = "jacobi|gauss-seidel|shooting|direct",
+     .default_text = "jacobi", .help = "how L = E + KL is solved"},
+    {"--tol", "T", OPTION_DOUBLE, OPTION_FIELD(tolerance), .min = 0.0, .max = 1.0, .default_text = "1e-4",
+     .help = "stop when the residual falls below T (a fraction of the source power)"},
+    {"--iterations", "N", OPTION_INT, OPTION_FIELD(max_iterations), .min = 1, .max = 100000000,
+     .default_text = "1000", .help = "at most N iterations (shooting: N x patches shots)"},
+    {"--max-patches", "N", OPTION_INT, OPTION_FIELD(max_patches), .min = 1, .max = 1 << 30, .default_text = "16384",
+     .help = "refuse matrix solvers above N patches (16384: 2 GiB of doubles for the direct solve)"},
+    {"--quadrature", "M", OPTION_INT, OPTION_FIELD(quadrature), .min = 1, .max = 16, .default_text = "4",
+     .help = "M x M points per patch triangle for near form factors"},
+    {"--reciprocity", NULL, OPTION_CHOICE, OPTION_FIELD(enforce_reciprocity), .choices = "check|enforce",
+     .default_text = "check", .help = "report A_i F_ij against A_j F_ji, or average them"},
+    {"--shading", NULL, OPTION_CHOICE, OPTION_FIELD(smooth), .choices = "flat|smooth", .default_text = "flat",
+     .help = "patch colours, or interpolated vertex radiance"},
+    {"--smooth", NULL, OPTION_FLAG, 0, .alias_of = "--shading smooth"},
+    {"--formfactors", "FILE.csv", OPTION_STRING, OPTION_FIELD(formfactors_path),
+     .help = "write the surface-to-surface form factors (from,to,F)"},
+    {0},
+};
+#undef OPTION_FIELD
 
 void record_residual(radiosity_stats *stats, double residual)
 {
@@ -161,7 +140,7 @@ static int check_mesh_size(const radiosity_options *o, double cells, char *err, 
     if (!(cells > MESH_CELL_LIMIT))
         return 0;
     snprintf(err, err_size, "argv:%d: --patch-size %g gives about %.3g patches, more than this chapter meshes (%d)",
-             o->patch_size_argv, o->patch_size, cells, MESH_CELL_LIMIT);
+             o->patch_size_argv, o->patch_size, cells, MESH_CELL_LIMIT); /* argv:0 only if the default did */
     return 2;
 }
 

@@ -1,20 +1,22 @@
-/* radiosity_support.h — what chapter 3 needs around the lecture: its
+/* 03_radiosity_support.h — what chapter 3 needs around the lecture: its
  * options (--patch-size, --solver ...), their defaults and help text; the
  * steps that build and refine the patch mesh (patch_mesh.h) with the
  * chapter's limits, material model and warnings; the solve's statistics and
  * the radiosity members of the --stats JSON.  Kept out of the chapter so
  * that it reads as the lecture; the driver's common options are in render.h. */
-#ifndef COMMON_RADIOSITY_SUPPORT_H
-#define COMMON_RADIOSITY_SUPPORT_H
+#ifndef CHAPTERS_RADIOSITY_SUPPORT_H
+#define CHAPTERS_RADIOSITY_SUPPORT_H
 
 #include <stdbool.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdio.h>
 
+#include "options.h"
 #include "patch_mesh.h"
 #include "scene.h"
 
+/* The order of --solver's choices. */
 typedef enum { SOLVER_JACOBI, SOLVER_GAUSS_SEIDEL, SOLVER_SHOOTING, SOLVER_DIRECT } solver_kind;
 extern const char *const solver_names[4]; /* "jacobi", "gauss-seidel", "shooting", "direct" */
 
@@ -23,24 +25,16 @@ typedef struct {
     bool adaptive;
     int adaptive_levels;
     double adaptive_threshold;
-    solver_kind solver;
+    int solver; /* solver_kind */
     double tolerance;
     int max_iterations;
     int max_patches;
     int quadrature;    /* M: each patch triangle is sampled at the centroids of M x M sub-triangles */
-    bool smooth;       /* --shading smooth: interpolate per-vertex radiance */
-    bool enforce_reciprocity;
+    int smooth;              /* --shading flat|smooth: 1 interpolates per-vertex radiance */
+    int enforce_reciprocity; /* --reciprocity check|enforce: 1 averages A_i F_ij and A_j F_ji */
     const char *formfactors_path;
     int patch_size_argv; /* where --patch-size was given, for error messages */
 } radiosity_options;
-
-#define RADIOSITY_DEFAULT_OPTIONS                                                                              \
-    {                                                                                                          \
-        .patch_size = 50.0, .adaptive = false, .adaptive_levels = 2, .adaptive_threshold = 0.1,               \
-        .solver = SOLVER_JACOBI, .tolerance = 1e-4, .max_iterations = 1000,                                   \
-        .max_patches = 16384, /* 16384^2 doubles = 2 GiB (the direct solve's matrix; F itself is float) */   \
-        .quadrature = 4, .smooth = false,                                                                      \
-    }
 
 /* What a solve reports. */
 typedef struct {
@@ -56,12 +50,9 @@ typedef struct {
     double reciprocity_error, row_sum_min, row_sum_max;
 } radiosity_stats;
 
-/* For chapter.options_help. */
-extern const char radiosity_options_help[];
-
-/* chapter.parse_option: state points to a radiosity_options (the first
- * member of the chapter's state). */
-int radiosity_parse_option(void *state_pointer, int argc, char **argv, int *i, char *err, size_t err_size);
+/* The chapter's options, their ranges, defaults and help (options.h):
+ * offsets into a radiosity_options. */
+extern const option RADIOSITY_OPTIONS[];
 
 /* stats->residual = residual, and append it to the history. */
 void record_residual(radiosity_stats *stats, double residual);
