@@ -277,9 +277,8 @@ static bool bsdf_sample(const pathtrace_state *st, const shading_point *sp, rng 
     } else {
         double cos_alpha = pow(u1, b->inverse_exponent_plus_1);
         double sin_alpha = sqrt_one_minus_square(cos_alpha);
-        double sin_phi, cos_phi; /* phi = 2 pi u2 */
-        sincos_turns(u2, &sin_phi, &cos_phi);
-        vec3 local = v3(sin_alpha * cos_phi, sin_alpha * sin_phi, cos_alpha);
+        double phi = 2.0 * M_PI * u2;
+        vec3 local = v3(sin_alpha * cos(phi), sin_alpha * sin(phi), cos_alpha);
         w_i = onb_to_world(onb_from_normal(sp->mirror), local);
     }
     double cos_i = v3_dot(sp->n, w_i), pdf;
