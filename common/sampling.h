@@ -58,6 +58,17 @@ static inline vec3 uniform_sample_cone(double u1, double u2, double cos_theta_ma
 }
 static inline double uniform_cone_pdf(double cos_theta_max) { return 1.0 / (2.0 * M_PI * (1.0 - cos_theta_max)); }
 
+/* A density p_A per unit area at the point y (unit normal n_y), converted to
+ * a density per steradian of the direction from x to y: dw = cos(theta_y) dA
+ * / |x - y|^2 (R7), so p_w = p_A |x - y|^2 / cos(theta_y).  0 if y is seen
+ * edge-on (or is x itself). */
+static inline double area_pdf_to_solid_angle(double pdf_area, vec3 x, vec3 y, vec3 n_y)
+{
+    vec3 to_y = v3_sub(y, x);
+    double r2 = v3_dot(to_y, to_y), cos_y = fabs(v3_dot(n_y, to_y)) / sqrt(r2);
+    return cos_y > 0.0 ? pdf_area * r2 / cos_y : 0.0;
+}
+
 /* Uniform point on triangle (a, b, c): pdf = 1 / area.  The square-root
  * warp keeps the density constant (a naive (u1, u2) with u1 + u2 <= 1
  * rejection would waste half the samples). */
@@ -70,13 +81,6 @@ static inline vec3 uniform_sample_triangle(vec3 a, vec3 b, vec3 c, double u1, do
 static inline double triangle_area(vec3 a, vec3 b, vec3 c)
 {
     return 0.5 * v3_length(v3_cross(v3_sub(b, a), v3_sub(c, a)));
-}
-
-/* Multiple importance sampling, power heuristic with beta = 2 (Veach 1997). */
-static inline double power_heuristic(double pdf_this, double pdf_other)
-{
-    double a = pdf_this * pdf_this, b = pdf_other * pdf_other;
-    return a + b > 0.0 ? a / (a + b) : 0.0;
 }
 
 #endif
