@@ -1,28 +1,20 @@
 /* 04_pathtrace.c — Lectures 5 and 6: path tracing.
  *
- * The rendering equation in its angular form,
+ *   (R2)  L_r(x, w_r) = L_e(x, w_r) + Int_Omega L_r(x', -w_i) f(x, w_i, w_r) cos(theta_i) dw_i
  *
- *   (R2)  L_r(x, w_r) = L_e(x, w_r) + Int_Omega L_r(x', -w_i) f(x, w_i, w_r) cos(theta_i) dw_i,
- *
- * is L = E + KL (R4), and its solution is the Neumann series (R6)
- * L = E + KE + K^2 E + ...  Kajiya's path tracer (1986) estimates every term
- * at once by a random walk: from the camera, hit a surface, pick one
- * direction w_i at random, follow it, and repeat.  A walk that has scattered
- * k times and then finds light contributes to the term K^k E.  Dividing each
- * step by the probability density of the direction it took makes the
- * expected value exactly (R2), whichever density we choose, as long as it is
- * positive wherever the integrand is.  The density decides the noise.
- *
- * The file climbs a ladder of four estimators (--estimator), each rung
- * adding one idea to the rung before:
- *   1. hemisphere  (R2) as written: every direction equally likely.
- *   2. cosine      directions drawn like f cos: only the density changes.
+ * is L = E + KL (R4), solved by the Neumann series (R6) L = E + KE + K^2 E + ...
+ * Kajiya's path tracer (1986) estimates every term at once by a random walk:
+ * from the camera, hit a surface, pick a direction w_i at random, follow it,
+ * repeat; a walk that has scattered k times and then finds light adds to
+ * K^k E.  Dividing each step by the density of the direction it took makes
+ * the expectation exactly (R2) for any density positive wherever the
+ * integrand is; the density decides the noise.  The ladder of --estimator:
+ *   1. hemisphere  (R2) as written: every direction equally likely;
+ *   2. cosine      directions drawn like f cos: only the density changes;
  *   3. light       next-event estimation (R9): at every vertex also a point
- *                  on a light, and a shadow ray to it.
- *   4. mis         both, weighted by the power heuristic.  The default.
- * All four give the same image in expectation (the tests check this); only
- * the noise differs.
- */
+ *                  on a light, and a shadow ray to it;
+ *   4. mis         both, weighted by the power heuristic (the default).
+ * All four have the same expectation (the tests check it); the noise differs. */
 #include <stdlib.h>
 #include <string.h>
 
@@ -30,28 +22,20 @@
 #include "render.h"
 #include "sampling.h"
 #include "sphere_light.h"
+#include "walk_stats.h"
 
 /* ---- state and options ------------------------------------------------------------------------- */
 
 typedef enum { ESTIMATOR_HEMISPHERE, ESTIMATOR_COSINE, ESTIMATOR_LIGHT, ESTIMATOR_MIS } estimator_kind;
 static const char *const estimator_names[] = {"hemisphere", "cosine", "light", "mis"};
 
-typedef struct { /* area-averaged exitant radiance of one surface (--surface-samples) */
-    int surface;
-    vec3 radiance, standard_error;
-} surface_average;
-
 typedef struct {
     estimator_kind estimator;
-    int rr_depth;        /* Russian roulette from this many bounces on */
-    int max_depth;       /* hard cap on bounces (biased when it cuts) */
-    int probe_samples;   /* walks per probe */
-    int surface_samples; /* walks per surface for the "surfaces" stats (0 = off) */
-    /* Filled by prepare from the command line and the scene. */
-    int bounce_min, bounce_max; /* --bounces A:B: keep the terms K^A E .. K^B E (R6) */
+    int rr_depth, max_depth, probe_samples, surface_samples; /* the options of the same names */
+    int bounce_min, bounce_max; /* from here on filled by prepare; --bounces A:B keeps K^A E .. K^B E (R6) */
     uint64_t seed;
-    double total_power; /* of all lights, for picking one */
-    surface_average *surface_averages;
+    double total_power; /* of all lights */
+    surface_average *surface_averages; /* --surface-samples, to compare with radiosity (R10) */
     int surface_average_count;
     uint64_t surface_rays;
     const scene *scene; /* for the surface names in the stats */
@@ -59,8 +43,7 @@ typedef struct {
 
 enum { COUNT_BOUNCE_RAYS, COUNT_SHADOW_RAYS, COUNT_PROBE_RAYS };
 
-/* Walks cut by --max-depth (shared by all threads: rare, so an atomic add). */
-static uint64_t truncated_walks;
+static uint64_t truncated_walks; /* cut by --max-depth (all threads: rare, so an atomic add) */
 static int warned_truncation;
 
 static int parse_option(void *state_pointer, int argc, char **argv, int *i, char *err, size_t err_size)
@@ -94,14 +77,10 @@ static int parse_option(void *state_pointer, int argc, char **argv, int *i, char
 
 /* ---- materials --------------------------------------------------------------------------------- */
 
-/* A vertex of a walk: light leaves the point x toward w_o (unit: toward the
- * eye or the previous vertex).  Surfaces are two-sided: n is the unit normal
- * on the side of w_o; `front` says if that is the side the scene file faces. */
-typedef struct {
-    vec3 x, n, w_o;
-    bool front;
-    const material *m;
-} vertex;
+/* A vertex of a walk: light leaves x toward w_o (unit, toward the eye or the
+ * last vertex); n is the unit normal on the side of w_o (surfaces are
+ * two-sided), `front` says if that is the side the scene file faces. */
+typedef struct { vec3 x, n, w_o; bool front; const material *m; } vertex;
 
 static vertex vertex_at(vec3 x, vec3 n_geometric, vec3 w_o, const material *m)
 {
@@ -109,40 +88,31 @@ static vertex vertex_at(vec3 x, vec3 n_geometric, vec3 w_o, const material *m)
     return (vertex){.x = x, .n = front ? n_geometric : v3_neg(n_geometric), .w_o = w_o, .front = front, .m = m};
 }
 
-static const material *material_hit(const scene *s, const hit *h)
-{
-    return &s->materials[s->surfaces[h->surface].material];
-}
+static const material *material_of(const scene *s, int i) { return &s->materials[s->surfaces[i].material]; }
 
 /* Unit mirror direction of w about n: 2 (n.w) n - w. */
 static vec3 mirror_of(vec3 w, vec3 n) { return v3_reflect(v3_neg(w), n); }
 
-/* f(w_i, w_o): a Lambertian term plus, for Phong, the energy-normalised
- * (modified) Phong lobe of Lafortune & Willems (1994),
- *   f(w_i, w_o) = rho / pi  +  ks (n + 2) / (2 pi) cos^n(alpha),
- * alpha the angle between w_i and the mirror direction of w_o.  The factor
- * (n + 2)/(2 pi) makes the lobe reflect at most ks of the incident energy,
- * so rho + ks <= 1 conserves energy (the classic Phong lobe does not). */
+/* f(w_i, w_o) = rho / pi  +  ks (n + 2) / (2 pi) cos^n(alpha): Lambertian,
+ * plus for Phong the energy-normalised lobe of Lafortune & Willems (1994),
+ * alpha the angle between w_i and the mirror direction of w_o.  (n + 2)/(2 pi)
+ * makes the lobe reflect at most ks of the incident energy, so rho + ks <= 1
+ * conserves energy (the classic Phong lobe does not). */
 static vec3 bsdf_f(const vertex *v, vec3 w_i)
 {
     const material *m = v->m;
     vec3 f = v3_scale(m->albedo, 1.0 / M_PI);
-    if (m->kind == MATERIAL_PHONG) {
-        double cos_alpha = v3_dot(w_i, mirror_of(v->w_o, v->n));
-        if (cos_alpha > 0.0)
-            f = v3_add(f, v3_scale(m->specular, (m->exponent + 2.0) / (2.0 * M_PI) * pow(cos_alpha, m->exponent)));
-    }
+    double cos_alpha = m->kind == MATERIAL_PHONG ? v3_dot(w_i, mirror_of(v->w_o, v->n)) : 0.0;
+    if (cos_alpha > 0.0)
+        f = v3_add(f, v3_scale(m->specular, (m->exponent + 2.0) / (2.0 * M_PI) * pow(cos_alpha, m->exponent)));
     return f;
 }
 
-/* Mirror and glass send light into one direction only: f is a delta, which
- * no density over directions can find, so every estimator follows that one
- * direction w_i and the walk's weight f cos / p is the reflectance.  Glass
- * is a dielectric in air: reflect with probability F (exact Fresnel,
- * optics.h), refract otherwise; the choice itself is the weight.  Radiance
- * crossing into a medium changes by (n_i / n_t)^2 (its solid angle is
- * squeezed); on a closed path through the glass the two factors cancel.
- * The tint colours the transmitted light. */
+/* Mirror and glass send light one way only: f is a delta that no density
+ * over directions finds, so every estimator follows it, with the weight
+ * f cos / p = the reflectance.  Glass reflects with probability F (exact
+ * Fresnel, optics.h), else refracts (the choice is the weight); radiance
+ * entering a medium changes by (n_i / n_t)^2, undone on the way out. */
 static bool is_specular(const material *m) { return m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS; }
 
 static vec3 specular_scatter(const vertex *v, rng *g, vec3 *w_i)
@@ -161,15 +131,12 @@ static vec3 specular_scatter(const vertex *v, rng *g, vec3 *w_i)
 
 /* ---- 1. the hemisphere estimator: (R2) as written ------------------------------------------------ */
 
-/* Light that leaves an emitter and is reflected k times before it reaches
- * the eye (or the probe) is the Neumann term K^k E (R6): the emitter seen
- * directly is k = 0, its light reflected once toward the eye k = 1.
- * --bounces A:B keeps a contribution only if A <= k <= B. */
+/* Light reflected k times on its way from an emitter to the eye (or probe)
+ * is the term K^k E (R6); --bounces A:B keeps it only if A <= k <= B. */
 static bool keep(const pathtrace_state *st, int k) { return k >= st->bounce_min && k <= st->bounce_max; }
 
-/* May a walk scatter for the k-th time?  Not beyond B (nothing would be
- * kept), nor beyond --max-depth: a cap that biases the image low, so a walk
- * it cuts is counted and reported. */
+/* May a walk scatter for the k-th time?  Not beyond B (nothing is kept), nor
+ * beyond --max-depth, a cap that biases the image low: cuts are reported. */
 static bool may_scatter(const pathtrace_state *st, int k)
 {
     if (k <= st->max_depth && k <= st->bounce_max)
@@ -177,18 +144,15 @@ static bool may_scatter(const pathtrace_state *st, int k)
     if (k > st->max_depth && st->max_depth < st->bounce_max) {
 #pragma omp atomic
         truncated_walks++;
-        warn_once(&warned_truncation,
-                  "04_pathtrace: a path reached --max-depth %d and was cut there, so the image misses the "
-                  "terms beyond K^%d E and is biased low (count in stats)",
-                  st->max_depth, st->max_depth);
+        warn_once(&warned_truncation, "04_pathtrace: a path reached --max-depth %d and was cut there, so the image "
+                  "misses the terms beyond K^%d E and is biased low (count in stats)", st->max_depth, st->max_depth);
     }
     return false;
 }
 
 /* Russian roulette (from --rr-depth bounces on): go on with probability p,
- * and weight by 1/p if we do; the expectation is unchanged.  p follows the
- * throughput, so a dim walk ends early and a bright one (a furnace with
- * rho = 0.99) keeps going as long as its light matters. */
+ * weighted by 1/p, so the expectation is unchanged.  p follows the throughput:
+ * a dim walk ends early, a bright one (a furnace, rho = 0.99) goes on. */
 static bool survives_roulette(const pathtrace_state *st, int k, rng *g, vec3 *throughput)
 {
     if (k < st->rr_depth)
@@ -203,12 +167,12 @@ static bool survives_roulette(const pathtrace_state *st, int k, rng *g, vec3 *th
 /* L_e of the surface a ray along w hits: emitters shine from their front only. */
 static vec3 emitted(const scene *s, const hit *h, vec3 w)
 {
-    const material *m = material_hit(s, h);
+    const material *m = material_of(s, h->surface);
     return m->kind == MATERIAL_EMITTER && v3_dot(h->normal, w) < 0.0 ? m->emission : v3_splat(0.0);
 }
 
-/* A density over directions draws w_i at v and returns its pdf per
- * steradian.  Rung 1's: every direction above the surface alike, 1/(2 pi). */
+/* A density over directions draws w_i at v and returns its pdf per steradian.
+ * Rung 1's: every direction above the surface alike, 1/(2 pi). */
 typedef double direction_sampler(const vertex *v, rng *g, vec3 *w_i);
 
 static double sample_uniform(const vertex *v, rng *g, vec3 *w_i)
@@ -227,9 +191,7 @@ static vec3 scatter(const vertex *v, direction_sampler *sample, rng *g, vec3 *w_
         return specular_scatter(v, g, w_i);
     *pdf = sample(v, g, w_i);
     double cos_i = v3_dot(v->n, *w_i);
-    if (!(*pdf > 0.0 && cos_i > 0.0))
-        return v3_splat(0.0);
-    return v3_scale(bsdf_f(v, *w_i), cos_i / *pdf); /* (R2) */
+    return *pdf > 0.0 && cos_i > 0.0 ? v3_scale(bsdf_f(v, *w_i), cos_i / *pdf) : v3_splat(0.0); /* (R2) */
 }
 
 /* The radiance reflected (not emitted) at v toward w_o, the integral of (R2),
@@ -247,27 +209,22 @@ static vec3 walk(const pathtrace_state *st, const scene *s, vertex v, int k, dir
             break;
         counters->value[COUNT_BOUNCE_RAYS]++;
         hit h;
-        if (!scene_intersect(s, (ray){scene_offset_origin(s, v.x, v.n, w_i), w_i}, INFINITY, &h)) {
-            if (keep(st, k))
-                L = v3_add(L, v3_mul(throughput, s->background));
+        bool escaped = !scene_intersect(s, (ray){scene_offset_origin(s, v.x, v.n, w_i), w_i}, INFINITY, &h);
+        if (keep(st, k)) /* the light found there (or the background), reflected k times on its way: K^k E */
+            L = v3_add(L, v3_mul(throughput, escaped ? s->background : emitted(s, &h, w_i)));
+        if (escaped)
             break;
-        }
-        if (keep(st, k)) /* light emitted there and reflected k times on its way: K^k E */
-            L = v3_add(L, v3_mul(throughput, emitted(s, &h, w_i)));
-        v = vertex_at(h.point, h.normal, v3_neg(w_i), material_hit(s, &h));
+        v = vertex_at(h.point, h.normal, v3_neg(w_i), material_of(s, h.surface));
     }
     return L;
 }
 
 /* ---- 2. importance sampling: directions drawn like f cos ----------------------------------------- */
 
-/* The walk stays; only the density changes.  Cosine-weighted directions,
- * pdf cos(theta)/pi, cancel the cosine of (R2): on a Lambertian surface
- * f cos / p = rho for every direction.  The glossy lobe has its own density
- * around the mirror direction, (n + 1)/(2 pi) cos^n(alpha).  A Phong
- * material draws from the lobe with probability `share` (the lobe's part of
- * the albedo), else by the cosine; the pdf is the mixture of the two, since
- * either could have drawn any w_i. */
+/* Rung 1's walk with another density.  Cosine-weighted directions, pdf
+ * cos(theta)/pi, cancel the cosine of (R2): f cos / p = rho if Lambertian.
+ * The glossy lobe gets (n + 1)/(2 pi) cos^n(alpha) around the mirror direction,
+ * with probability `share` (its part of the albedo); the pdf is the mixture. */
 static double glossy_share(const material *m)
 {
     double d = v3_average(m->albedo), s = v3_average(m->specular);
@@ -277,11 +234,9 @@ static double glossy_share(const material *m)
 static double bsdf_pdf(const vertex *v, vec3 w_i)
 {
     double share = glossy_share(v->m), pdf = (1.0 - share) * cosine_hemisphere_pdf(v3_dot(v->n, w_i));
-    if (share > 0.0) {
-        double cos_alpha = v3_dot(w_i, mirror_of(v->w_o, v->n));
-        if (cos_alpha > 0.0)
-            pdf += share * (v->m->exponent + 1.0) / (2.0 * M_PI) * pow(cos_alpha, v->m->exponent);
-    }
+    double cos_alpha = share > 0.0 ? v3_dot(w_i, mirror_of(v->w_o, v->n)) : 0.0;
+    if (cos_alpha > 0.0)
+        pdf += share * (v->m->exponent + 1.0) / (2.0 * M_PI) * pow(cos_alpha, v->m->exponent);
     return pdf;
 }
 
@@ -303,21 +258,31 @@ static double sample_bsdf(const vertex *v, rng *g, vec3 *w_i)
 
 /* Light sampling turns the integral over directions into one over the
  * lights' surfaces, dw_i = cos(theta_y) dA_y / |x - y|^2 (R7):
- *   L_direct(x, w_o) = Int_lights L_e(y) f(x, w_i, w_o) G(x, y) V(x, y) dA_y     (R8, R9)
- * estimated with one point y: f L_e cos(theta_i) V / p(w_i), p(w_i) being the
- * density of y converted to solid angle times the chance of picking its
- * light.  Lights are picked in proportion to their power: Phi = pi L_e A for
- * a Lambertian emitter, 4 pi I for an isotropic point light.  Light i is
- * emitting surface i of the scene, or point light i - emitter_count. */
-static double emitter_power(const scene *s, int surface)
+ *   L_direct(x, w_o) = Int_lights L_e(y) f(x, w_i, w_o) G(x, y) V(x, y) dA_y   (R8), (R9)
+ * estimated with one point y: f L_e cos(theta_i) V / p(w_i), p the density of
+ * y per steradian times the chance of picking its light.  Light i (emitting
+ * surface i, or point light i - emitter_count) is picked by its power. */
+static double emitter_power(const scene *s, int i) /* pi L_e A for a Lambertian emitter */
 {
-    return M_PI * v3_average(s->materials[s->surfaces[surface].material].emission) * s->surfaces[surface].area;
+    return M_PI * v3_average(material_of(s, i)->emission) * s->surfaces[i].area;
 }
 
-static double light_power(const scene *s, int i)
+static double light_power(const scene *s, int i) /* 4 pi I for a point light */
 {
     return i < s->emitter_count ? emitter_power(s, s->emitters[i])
                                 : 4.0 * M_PI * v3_average(s->lights[i - s->emitter_count].intensity);
+}
+
+/* The density per steradian of sample_light at x picking y (normal n_y) on
+ * emitting surface i (also for MIS): the pick times that of y, uniform in the
+ * cone a sphere subtends (sphere_light.h), else uniform by area, p_A = 1 / A. */
+static double light_pdf(const pathtrace_state *st, const scene *s, int i, vec3 x, vec3 y, vec3 n_y)
+{
+    const surface *surf = &s->surfaces[i];
+    double pick = emitter_power(s, i) / st->total_power;
+    if (surf->kind == SURFACE_SPHERE)
+        return pick * sphere_light_pdf(surf->center, surf->radius, x, y, n_y);
+    return pick * area_pdf_to_solid_angle(1.0 / surf->area, x, y, n_y);
 }
 
 typedef struct {
@@ -334,52 +299,31 @@ static bool sample_light(const pathtrace_state *st, const scene *s, vec3 x, rng 
     for (double u = rng_uniform(g) * st->total_power; i < last && u >= light_power(s, i); i++)
         u -= light_power(s, i);
     double pick = light_power(s, i) / st->total_power;
-    if (!(pick > 0.0))
-        return false; /* a dark last light, reached by rounding */
     if (i >= s->emitter_count) {
         const point_light *p = &s->lights[i - s->emitter_count];
-        vec3 to_light = v3_sub(p->position, x);
-        double r2 = v3_dot(to_light, to_light);
-        *out = (light_sample){p->position, v3_scale(to_light, 1.0 / sqrt(r2)), v3_scale(p->intensity, 1.0 / (r2 * pick)),
-                              0.0};
-        return r2 > 0.0;
+        vec3 d = v3_sub(p->position, x);
+        double r2 = v3_dot(d, d);
+        *out = (light_sample){p->position, v3_scale(d, 1.0 / sqrt(r2)), v3_scale(p->intensity, 1.0 / (r2 * pick)), 0.0};
+        return r2 > 0.0 && pick > 0.0;
     }
-    const surface *surf = &s->surfaces[s->emitters[i]];
-    double u1 = rng_uniform(g), u2 = rng_uniform(g), pdf;
+    int e = s->emitters[i];
+    const surface *surf = &s->surfaces[e];
+    double u1 = rng_uniform(g), u2 = rng_uniform(g), pdf_unused;
     vec3 y, n_y;
-    if (surf->kind == SURFACE_SPHERE) { /* uniformly in the cone the sphere subtends (sphere_light.h) */
-        if (!sphere_light_sample(surf->center, surf->radius, x, u1, u2, &y, &n_y, &pdf))
-            return false;
-    } else { /* uniformly by area, p_A = 1 / A */
-        surface_sample_point(s, s->emitters[i], u1, u2, rng_uniform(g), &y, &n_y);
-        pdf = area_pdf_to_solid_angle(1.0 / surf->area, x, y, n_y);
-    }
+    if (surf->kind != SURFACE_SPHERE)
+        surface_sample_point(s, e, u1, u2, rng_uniform(g), &y, &n_y);
+    else if (!sphere_light_sample(surf->center, surf->radius, x, u1, u2, &y, &n_y, &pdf_unused))
+        return false;
     vec3 w_i = v3_normalize(v3_sub(y, x));
-    *out = (light_sample){y, w_i, s->materials[surf->material].emission, pdf * pick};
-    return pdf > 0.0 && v3_dot(n_y, w_i) < 0.0; /* emitters shine from their front only */
+    *out = (light_sample){y, w_i, material_of(s, e)->emission, light_pdf(st, s, e, x, y, n_y)};
+    return out->pdf > 0.0 && v3_dot(n_y, w_i) < 0.0; /* emitters shine from their front only */
 }
 
-/* The density with which sample_light at x picks the emitter point that a
- * ray hit (h): what MIS needs when a direction drawn like f cos finds a light. */
-static double light_pdf(const pathtrace_state *st, const scene *s, const hit *h, vec3 x)
-{
-    const surface *surf = &s->surfaces[h->surface];
-    double pick = emitter_power(s, h->surface) / st->total_power;
-    if (surf->kind == SURFACE_SPHERE)
-        return pick * sphere_light_pdf(surf->center, surf->radius, x, h->point, h->normal);
-    return pick * area_pdf_to_solid_angle(1.0 / surf->area, x, h->point, h->normal);
-}
-
-/* How much of a path to a light the light sample counts, given the
- * densities of the two ways of finding it: next-event estimation, all of it.
- * When the walk finds the same light by itself it counts the rest, 0 here. */
+/* The share of a path to a light that the light sample counts (the walk that
+ * finds it by itself counts the rest).  Next-event estimation alone: all. */
 typedef double light_share(double pdf_light, double pdf_bsdf);
 
-static double light_sample_only(double pdf_light, double pdf_bsdf)
-{
-    (void)pdf_light, (void)pdf_bsdf;
-    return 1.0;
-}
+static double light_sample_only(double pdf_light, double pdf_bsdf) { (void)pdf_light, (void)pdf_bsdf; return 1.0; }
 
 /* One light sample's contribution to the radiance reflected at v toward w_o:
  * f L_e cos(theta_i) V / p (R9), times the light sample's share. */
@@ -390,10 +334,8 @@ static vec3 next_event(const pathtrace_state *st, const scene *s, const vertex *
     if (!sample_light(st, s, v->x, g, &ls))
         return v3_splat(0.0);
     double cos_i = v3_dot(v->n, ls.w_i);
-    if (!(cos_i > 0.0))
-        return v3_splat(0.0);
-    vec3 f = bsdf_f(v, ls.w_i);
-    if (!(v3_max_component(f) > 0.0)) /* nothing reflected: no need to look */
+    vec3 f = cos_i > 0.0 ? bsdf_f(v, ls.w_i) : v3_splat(0.0);
+    if (!(v3_max_component(f) > 0.0)) /* nothing reflected toward w_o: no need to look */
         return v3_splat(0.0);
     counters->value[COUNT_SHADOW_RAYS]++;
     if (scene_occluded(s, v->x, ls.point)) /* V(x, y) */
@@ -403,9 +345,9 @@ static vec3 next_event(const pathtrace_state *st, const scene *s, const vertex *
     return v3_scale(v3_mul(f, ls.radiance), cos_i * share(ls.pdf, bsdf_pdf(v, ls.w_i)) / ls.pdf);
 }
 
-/* Rung 1's walk with rung 2's directions, plus a light sample at every vertex
- * that is not specular (a delta reflects no sampled light point).  Light the
- * walk then finds by itself counts 1 - share: fully after a specular vertex. */
+/* Rung 1's walk with rung 2's directions and a light sample at every vertex
+ * but specular ones (a delta reflects no sampled point); light the walk then
+ * finds by itself counts 1 - share: fully after a specular vertex. */
 static vec3 walk_with_light_samples(const pathtrace_state *st, const scene *s, vertex v, int k, light_share *share,
                                     rng *g, render_counters *counters)
 {
@@ -427,22 +369,21 @@ static vec3 walk_with_light_samples(const pathtrace_state *st, const scene *s, v
         }
         vec3 Le = emitted(s, &h, w_i);
         if (keep(st, k) && v3_max_component(Le) > 0.0) {
-            double counted = is_specular(v.m) ? 1.0 : 1.0 - share(light_pdf(st, s, &h, v.x), pdf_bsdf);
+            double pdf_light = light_pdf(st, s, h.surface, v.x, h.point, h.normal);
+            double counted = is_specular(v.m) ? 1.0 : 1.0 - share(pdf_light, pdf_bsdf);
             L = v3_add(L, v3_mul(throughput, v3_scale(Le, counted)));
         }
-        v = vertex_at(h.point, h.normal, v3_neg(w_i), material_hit(s, &h));
+        v = vertex_at(h.point, h.normal, v3_neg(w_i), material_of(s, h.surface));
     }
     return L;
 }
 
 /* ---- 4. multiple importance sampling ------------------------------------------------------------- */
 
-/* Light samples find small lights; directions drawn like f cos find a big
- * light in a sharp glossy lobe.  MIS (Veach 1997) counts a path to a light
- * found either way, each with a share, and the shares of one path add up to
- * one, so the sum stays unbiased.  The power heuristic gives the light
- * sample the share p_light^2 / (p_light^2 + p_bsdf^2): the way more likely to
- * find the path counts most of it.  Rung 3's walk with these shares is MIS. */
+/* Light samples find small lights, directions drawn like f cos a big light in
+ * a sharp glossy lobe.  MIS (Veach 1997) counts a path found either way with a
+ * share each, adding up to one (unbiased); the power heuristic gives the light
+ * sample p_light^2 / (p_light^2 + p_bsdf^2).  Rung 3's walk with it is MIS. */
 static double power_heuristic(double pdf_light, double pdf_bsdf)
 {
     double a = pdf_light * pdf_light, b = pdf_bsdf * pdf_bsdf;
@@ -451,10 +392,13 @@ static double power_heuristic(double pdf_light, double pdf_bsdf)
 
 /* ---- radiance along a camera ray ----------------------------------------------------------------- */
 
-/* The radiance reflected at v toward w_o, whose k-th scattering v is, by
- * the estimator --estimator names. */
-static vec3 reflected(const pathtrace_state *st, const scene *s, vertex v, int k, rng *g, render_counters *c)
+/* The radiance reflected at x (normal n, material m) toward w_o, by one walk
+ * of the estimator --estimator names, whose first scattering (at x) is bounce k. */
+static vec3 reflected(const void *state, const scene *s, vec3 x, vec3 n, vec3 w_o, const material *m, int k, rng *g,
+                      render_counters *c)
 {
+    const pathtrace_state *st = state;
+    vertex v = vertex_at(x, n, w_o, m);
     switch (st->estimator) {
     case ESTIMATOR_HEMISPHERE: return walk(st, s, v, k, sample_uniform, g, c);
     case ESTIMATOR_COSINE: return walk(st, s, v, k, sample_bsdf, g, c);
@@ -467,86 +411,24 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
 {
     const pathtrace_state *st = state_pointer;
     hit h;
-    if (!scene_intersect(s, r, INFINITY, &h))
-        return keep(st, 0) ? s->background : v3_splat(0.0);
-    vec3 L = keep(st, 0) ? emitted(s, &h, r.direction) : v3_splat(0.0); /* E: the light seen directly (R6) */
-    vertex v = vertex_at(h.point, h.normal, v3_neg(r.direction), material_hit(s, &h));
-    return v3_add(L, reflected(st, s, v, 1, g, counters));
+    bool escaped = !scene_intersect(s, r, INFINITY, &h);
+    vec3 E = !keep(st, 0) ? v3_splat(0.0) : escaped ? s->background : emitted(s, &h, r.direction); /* k = 0 (R6) */
+    const material *m = material_of(s, h.surface);
+    return escaped ? E : v3_add(E, reflected(st, s, h.point, h.normal, v3_neg(r.direction), m, 1, g, counters));
 }
 
-/* ---- probes and surface averages ----------------------------------------------------------------- */
-
-/* A probe's irradiance E = Int L cos dw by the image's estimator: pi times
- * what a white Lambertian surface there reflects.  The probe only receives
- * (its walk starts at k = 0): --bounces 0:0 gives the direct irradiance.
- * A surface average, for the comparison with radiosity (R10), is a diffuse
- * surface's exitant radiance averaged over its area,
- *   L_avg = 1/A Int_A ( L_e(y) + rho/pi E(y) ) dA_y,
- * from points y drawn uniformly on it, leaving along the normal (Lambertian:
- * the same in every direction). */
-static const material probe_material = {.name = "probe", .kind = MATERIAL_DIFFUSE, .albedo = {1.0, 1.0, 1.0}};
-
-static vec3 one_sample(const pathtrace_state *st, const scene *s, const probe *p, int surface, rng *g,
-                       render_counters *c)
-{
-    if (p)
-        return v3_scale(reflected(st, s, vertex_at(p->position, p->normal, p->normal, &probe_material), 0, g, c), M_PI);
-    const material *m = &s->materials[s->surfaces[surface].material];
-    double u1 = rng_uniform(g), u2 = rng_uniform(g), u3 = rng_uniform(g);
-    vec3 y, n;
-    surface_sample_point(s, surface, u1, u2, u3, &y, &n);
-    vec3 L = reflected(st, s, vertex_at(y, n, n, m), 1, g, c);
-    return m->kind == MATERIAL_EMITTER && keep(st, 0) ? v3_add(L, m->emission) : L;
-}
-
-enum { BATCHES = 32 };
-
-/* Mean and standard error of BATCHES batch means of n samples each: the
- * batches are independent, so the spread of their means estimates the error
- * of the overall mean without assuming anything about the walks'
- * distribution.  Returns the number of rays traced. */
-static uint64_t batch_mean(const pathtrace_state *st, const scene *s, const probe *p, int surface, uint64_t seed,
-                           int n, vec3 *mean, vec3 *standard_error)
-{
-    uint64_t index = p ? (uint64_t)(p - s->probes) : (uint64_t)surface, rays = 0;
-    vec3 batch[BATCHES], sum = v3_splat(0.0), sum_squares = v3_splat(0.0);
-    render_counters counters[BATCHES] = {{{0}}};
-#pragma omp parallel for schedule(dynamic, 1)
-    for (int b = 0; b < BATCHES; b++) {
-        vec3 batch_sum = v3_splat(0.0);
-        for (int k = 0; k < n; k++) {
-            rng g = rng_for(seed, index, (uint64_t)b * (uint64_t)n + (uint64_t)k);
-            vec3 L = one_sample(st, s, p, surface, &g, &counters[b]);
-            if (v3_is_finite(L))
-                batch_sum = v3_add(batch_sum, L);
-        }
-        batch[b] = v3_scale(batch_sum, 1.0 / n);
-    }
-    for (int b = 0; b < BATCHES; b++) {
-        sum = v3_add(sum, batch[b]);
-        sum_squares = v3_add(sum_squares, v3_mul(batch[b], batch[b]));
-        rays += counters[b].value[COUNT_BOUNCE_RAYS] + counters[b].value[COUNT_SHADOW_RAYS];
-    }
-    *mean = v3_scale(sum, 1.0 / BATCHES);
-    vec3 variance = v3_max(v3_sub(v3_scale(sum_squares, 1.0 / BATCHES), v3_mul(*mean, *mean)), v3_splat(0.0));
-    *standard_error = v3(sqrt(variance.x / (BATCHES - 1)), sqrt(variance.y / (BATCHES - 1)),
-                         sqrt(variance.z / (BATCHES - 1)));
-    return rays;
-}
-
+/* A probe's irradiance, by the image's estimator (walk_stats.h). */
 static probe_result probe_irradiance(const void *state_pointer, const scene *s, const probe *p, uint64_t seed,
                                      render_counters *counters)
 {
     const pathtrace_state *st = state_pointer;
-    probe_result r;
-    counters->value[COUNT_PROBE_RAYS] += batch_mean(st, s, p, -1, seed ^ 0x70726f6265ull, st->probe_samples / BATCHES,
-                                                    &r.irradiance, &r.standard_error);
-    return r;
+    walk_source w = {reflected, st, s, false};
+    return walk_probe(&w, p, seed ^ 0x70726f6265ull, st->probe_samples, &counters->value[COUNT_PROBE_RAYS]);
 }
 
 /* ---- main ---------------------------------------------------------------------------------------- */
 
-/* The lights' total power; warnings; the surface averages. */
+/* The lights' total power, warnings, the surface averages (walk_stats.h). */
 static int prepare(void *state_pointer, const scene *s, const render_options *o, char *err, size_t err_size)
 {
     pathtrace_state *st = state_pointer;
@@ -562,50 +444,21 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
                 estimator_names[st->estimator], only ? "all lights in this scene" : "the point light(s) in this scene",
                 only && v3_max_component(s->background) <= 0.0 ? " and come out black" : "");
     }
-    if (st->surface_samples == 0)
-        return 0;
-    st->surface_averages = calloc((size_t)s->surface_count + 1, sizeof *st->surface_averages);
-    if (!st->surface_averages) {
-        snprintf(err, err_size, "argv:0: out of memory");
-        return 2;
-    }
-    int per_batch = st->surface_samples / BATCHES > 0 ? st->surface_samples / BATCHES : 1;
-    for (int i = 0; i < s->surface_count; i++) {
-        material_kind kind = s->materials[s->surfaces[i].material].kind;
-        if (kind != MATERIAL_DIFFUSE && kind != MATERIAL_EMITTER)
-            continue; /* the same radiance in every direction only on these */
-        surface_average *a = &st->surface_averages[st->surface_average_count++];
-        a->surface = i;
-        st->surface_rays += batch_mean(st, s, NULL, i, st->seed ^ 0x73757266616365ull, per_batch, &a->radiance,
-                                       &a->standard_error);
-    }
-    return 0;
+    walk_source w = {reflected, st, s, keep(st, 0)};
+    return st->surface_samples == 0 ? 0 : walk_surface_averages(&w, st->seed ^ 0x73757266616365ull, st->surface_samples,
+                                                                &st->surface_averages, &st->surface_average_count,
+                                                                &st->surface_rays, err, err_size);
 }
 
 static void write_stats(const void *state_pointer, FILE *json)
 {
     const pathtrace_state *st = state_pointer;
-    fprintf(json, ",\n  \"estimator\": \"%s\",\n  \"rr_depth\": %d,\n  \"max_depth\": %d", estimator_names[st->estimator],
-            st->rr_depth, st->max_depth);
-    fprintf(json, ",\n  \"truncated_paths\": %llu,\n  \"biased_by_max_depth\": %s", (unsigned long long)truncated_walks,
-            truncated_walks ? "true" : "false");
-    fprintf(json, ",\n  \"probe_samples\": %d,\n  \"surface_samples\": %d,\n  \"surface_rays\": %llu",
-            st->probe_samples, st->surface_samples, (unsigned long long)st->surface_rays);
-    fprintf(json, ",\n  \"surfaces\": [");
-    for (int j = 0; j < st->surface_average_count; j++) {
-        const surface_average *a = &st->surface_averages[j];
-        const surface *surf = &st->scene->surfaces[a->surface];
-        fprintf(json, "%s\n    {\"name\": ", j ? "," : "");
-        json_string(json, surf->name);
-        fprintf(json, ", \"area\": ");
-        json_number(json, surf->area);
-        fprintf(json, ", \"radiance\": ");
-        json_vec3(json, a->radiance);
-        fprintf(json, ", \"standard_error\": ");
-        json_vec3(json, a->standard_error);
-        fputc('}', json);
-    }
-    fprintf(json, "%s]", st->surface_average_count ? "\n  " : "");
+    fprintf(json, ",\n  \"estimator\": \"%s\",\n  \"rr_depth\": %d,\n  \"max_depth\": %d,\n  \"truncated_paths\": %llu,"
+                  "\n  \"biased_by_max_depth\": %s,\n  \"probe_samples\": %d,\n  \"surface_samples\": %d,"
+                  "\n  \"surface_rays\": %llu", estimator_names[st->estimator], st->rr_depth, st->max_depth,
+            (unsigned long long)truncated_walks, truncated_walks ? "true" : "false", st->probe_samples,
+            st->surface_samples, (unsigned long long)st->surface_rays);
+    json_surface_averages(json, st->scene, st->surface_averages, st->surface_average_count);
 }
 
 static void finish(void *state_pointer)
@@ -622,7 +475,6 @@ int main(int argc, char **argv)
         .rr_depth = 3,
         .max_depth = 1000,
         .probe_samples = 1 << 16,
-        .surface_samples = 0,
     };
     const chapter path_tracing = {
         .name = "04_pathtrace",
