@@ -362,17 +362,16 @@ static vec3 walk_with_light_samples(const pathtrace_state *st, const scene *s, v
             break;
         counters->value[COUNT_BOUNCE_RAYS]++;
         hit h;
-        if (!scene_intersect(s, (ray){scene_offset_origin(s, v.x, v.n, w_i), w_i}, INFINITY, &h)) {
-            if (keep(st, k))
-                L = v3_add(L, v3_mul(throughput, s->background));
-            break;
-        }
-        vec3 Le = emitted(s, &h, w_i);
+        bool escaped = !scene_intersect(s, (ray){scene_offset_origin(s, v.x, v.n, w_i), w_i}, INFINITY, &h);
+        vec3 Le = escaped ? s->background : emitted(s, &h, w_i);
         if (keep(st, k) && v3_max_component(Le) > 0.0) {
-            double pdf_light = light_pdf(st, s, h.surface, v.x, h.point, h.normal);
-            double counted = is_specular(v.m) ? 1.0 : 1.0 - share(pdf_light, pdf_bsdf);
+            double counted = 1.0; /* the background, or after a specular vertex: no light sample found it */
+            if (!escaped && !is_specular(v.m))
+                counted -= share(light_pdf(st, s, h.surface, v.x, h.point, h.normal), pdf_bsdf);
             L = v3_add(L, v3_mul(throughput, v3_scale(Le, counted)));
         }
+        if (escaped)
+            break;
         v = vertex_at(h.point, h.normal, v3_neg(w_i), material_of(s, h.surface));
     }
     return L;
@@ -411,10 +410,11 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
 {
     const pathtrace_state *st = state_pointer;
     hit h;
-    bool escaped = !scene_intersect(s, r, INFINITY, &h);
-    vec3 E = !keep(st, 0) ? v3_splat(0.0) : escaped ? s->background : emitted(s, &h, r.direction); /* k = 0 (R6) */
+    if (!scene_intersect(s, r, INFINITY, &h))
+        return keep(st, 0) ? s->background : v3_splat(0.0);
+    vec3 E = keep(st, 0) ? emitted(s, &h, r.direction) : v3_splat(0.0); /* the light seen directly: k = 0 (R6) */
     const material *m = material_of(s, h.surface);
-    return escaped ? E : v3_add(E, reflected(st, s, h.point, h.normal, v3_neg(r.direction), m, 1, g, counters));
+    return v3_add(E, reflected(st, s, h.point, h.normal, v3_neg(r.direction), m, 1, g, counters));
 }
 
 /* A probe's irradiance, by the image's estimator (walk_stats.h). */
