@@ -1,5 +1,4 @@
 /* test_common.c — unit tests of vec.h, rng.h, sampling.h and image.c. */
-#include <float.h>
 #include <stdlib.h>
 #include <unistd.h>
 
@@ -90,38 +89,6 @@ static void test_hemisphere_samplers_integrate_cosine(void)
     check_cosine_integral("cosine hemisphere", cosine_sample_hemisphere, cosine_pdf);
     vec3 d = cosine_sample_hemisphere(0.3, 0.7);
     CHECK_NEAR(v3_length(d), 1, 1e-12, "unit direction");
-}
-
-/* sincos_turns (sampling.h), the samplers' own sin and cos of 2 pi u, against
- * libm's long double sinl and cosl of 2 pi u (64-bit mantissa: their own
- * error is some 1e-19, far below a double's).  Within 2.5e-16, as sampling.h
- * states, over a million random fractions of a turn and a regular sweep
- * through every quadrant and octant boundary; exact at the quarter turns;
- * and sin^2 + cos^2 = 1.  Where long double is only a double the reference
- * itself is off by up to 7e-16 (rounding 2 pi u), so the bound is 1e-15 there. */
-static void test_sincos_turns_matches_libm(void)
-{
-    const long double two_pi = 6.283185307179586476925286766559L;
-    const double tolerance = LDBL_MANT_DIG >= 64 ? 2.5e-16 : 1e-15;
-    rng g = rng_for(5, 6, 7);
-    double worst_sin = 0, worst_cos = 0, worst_norm = 0;
-    for (int i = 0; i < 2000000; i++) {
-        double u = i % 2 ? rng_uniform(&g) : (double)(i / 2) / 1000000.0;
-        double s, c;
-        sincos_turns(u, &s, &c);
-        worst_sin = fmax(worst_sin, (double)fabsl((long double)s - sinl(two_pi * u)));
-        worst_cos = fmax(worst_cos, (double)fabsl((long double)c - cosl(two_pi * u)));
-        worst_norm = fmax(worst_norm, fabs(s * s + c * c - 1.0));
-    }
-    CHECK(worst_sin <= tolerance, "sin(2 pi u) off by %.3g > %.3g", worst_sin, tolerance);
-    CHECK(worst_cos <= tolerance, "cos(2 pi u) off by %.3g > %.3g", worst_cos, tolerance);
-    CHECK(worst_norm <= 1e-15, "sin^2 + cos^2 - 1 = %.3g", worst_norm);
-    const double quarter[5][2] = {{0, 1}, {1, 0}, {0, -1}, {-1, 0}, {0, 1}}; /* (sin, cos) at u = k/4 */
-    for (int k = 0; k <= 4; k++) {
-        double s, c;
-        sincos_turns(k / 4.0, &s, &c);
-        CHECK(s == quarter[k][0] && c == quarter[k][1], "u = %d/4: (%.17g, %.17g)", k, s, c);
-    }
 }
 
 static void test_triangle_sampler_is_uniform(void)
@@ -267,7 +234,6 @@ int main(void)
     RUN_TEST(test_orthonormal_basis);
     RUN_TEST(test_rng_is_deterministic_and_uniform);
     RUN_TEST(test_hemisphere_samplers_integrate_cosine);
-    RUN_TEST(test_sincos_turns_matches_libm);
     RUN_TEST(test_triangle_sampler_is_uniform);
     RUN_TEST(test_cone_sampler_stays_in_cone);
     RUN_TEST(test_pfm_round_trip_and_orientation);
