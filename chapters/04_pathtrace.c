@@ -16,7 +16,6 @@
  *   4. mis         both, weighted by the power heuristic (the default).
  * All four have the same expectation (the tests check it); the noise differs. */
 #include <stdlib.h>
-#include <string.h>
 
 #include "optics.h"
 #include "render.h"
@@ -26,11 +25,11 @@
 
 /* ---- state and options ------------------------------------------------------------------------- */
 
-typedef enum { ESTIMATOR_HEMISPHERE, ESTIMATOR_COSINE, ESTIMATOR_LIGHT, ESTIMATOR_MIS } estimator_kind;
+typedef enum { ESTIMATOR_HEMISPHERE, ESTIMATOR_COSINE, ESTIMATOR_LIGHT, ESTIMATOR_MIS } estimator_kind; /* --estimator */
 static const char *const estimator_names[] = {"hemisphere", "cosine", "light", "mis"};
 
 typedef struct {
-    estimator_kind estimator;
+    int estimator; /* estimator_kind */
     int rr_depth, max_depth, probe_samples, surface_samples; /* the options of the same names */
     int bounce_min, bounce_max; /* from here on filled by prepare; --bounces A:B keeps K^A E .. K^B E (R6) */
     uint64_t seed;
@@ -44,36 +43,7 @@ typedef struct {
 enum { COUNT_BOUNCE_RAYS, COUNT_SHADOW_RAYS, COUNT_PROBE_RAYS };
 
 static uint64_t truncated_walks; /* cut by --max-depth (all threads: rare, so an atomic add) */
-static int warned_truncation;
-
-static int parse_option(void *state_pointer, int argc, char **argv, int *i, char *err, size_t err_size)
-{
-    pathtrace_state *state = state_pointer;
-    const char *a = argv[*i];
-    if (!strcmp(a, "--estimator")) {
-        if (*i + 1 >= argc) {
-            snprintf(err, err_size, "argv:%d: --estimator needs a value (hemisphere, cosine, light or mis)", *i);
-            return 2;
-        }
-        const char *v = argv[++*i];
-        for (int e = 0; e < 4; e++)
-            if (!strcmp(v, estimator_names[e])) {
-                state->estimator = (estimator_kind)e;
-                return 1;
-            }
-        snprintf(err, err_size, "argv:%d: --estimator wants hemisphere, cosine, light or mis, not '%s'", *i, v);
-        return 2;
-    }
-    if (!strcmp(a, "--rr-depth"))
-        return parse_int_option(argc, argv, i, 0, RENDER_BOUNCES_UNLIMITED, &state->rr_depth, err, err_size);
-    if (!strcmp(a, "--max-depth"))
-        return parse_int_option(argc, argv, i, 0, RENDER_BOUNCES_UNLIMITED, &state->max_depth, err, err_size);
-    if (!strcmp(a, "--probe-samples"))
-        return parse_int_option(argc, argv, i, 32, 1 << 28, &state->probe_samples, err, err_size);
-    if (!strcmp(a, "--surface-samples"))
-        return parse_int_option(argc, argv, i, 0, 1 << 28, &state->surface_samples, err, err_size);
-    return 0;
-}
+static int warned_truncation, warned_rr_depth, warned_no_light;
 
 /* ---- materials --------------------------------------------------------------------------------- */
 
@@ -444,6 +414,12 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
                 estimator_names[st->estimator], only ? "all lights in this scene" : "the point light(s) in this scene",
                 only && v3_max_component(s->background) <= 0.0 ? " and come out black" : "");
     }
+    if (st->rr_depth == 0)
+        warn_once(&warned_rr_depth, "04_pathtrace: --rr-depth 0 acts as --rr-depth 1: the first scattering is "
+                                    "bounce 1, and roulette can end a walk there already");
+    if (s->light_count == 0 && s->emitter_count == 0)
+        warn_once(&warned_no_light, "04_pathtrace: the scene has no light (no point light, no emitter): "
+                                    "only the background lights it");
     walk_source w = {reflected, st, s, keep(st, 0)};
     return st->surface_samples == 0 ? 0 : walk_surface_averages(&w, st->seed ^ 0x73757266616365ull, st->surface_samples,
                                                                 &st->surface_averages, &st->surface_average_count,
@@ -468,28 +444,32 @@ static void finish(void *state_pointer)
     st->surface_averages = NULL;
 }
 
+#define OPTION_FIELD(field) offsetof(pathtrace_state, field)
+static const option PATHTRACE_OPTIONS[] = {
+    {"--estimator", NULL, OPTION_CHOICE, OPTION_FIELD(estimator), .choices = "hemisphere|cosine|light|mis",
+     .default_text = "mis", .help = "uniform directions (R2 as written), cosine-weighted directions, "
+                                    "next-event estimation on the lights (R9), or both by MIS"},
+    {"--rr-depth", "N", OPTION_INT, OPTION_FIELD(rr_depth), .min = 0, .max = RENDER_BOUNCES_UNLIMITED,
+     .default_text = "3", .help = "Russian roulette from N bounces on (unbiased)"},
+    {"--max-depth", "N", OPTION_INT, OPTION_FIELD(max_depth), .min = 0, .max = RENDER_BOUNCES_UNLIMITED,
+     .default_text = "1000", .help = "cut paths after N bounces (biased if it cuts: see the stats)"},
+    {"--probe-samples", "N", OPTION_INT, OPTION_FIELD(probe_samples), .min = 32, .max = 1 << 28,
+     .default_text = "65536", .help = "walks per probe for its irradiance, in 32 batches"},
+    {"--surface-samples", "N", OPTION_INT, OPTION_FIELD(surface_samples), .min = 0, .max = 1 << 28,
+     .default_text = "0", .help = "walks per surface for the stats key \"surfaces\" (0: off)"},
+    {0},
+};
+#undef OPTION_FIELD
+
 int main(int argc, char **argv)
 {
-    pathtrace_state state = {
-        .estimator = ESTIMATOR_MIS,
-        .rr_depth = 3,
-        .max_depth = 1000,
-        .probe_samples = 1 << 16,
-    };
+    pathtrace_state state = {0};
     const chapter path_tracing = {
         .name = "04_pathtrace",
         .description = "path tracing: random walks estimate every term of the Neumann series (R2, R6, R9)",
-        .options_help =
-            "  --estimator E          hemisphere | cosine | light | mis (default mis):\n"
-            "                         uniform directions (R2 as written), cosine-weighted directions,\n"
-            "                         next-event estimation on the lights (R9), or both by MIS\n"
-            "  --rr-depth N           Russian roulette from N bounces on (default 3; unbiased)\n"
-            "  --max-depth N          cut paths after N bounces (default 1000; biased if it cuts: see stats)\n"
-            "  --probe-samples N      walks per probe for its irradiance, in 32 batches (default 65536)\n"
-            "  --surface-samples N    walks per surface for the stats key \"surfaces\" (default 0 = off)\n",
+        .options = {{PATHTRACE_OPTIONS, &state}},
         .default_spp = 16,
         .counter_names = {"bounce_rays", "shadow_rays", "probe_rays", NULL},
-        .parse_option = parse_option,
         .prepare = prepare,
         .radiance = radiance,
         .probe = probe_irradiance,
