@@ -94,50 +94,6 @@ void json_vec3(FILE *f, vec3 v)
 
 /* --- command line ---------------------------------------------------------------- */
 
-static const char *value_of(int argc, char **argv, int *i, char *err, size_t err_size) /* LEGACY */
-{
-    if (*i + 1 >= argc) {
-        snprintf(err, err_size, "argv:%d: %s needs a value (see --help)", *i, argv[*i]);
-        return NULL;
-    }
-    return argv[++*i];
-}
-
-int parse_int_option(int argc, char **argv, int *i, long lo, long hi, int *out, char *err, size_t err_size)
-{
-    const char *flag = argv[*i];
-    const char *text = value_of(argc, argv, i, err, err_size);
-    if (!text)
-        return 2;
-    char *end;
-    errno = 0;
-    long v = strtol(text, &end, 10);
-    if (errno || end == text || *end || v < lo || v > hi) {
-        snprintf(err, err_size, "argv:%d: %s wants a whole number in [%ld, %ld], not '%s'", *i, flag, lo, hi, text);
-        return 2;
-    }
-    *out = (int)v;
-    return 1;
-}
-
-int parse_double_option(int argc, char **argv, int *i, double lo, double hi, double *out, char *err,
-                        size_t err_size)
-{
-    const char *flag = argv[*i];
-    const char *text = value_of(argc, argv, i, err, err_size);
-    if (!text)
-        return 2;
-    char *end;
-    errno = 0;
-    double v = strtod(text, &end);
-    if (errno || end == text || *end || !isfinite(v) || v < lo || v > hi) {
-        snprintf(err, err_size, "argv:%d: %s wants a number in [%g, %g], not '%s'", *i, flag, lo, hi, text);
-        return 2;
-    }
-    *out = v;
-    return 1;
-}
-
 /* The options every chapter shares (DESIGN.md's contract), one row each. */
 static int parse_out(void *state, const char *value, int argv_index, char *why, size_t why_size)
 {
@@ -291,12 +247,10 @@ static void print_help(const chapter *ch, const char *program)
     printf("\n%s options:\n", ch->name);
     for (int g = 0; g < OPTION_MAX_GROUPS && ch->options[g].table; g++)
         options_print_help(stdout, ch->options[g].table);
-    if (ch->options_help)
-        printf("%s", ch->options_help);
 }
 
-static int parse_command_line(int argc, char **argv, const chapter *ch, void *state, render_options *o, bool *help,
-                              char *err, size_t err_size)
+static int parse_command_line(int argc, char **argv, const chapter *ch, render_options *o, bool *help, char *err,
+                              size_t err_size)
 {
     *o = (render_options){0};
     option_group groups[OPTION_MAX_GROUPS + 1] = {{DRIVER_OPTIONS, o}};
@@ -314,9 +268,6 @@ static int parse_command_line(int argc, char **argv, const chapter *ch, void *st
             *help = true;
             return 0;
         } else if ((status = options_parse_one(groups, group_count, argc, argv, &i, err, err_size)) != 0) {
-            if (status != 1)
-                return status;
-        } else if (ch->parse_option && (status = ch->parse_option(state, argc, argv, &i, err, err_size))) {
             if (status != 1)
                 return status;
         } else if (a[0] == '-' && a[1] != '\0') {
@@ -573,7 +524,7 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
     double start = now_seconds();
     render_options o;
     bool help = false;
-    if (parse_command_line(argc, argv, ch, state, &o, &help, err, err_size))
+    if (parse_command_line(argc, argv, ch, &o, &help, err, err_size))
         return 2;
     if (help) {
         print_help(ch, argv[0]);

@@ -61,15 +61,10 @@ typedef struct chapter {
     /* The chapter's own options: tables and the state each one's offsets
      * are relative to, ended by an empty group (see options.h). */
     option_group options[OPTION_MAX_GROUPS];
-    const char *options_help; /* legacy: extra --help text for parse_option (may be NULL) */
     int default_spp;
     /* Names of the counters the chapter increments, NULL-terminated. */
     const char *counter_names[RENDER_MAX_COUNTERS + 1];
 
-    /* The chapter's own option at argv[*i].  Return 1 if consumed (advance *i
-     * past its values), 0 if not the chapter's, 2 on a bad value (write the
-     * message into err).  May be NULL. */
-    int (*parse_option)(void *state, int argc, char **argv, int *i, char *err, size_t err_size);
     /* After the scene is loaded, before any pixel: precomputation (the
      * radiosity solve).  Return 0, or 2 with a message.  May be NULL. */
     int (*prepare)(void *state, const scene *s, const render_options *o, char *err, size_t err_size);
@@ -109,10 +104,5 @@ void json_vec3(FILE *f, vec3 v);
 /* One more member of the stats object: `,\n  "key": value`. */
 void json_field_number(FILE *f, const char *key, double v);
 
-/* Parse helpers for chapter options: a whole number / a finite double in
- * [lo, hi]; on failure write "argv:N: message" into err and return 2. */
-int parse_int_option(int argc, char **argv, int *i, long lo, long hi, int *out, char *err, size_t err_size);
-int parse_double_option(int argc, char **argv, int *i, double lo, double hi, double *out, char *err,
-                        size_t err_size);
 
 #endif
