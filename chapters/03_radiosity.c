@@ -1,4 +1,4 @@
-/* 03_radiosity.c — Lectures 3-5: the rendering equation as a linear system.
+/* 03_radiosity.c — Lecture 3: the rendering equation as a linear system; radiosity.
  *
  * For diffuse (Lambertian) surfaces the exitant radiance does not depend on
  * direction.  Split the surfaces into patches i, assume the radiance L_i is

@@ -1,4 +1,4 @@
-/* 04_pathtrace.c — Lectures 5 and 6: path tracing.
+/* 04_pathtrace.c — Lecture 4: path tracing.
  *
  *   (R2)  L_r(x, w_r) = L_e(x, w_r) + Int_Omega L_r(x', -w_i) f(x, w_i, w_r) cos(theta_i) dw_i
  *
