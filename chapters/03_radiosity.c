@@ -49,7 +49,7 @@ typedef struct {
     vec3 *first_shot;    /* light from point lights reflected once: part of term 1 of (R6) */
     vec3 *source;        /* Le + first_shot: the right-hand side E of (R4), and its size as power */
     double source_norm;
-    vec3 *radiance;      /* L: the solution shown (the --bounces window) */
+    vec3 *radiance; /* L: the solution shown (the --bounces window) */
     radiosity_stats stats;
 } radiosity_state;
 
@@ -321,8 +321,8 @@ static int solve_direct(radiosity_state *st, vec3 *L)
 {
     size_t n = (size_t)st->mesh.patch_count;
     if (n > 4000 && !st->quiet)
-        fprintf(stderr, "03_radiosity: direct solve of %zu patches: O(n^3) = %.2g operations per channel; "
-                        "this will take a while\n", n, (double)n * n * n / 3.0);
+        fprintf(stderr, "03_radiosity: direct solve of %zu patches: O(n^3) = %.2g operations per channel\n", n,
+                (double)n * n * n / 3.0);
     double *a = malloc(n * n * sizeof *a + 1), *b = malloc(n * sizeof *b + 1);
     for (int channel = 0; a && b && channel < 3; channel++) {
         for (size_t i = 0; i < n; i++) {

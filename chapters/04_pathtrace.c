@@ -25,15 +25,16 @@
 
 /* ---- state and options ------------------------------------------------------------------------- */
 
-typedef enum { ESTIMATOR_HEMISPHERE, ESTIMATOR_COSINE, ESTIMATOR_LIGHT, ESTIMATOR_MIS } estimator_kind; /* --estimator */
+/* --estimator, in the order of its choices */
+typedef enum { ESTIMATOR_HEMISPHERE, ESTIMATOR_COSINE, ESTIMATOR_LIGHT, ESTIMATOR_MIS } estimator_kind;
 static const char *const estimator_names[] = {"hemisphere", "cosine", "light", "mis"};
 
 typedef struct {
-    int estimator; /* estimator_kind */
+    int estimator;                                           /* estimator_kind */
     int rr_depth, max_depth, probe_samples, surface_samples; /* the options of the same names */
     int bounce_min, bounce_max; /* from here on filled by prepare; --bounces A:B keeps K^A E .. K^B E (R6) */
     uint64_t seed;
-    double total_power; /* of all lights */
+    double total_power;                /* of all lights */
     surface_average *surface_averages; /* --surface-samples, to compare with radiosity (R10) */
     int surface_average_count;
     uint64_t surface_rays;
@@ -50,7 +51,11 @@ static int warned_truncation, warned_rr_depth, warned_no_light;
 /* A vertex of a walk: light leaves x toward w_o (unit, toward the eye or the
  * last vertex); n is the unit normal on the side of w_o (surfaces are
  * two-sided), `front` says if that is the side the scene file faces. */
-typedef struct { vec3 x, n, w_o; bool front; const material *m; } vertex;
+typedef struct {
+    vec3 x, n, w_o;
+    bool front;
+    const material *m;
+} vertex;
 
 static vertex vertex_at(vec3 x, vec3 n_geometric, vec3 w_o, const material *m)
 {
@@ -114,8 +119,10 @@ static bool may_scatter(const pathtrace_state *st, int k)
     if (k > st->max_depth && st->max_depth < st->bounce_max) {
 #pragma omp atomic
         truncated_walks++;
-        warn_once(&warned_truncation, "04_pathtrace: a path reached --max-depth %d and was cut there, so the image "
-                  "misses the terms beyond K^%d E and is biased low (count in stats)", st->max_depth, st->max_depth);
+        warn_once(&warned_truncation,
+                  "04_pathtrace: a path reached --max-depth %d and was cut there, so the image "
+                  "misses the terms beyond K^%d E and is biased low (count in stats)",
+                  st->max_depth, st->max_depth);
     }
     return false;
 }
@@ -263,8 +270,8 @@ typedef struct {
 
 static bool sample_light(const pathtrace_state *st, const scene *s, vec3 x, rng *g, light_sample *out)
 {
-    if (!(st->total_power > 0.0))
-        return false; /* no light shines */
+    if (!(st->total_power > 0.0)) /* no light shines */
+        return false;
     int i = 0, last = s->emitter_count + s->light_count - 1; /* pick light i with probability power / total */
     for (double u = rng_uniform(g) * st->total_power; i < last && u >= light_power(s, i); i++)
         u -= light_power(s, i);
@@ -293,7 +300,11 @@ static bool sample_light(const pathtrace_state *st, const scene *s, vec3 x, rng 
  * finds it by itself counts the rest).  Next-event estimation alone: all. */
 typedef double light_share(double pdf_light, double pdf_bsdf);
 
-static double light_sample_only(double pdf_light, double pdf_bsdf) { (void)pdf_light, (void)pdf_bsdf; return 1.0; }
+static double light_sample_only(double pdf_light, double pdf_bsdf)
+{
+    (void)pdf_light, (void)pdf_bsdf;
+    return 1.0;
+}
 
 /* One light sample's contribution to the radiance reflected at v toward w_o:
  * f L_e cos(theta_i) V / p (R9), times the light sample's share. */
@@ -421,19 +432,22 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
         warn_once(&warned_no_light, "04_pathtrace: the scene has no light (no point light, no emitter): "
                                     "only the background lights it");
     walk_source w = {reflected, st, s, keep(st, 0)};
-    return st->surface_samples == 0 ? 0 : walk_surface_averages(&w, st->seed ^ 0x73757266616365ull, st->surface_samples,
-                                                                &st->surface_averages, &st->surface_average_count,
-                                                                &st->surface_rays, err, err_size);
+    return st->surface_samples == 0
+               ? 0
+               : walk_surface_averages(&w, st->seed ^ 0x73757266616365ull, st->surface_samples, &st->surface_averages,
+                                       &st->surface_average_count, &st->surface_rays, err, err_size);
 }
 
 static void write_stats(const void *state_pointer, FILE *json)
 {
     const pathtrace_state *st = state_pointer;
-    fprintf(json, ",\n  \"estimator\": \"%s\",\n  \"rr_depth\": %d,\n  \"max_depth\": %d,\n  \"truncated_paths\": %llu,"
-                  "\n  \"biased_by_max_depth\": %s,\n  \"probe_samples\": %d,\n  \"surface_samples\": %d,"
-                  "\n  \"surface_rays\": %llu", estimator_names[st->estimator], st->rr_depth, st->max_depth,
-            (unsigned long long)truncated_walks, truncated_walks ? "true" : "false", st->probe_samples,
-            st->surface_samples, (unsigned long long)st->surface_rays);
+    fprintf(json,
+            ",\n  \"estimator\": \"%s\",\n  \"rr_depth\": %d,\n  \"max_depth\": %d,\n  \"truncated_paths\": %llu,"
+            "\n  \"biased_by_max_depth\": %s,\n  \"probe_samples\": %d,\n  \"surface_samples\": %d,"
+            "\n  \"surface_rays\": %llu",
+            estimator_names[st->estimator], st->rr_depth, st->max_depth, (unsigned long long)truncated_walks,
+            truncated_walks ? "true" : "false", st->probe_samples, st->surface_samples,
+            (unsigned long long)st->surface_rays);
     json_surface_averages(json, st->scene, st->surface_averages, st->surface_average_count);
 }
 
@@ -447,16 +461,17 @@ static void finish(void *state_pointer)
 #define OPTION_FIELD(field) offsetof(pathtrace_state, field)
 static const option PATHTRACE_OPTIONS[] = {
     {"--estimator", NULL, OPTION_CHOICE, OPTION_FIELD(estimator), .choices = "hemisphere|cosine|light|mis",
-     .default_text = "mis", .help = "uniform directions (R2 as written), cosine-weighted directions, "
-                                    "next-event estimation on the lights (R9), or both by MIS"},
+     .default_text = "mis",
+     .help = "uniform directions (R2 as written), cosine-weighted directions, "
+             "next-event estimation on the lights (R9), or both by MIS"},
     {"--rr-depth", "N", OPTION_INT, OPTION_FIELD(rr_depth), .min = 0, .max = RENDER_BOUNCES_UNLIMITED,
      .default_text = "3", .help = "Russian roulette from N bounces on (unbiased)"},
     {"--max-depth", "N", OPTION_INT, OPTION_FIELD(max_depth), .min = 0, .max = RENDER_BOUNCES_UNLIMITED,
      .default_text = "1000", .help = "cut paths after N bounces (biased if it cuts: see the stats)"},
     {"--probe-samples", "N", OPTION_INT, OPTION_FIELD(probe_samples), .min = 32, .max = 1 << 28,
      .default_text = "65536", .help = "walks per probe for its irradiance, in 32 batches"},
-    {"--surface-samples", "N", OPTION_INT, OPTION_FIELD(surface_samples), .min = 0, .max = 1 << 28,
-     .default_text = "0", .help = "walks per surface for the stats key \"surfaces\" (0: off)"},
+    {"--surface-samples", "N", OPTION_INT, OPTION_FIELD(surface_samples), .min = 0, .max = 1 << 28, .default_text = "0",
+     .help = "walks per surface for the stats key \"surfaces\" (0: off)"},
     {0},
 };
 #undef OPTION_FIELD

@@ -20,11 +20,12 @@ int write_patch_ply(const char *path, const patch_mesh *m, const vec3 *radiance,
     for (int p = 0; p < m->patch_count; p++)
         corners += m->patches[p].corner_count;
     int vertices = smooth ? m->vertex_count : corners;
-    fprintf(f, "ply\nformat ascii 1.0\ncomment %s: radiance per vertex (%s shading)\n"
-               "element vertex %d\nproperty float x\nproperty float y\nproperty float z\n"
-               "property float radiance_r\nproperty float radiance_g\nproperty float radiance_b\n"
-               "property uchar red\nproperty uchar green\nproperty uchar blue\n"
-               "element face %d\nproperty list uchar int vertex_indices\nend_header\n",
+    fprintf(f,
+            "ply\nformat ascii 1.0\ncomment %s: radiance per vertex (%s shading)\n"
+            "element vertex %d\nproperty float x\nproperty float y\nproperty float z\n"
+            "property float radiance_r\nproperty float radiance_g\nproperty float radiance_b\n"
+            "property uchar red\nproperty uchar green\nproperty uchar blue\n"
+            "element face %d\nproperty list uchar int vertex_indices\nend_header\n",
             program, smooth ? "smooth" : "flat", vertices, m->patch_count);
     for (int v = 0; v < vertices; v++) {
         vec3 p, L;

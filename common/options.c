@@ -57,9 +57,7 @@ static int parse_value(const option *row, void *state, const char *text, int ind
     char *end;
     errno = 0;
     switch (row->type) {
-    case OPTION_FLAG:
-        *(bool *)field_of(row, state) = true;
-        return 0;
+    case OPTION_FLAG: *(bool *)field_of(row, state) = true; return 0;
     case OPTION_INT: {
         long v = strtol(text, &end, 10);
         if (errno || end == text || *end || v < row->min || v > row->max) {
@@ -92,9 +90,7 @@ static int parse_value(const option *row, void *state, const char *text, int ind
         *(int *)field_of(row, state) = index;
         return 0;
     }
-    case OPTION_STRING:
-        *(const char **)field_of(row, state) = text;
-        return 0;
+    case OPTION_STRING: *(const char **)field_of(row, state) = text; return 0;
     case OPTION_CUSTOM: {
         char why[512];
         if (row->parse(state, text, index, why, sizeof why) == 0)

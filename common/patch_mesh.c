@@ -17,7 +17,9 @@ struct triangle_grid {
     int first_slot; /* into triangle_slots: 2 m^2 entries, (a, b, up/down) -> cell or -1 */
     int m;          /* the triangle is cut into m^2 similar triangles */
 };
-struct edge_entry { int a, b, midpoint; };
+struct edge_entry {
+    int a, b, midpoint;
+};
 
 /* Growable arrays: double the capacity when full.  Returns 0, or -1 when out of memory. */
 static int grow(void **array, int *capacity, int needed, size_t element_size)
@@ -117,8 +119,7 @@ static int mesh_quad(patch_mesh *m, const scene *s, int surface_index, double pa
  * points p0 + (a e1 + b e2) / m with a + b <= m; "up" cells (a, b), (a+1, b),
  * (a, b+1) and "down" cells (a+1, b), (a+1, b+1), (a, b+1), both with the
  * triangle's orientation. */
-static int mesh_triangle(patch_mesh *mesh, int surface_index, int triangle_index, const triangle *t,
-                         double patch_size)
+static int mesh_triangle(patch_mesh *mesh, int surface_index, int triangle_index, const triangle *t, double patch_size)
 {
     /* Equal area to a square of side patch_size cut in two: A / m^2 = size^2 / 2. */
     int m = cells_along(sqrt(2.0 * t->area), patch_size);
@@ -257,14 +258,18 @@ static int split_cell(patch_mesh *m, int cell_index)
         int middle = add_vertex(m, centre);
         if (middle < 0)
             return -1;
-        int children[4][4] = {{c.vertex[0], mid[0], middle, mid[3]}, {mid[0], c.vertex[1], mid[1], middle},
-                              {middle, mid[1], c.vertex[2], mid[2]}, {mid[3], middle, mid[2], c.vertex[3]}};
+        int children[4][4] = {{c.vertex[0], mid[0], middle, mid[3]},
+                              {mid[0], c.vertex[1], mid[1], middle},
+                              {middle, mid[1], c.vertex[2], mid[2]},
+                              {mid[3], middle, mid[2], c.vertex[3]}};
         for (int k = 0; k < 4; k++)
             if (add_cell(m, c.surface, children[k], 4) < 0)
                 return -1;
     } else {
-        int children[4][3] = {{c.vertex[0], mid[0], mid[2]}, {mid[0], c.vertex[1], mid[1]},
-                              {mid[2], mid[1], c.vertex[2]}, {mid[0], mid[1], mid[2]}};
+        int children[4][3] = {{c.vertex[0], mid[0], mid[2]},
+                              {mid[0], c.vertex[1], mid[1]},
+                              {mid[2], mid[1], c.vertex[2]},
+                              {mid[0], mid[1], mid[2]}};
         for (int k = 0; k < 4; k++)
             if (add_cell(m, c.surface, children[k], 3) < 0)
                 return -1;
@@ -356,8 +361,8 @@ int patch_mesh_collect(patch_mesh *m, int quadrature)
             double area = 0.5 * v3_length(cross);
             twice_area = v3_add(twice_area, cross);
             p->area += area;
-            centroid = v3_add(centroid, v3_scale(v3_add(p->corner[0], v3_add(p->corner[t], p->corner[t + 1])),
-                                                 area / 3.0));
+            centroid =
+                v3_add(centroid, v3_scale(v3_add(p->corner[0], v3_add(p->corner[t], p->corner[t + 1])), area / 3.0));
         }
         p->normal = v3_normalize(twice_area);
         p->centroid = v3_scale(centroid, 1.0 / p->area);
@@ -518,16 +523,16 @@ uint64_t patch_mesh_point_lights(const patch_mesh *m, const scene *s, vec3 *irra
                     continue;
                 rays++;
                 if (!scene_occluded(s, x, s->lights[l].position))
-                    irradiance = v3_add(irradiance, v3_scale(s->lights[l].intensity,
-                                                             m->weights[p->first_point + k] * cos_theta / r2));
+                    irradiance = v3_add(
+                        irradiance, v3_scale(s->lights[l].intensity, m->weights[p->first_point + k] * cos_theta / r2));
             }
         irradiance_out[i] = irradiance;
     }
     return rays;
 }
 
-vec3 patch_mesh_irradiance(const patch_mesh *m, const scene *s, const vec3 *radiance, vec3 x, vec3 n,
-                           bool point_lights, point_to_polygon_fn point_to_polygon)
+vec3 patch_mesh_irradiance(const patch_mesh *m, const scene *s, const vec3 *radiance, vec3 x, vec3 n, bool point_lights,
+                           point_to_polygon_fn point_to_polygon)
 {
     vec3 total = v3_splat(0.0);
     if (point_lights)

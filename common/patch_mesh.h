@@ -33,8 +33,8 @@ typedef struct {
     int vertex[4];    /* indices into the vertex array, counter-clockwise seen from the front */
     int vertex_count; /* 4 (quad cell) or 3 (triangle cell) */
     int surface;
-    int first_child;  /* the four children are first_child .. first_child + 3; -1 for a leaf */
-    int patch;        /* index of the leaf among the patches; -1 when split */
+    int first_child; /* the four children are first_child .. first_child + 3; -1 for a leaf */
+    int patch;       /* index of the leaf among the patches; -1 when split */
 } mesh_cell;
 
 /* A patch: a leaf cell with its geometry. */
@@ -57,8 +57,8 @@ typedef struct patch_mesh {
     int cell_count;
     patch *patches; /* the leaves, after patch_mesh_collect() */
     int patch_count;
-    vec3 *points;     /* quadrature points of all patches */
-    double *weights;  /* their weights (fractions of the patch area, summing to 1 per patch) */
+    vec3 *points;    /* quadrature points of all patches */
+    double *weights; /* their weights (fractions of the patch area, summing to 1 per patch) */
     int point_count;
     vec3 *vertex_radiance; /* after patch_mesh_vertex_radiance() */
 
@@ -130,8 +130,8 @@ uint64_t patch_mesh_point_lights(const patch_mesh *m, const scene *s, vec3 *irra
  * given by the caller, visibility by rays to j's quadrature points; plus,
  * with point_lights, the scene's point lights' I cos / r^2 (R1). */
 typedef double (*point_to_polygon_fn)(vec3 x, vec3 n, const vec3 *polygon, int count);
-vec3 patch_mesh_irradiance(const patch_mesh *m, const scene *s, const vec3 *radiance, vec3 x, vec3 n,
-                           bool point_lights, point_to_polygon_fn point_to_polygon);
+vec3 patch_mesh_irradiance(const patch_mesh *m, const scene *s, const vec3 *radiance, vec3 x, vec3 n, bool point_lights,
+                           point_to_polygon_fn point_to_polygon);
 
 void patch_mesh_free(patch_mesh *m);
 

@@ -38,8 +38,8 @@ static inline bool sphere_cone_cos_max(vec3 center, double radius, vec3 x, doubl
  * *direction* x -> y per steradian.  Outside: cone sampling.  Inside: uniform
  * area sampling converted to solid angle, pdf_A * |x - y|^2 / |cos theta_y|
  * (R7).  Returns false if the sample is degenerate (pdf 0). */
-static inline bool sphere_light_sample(vec3 center, double radius, vec3 x, double u1, double u2, vec3 *y,
-                                       vec3 *normal, double *pdf_solid_angle)
+static inline bool sphere_light_sample(vec3 center, double radius, vec3 x, double u1, double u2, vec3 *y, vec3 *normal,
+                                       double *pdf_solid_angle)
 {
     double cos_max;
     if (sphere_cone_cos_max(center, radius, x, &cos_max)) {

@@ -80,7 +80,11 @@ static void check_cosine_integral(const char *what, vec3 (*sample)(double, doubl
     double mean = sum / n, variance = sum_squares / n - mean * mean;
     CHECK_NEAR(mean, M_PI, 5 * sqrt(variance / n) + 1e-12, what);
 }
-static double uniform_pdf(vec3 d) { (void)d; return uniform_hemisphere_pdf(); }
+static double uniform_pdf(vec3 d)
+{
+    (void)d;
+    return uniform_hemisphere_pdf();
+}
 static double cosine_pdf(vec3 d) { return cosine_hemisphere_pdf(d.z); }
 
 static void test_hemisphere_samplers_integrate_cosine(void)
@@ -216,8 +220,8 @@ static void test_psnr_is_not_fooled_by_a_bright_light(void)
     image dim_reference = image_new(16, 16), close = image_new(16, 16);
     for (int i = 0; i < 16 * 16 * 3; i++) {
         bright_reference.pixels[i] = dim_reference.pixels[i] = 0.2f;
-        noisy.pixels[i] = i % 2 ? 0.0f : 0.6f;  /* every pixel far off */
-        close.pixels[i] = 0.21f;                /* every pixel slightly off */
+        noisy.pixels[i] = i % 2 ? 0.0f : 0.6f; /* every pixel far off */
+        close.pixels[i] = 0.21f;               /* every pixel slightly off */
     }
     bright_reference.pixels[0] = noisy.pixels[0] = 1700.0f; /* the light, right in both */
     image_metrics worse = image_compare(&noisy, &bright_reference), better = image_compare(&close, &dim_reference);

@@ -69,14 +69,20 @@ static int truetype_atlas(font_atlas *f, const unsigned char *data, float pixel_
     stbtt_bakedchar baked[FONT_GLYPH_COUNT];
     if (!f->pixels)
         return 2;
-    int used = stbtt_BakeFontBitmap(data, 0, pixel_height, f->pixels, size, size, FONT_GLYPH_FIRST, FONT_GLYPH_COUNT,
-                                    baked);
+    int used =
+        stbtt_BakeFontBitmap(data, 0, pixel_height, f->pixels, size, size, FONT_GLYPH_FIRST, FONT_GLYPH_COUNT, baked);
     if (used <= 0 || used > size - 3)
         return 1;
     for (int g = 0; g < FONT_GLYPH_COUNT; g++) {
         const stbtt_bakedchar *b = &baked[g];
-        f->glyphs[g] = (glyph){(float)b->x0 / size, (float)b->y0 / size, (float)b->x1 / size, (float)b->y1 / size,
-                               b->xoff, b->yoff, b->xoff + (float)(b->x1 - b->x0), b->yoff + (float)(b->y1 - b->y0),
+        f->glyphs[g] = (glyph){(float)b->x0 / size,
+                               (float)b->y0 / size,
+                               (float)b->x1 / size,
+                               (float)b->y1 / size,
+                               b->xoff,
+                               b->yoff,
+                               b->xoff + (float)(b->x1 - b->x0),
+                               b->yoff + (float)(b->y1 - b->y0),
                                b->xadvance};
     }
     for (int y = size - 2; y < size; y++)

@@ -21,9 +21,9 @@ typedef struct {
     unsigned char *pixels; /* width x height coverage, row 0 at the top */
     int width, height;
     glyph glyphs[FONT_GLYPH_COUNT];
-    float ascent;          /* pixels from the top of a line to the baseline */
+    float ascent;           /* pixels from the top of a line to the baseline */
     float solid_s, solid_t; /* an atlas point of full coverage (for filled rectangles) */
-    char source[256];      /* the file, or "8x8 bitmap" */
+    char source[256];       /* the file, or "8x8 bitmap" */
 } font_atlas;
 
 #define FONT_DEFAULT_PATH "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf"

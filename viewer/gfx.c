@@ -25,13 +25,12 @@ static const char *quad_vs =
     "}\n";
 
 static const int text_fs_line = __LINE__ + 2;
-static const char *text_fs =
-    "#version 330 core\n"
-    "uniform sampler2D atlas;\n"
-    "uniform vec4 colour;\n"
-    "in vec2 uv;\n"
-    "out vec4 fragment;\n"
-    "void main() { fragment = vec4(colour.rgb, colour.a * texture(atlas, uv).r); }\n";
+static const char *text_fs = "#version 330 core\n"
+                             "uniform sampler2D atlas;\n"
+                             "uniform vec4 colour;\n"
+                             "in vec2 uv;\n"
+                             "out vec4 fragment;\n"
+                             "void main() { fragment = vec4(colour.rgb, colour.a * texture(atlas, uv).r); }\n";
 
 /* The tone map of common/image.c: v = L 2^exposure; 0 if not > 0, 1 if >= 1,
  * else the sRGB curve; the 8-bit framebuffer rounds 255 x to nearest. */
@@ -83,68 +82,66 @@ static const char *panel_fs =
     "}\n";
 
 static const int mesh_vs_line = __LINE__ + 2;
-static const char *mesh_vs =
-    "#version 330 core\n"
-    "layout(location = 0) in vec3 position;\n"
-    "layout(location = 1) in vec3 normal;\n"
-    "layout(location = 2) in vec3 kd;\n"
-    "layout(location = 3) in vec3 ks;\n"
-    "layout(location = 4) in float exponent;\n"
-    "layout(location = 5) in vec3 emission;\n"
-    "uniform mat4 view_projection;\n"
-    "out vec3 P, N, Kd, Ks, Le;\n"
-    "out float n_exp;\n"
-    "void main() {\n"
-    "    P = position; N = normal; Kd = kd; Ks = ks; Le = emission; n_exp = exponent;\n"
-    "    gl_Position = view_projection * vec4(position, 1.0);\n"
-    "}\n";
+static const char *mesh_vs = "#version 330 core\n"
+                             "layout(location = 0) in vec3 position;\n"
+                             "layout(location = 1) in vec3 normal;\n"
+                             "layout(location = 2) in vec3 kd;\n"
+                             "layout(location = 3) in vec3 ks;\n"
+                             "layout(location = 4) in float exponent;\n"
+                             "layout(location = 5) in vec3 emission;\n"
+                             "uniform mat4 view_projection;\n"
+                             "out vec3 P, N, Kd, Ks, Le;\n"
+                             "out float n_exp;\n"
+                             "void main() {\n"
+                             "    P = position; N = normal; Kd = kd; Ks = ks; Le = emission; n_exp = exponent;\n"
+                             "    gl_Position = view_projection * vec4(position, 1.0);\n"
+                             "}\n";
 
 /* Chapter 1's local model (chapters/01_local.c), in linear radiance:
  *   L = Le (front side of emitters) + kd La
  *     + sum over lights [kd/pi cos(theta_i) + ks (N.H)^n] I / r^2     (R1, classic Blinn)
  * shading both sides (the normal turned toward the eye), no shadows. */
 static const int mesh_fs_line = __LINE__ + 2;
-static const char *mesh_fs =
-    "#version 330 core\n"
-    "const int MAX_LIGHTS = 16;\n"
-    "uniform vec3 eye;\n"
-    "uniform vec3 ambient;\n"
-    "uniform int light_count;\n"
-    "uniform vec3 light_position[MAX_LIGHTS];\n"
-    "uniform vec3 light_intensity[MAX_LIGHTS];\n"
-    "uniform vec3 light_normal[MAX_LIGHTS];\n"
-    "uniform int light_cosine[MAX_LIGHTS];\n"
-    "uniform bool unlit;\n"
-    "in vec3 P, N, Kd, Ks, Le;\n"
-    "in float n_exp;\n"
-    "out vec4 fragment;\n"
-    "const float PI = 3.14159265358979;\n"
-    "void main() {\n"
-    "    if (unlit) { fragment = vec4(Le, 1.0); return; }\n"
-    "    vec3 w_o = normalize(eye - P);\n"
-    "    vec3 n = normalize(N);\n"
-    "    bool front = dot(n, w_o) > 0.0;\n"
-    "    if (!front) n = -n;\n"
-    "    vec3 L = (front ? Le : vec3(0.0)) + Kd * ambient;\n"
-    "    for (int l = 0; l < light_count; l++) {\n"
-    "        vec3 d = light_position[l] - P;\n"
-    "        float r2 = dot(d, d);\n"
-    "        vec3 w_i = d * inversesqrt(r2);\n"
-    "        float cos_i = dot(n, w_i);\n"
-    "        if (cos_i <= 0.0) continue;\n"
-    "        vec3 I = light_intensity[l];\n"
-    "        if (light_cosine[l] != 0) {\n"
-    "            float cos_y = -dot(light_normal[l], w_i);\n"
-    "            if (cos_y <= 0.0) continue;\n"
-    "            I *= cos_y;\n"
-    "        }\n"
-    "        vec3 f = Kd * (cos_i / PI);\n"
-    "        float cos_h = dot(n, normalize(w_i + w_o));\n"
-    "        if (cos_h > 0.0) f += Ks * pow(cos_h, n_exp);\n"
-    "        L += f * I / r2;\n"
-    "    }\n"
-    "    fragment = vec4(L, 1.0);\n"
-    "}\n";
+static const char *mesh_fs = "#version 330 core\n"
+                             "const int MAX_LIGHTS = 16;\n"
+                             "uniform vec3 eye;\n"
+                             "uniform vec3 ambient;\n"
+                             "uniform int light_count;\n"
+                             "uniform vec3 light_position[MAX_LIGHTS];\n"
+                             "uniform vec3 light_intensity[MAX_LIGHTS];\n"
+                             "uniform vec3 light_normal[MAX_LIGHTS];\n"
+                             "uniform int light_cosine[MAX_LIGHTS];\n"
+                             "uniform bool unlit;\n"
+                             "in vec3 P, N, Kd, Ks, Le;\n"
+                             "in float n_exp;\n"
+                             "out vec4 fragment;\n"
+                             "const float PI = 3.14159265358979;\n"
+                             "void main() {\n"
+                             "    if (unlit) { fragment = vec4(Le, 1.0); return; }\n"
+                             "    vec3 w_o = normalize(eye - P);\n"
+                             "    vec3 n = normalize(N);\n"
+                             "    bool front = dot(n, w_o) > 0.0;\n"
+                             "    if (!front) n = -n;\n"
+                             "    vec3 L = (front ? Le : vec3(0.0)) + Kd * ambient;\n"
+                             "    for (int l = 0; l < light_count; l++) {\n"
+                             "        vec3 d = light_position[l] - P;\n"
+                             "        float r2 = dot(d, d);\n"
+                             "        vec3 w_i = d * inversesqrt(r2);\n"
+                             "        float cos_i = dot(n, w_i);\n"
+                             "        if (cos_i <= 0.0) continue;\n"
+                             "        vec3 I = light_intensity[l];\n"
+                             "        if (light_cosine[l] != 0) {\n"
+                             "            float cos_y = -dot(light_normal[l], w_i);\n"
+                             "            if (cos_y <= 0.0) continue;\n"
+                             "            I *= cos_y;\n"
+                             "        }\n"
+                             "        vec3 f = Kd * (cos_i / PI);\n"
+                             "        float cos_h = dot(n, normalize(w_i + w_o));\n"
+                             "        if (cos_h > 0.0) f += Ks * pow(cos_h, n_exp);\n"
+                             "        L += f * I / r2;\n"
+                             "    }\n"
+                             "    fragment = vec4(L, 1.0);\n"
+                             "}\n";
 
 static struct {
     GLuint text_program, panel_program, mesh_program;
@@ -441,7 +438,7 @@ void gfx_fill(rect r, const float rgba[4])
 static const glyph *glyph_of(int c)
 {
     return c >= FONT_GLYPH_FIRST && c < FONT_GLYPH_FIRST + FONT_GLYPH_COUNT ? &G.font.glyphs[c - FONT_GLYPH_FIRST]
-                                                                           : NULL;
+                                                                            : NULL;
 }
 
 int gfx_text_width(const char *text)
@@ -507,10 +504,7 @@ void gfx_image(rect area, GLuint texture, double origin_x, double origin_y, doub
     glDisable(GL_SCISSOR_TEST);
 }
 
-void gfx_heat_legend(rect bar)
-{
-    gfx_image(bar, 0, bar.x, bar.y, bar.w, 0.0, PANEL_LEGEND, 0);
-}
+void gfx_heat_legend(rect bar) { gfx_image(bar, 0, bar.x, bar.y, bar.w, 0.0, PANEL_LEGEND, 0); }
 
 void gfx_read_rgb8(int width, int height, unsigned char *rgb)
 {

@@ -15,7 +15,9 @@
 
 #include <glad/gl.h>
 
-typedef struct { int x, y, w, h; } rect;
+typedef struct {
+    int x, y, w, h;
+} rect;
 
 /* Compile the shaders and make the font atlas.  raster_shader: a file that
  * replaces the built-in Blinn-Phong fragment shader (NULL: built-in).
@@ -27,7 +29,10 @@ const char *gfx_renderer(void); /* GL_RENDERER, e.g. "llvmpipe (LLVM 15.0.6, 256
 
 /* An off-screen framebuffer: colour (RGBA8 for the screen image, RGBA32F
  * for a 3D panel's radiance) and depth. */
-typedef struct { GLuint fbo, colour, depth; int width, height; } target;
+typedef struct {
+    GLuint fbo, colour, depth;
+    int width, height;
+} target;
 int target_create(target *t, int width, int height, bool float_colour, char *err, size_t err_size);
 void target_destroy(target *t);
 
@@ -57,7 +62,10 @@ void gfx_read_rgb8(int width, int height, unsigned char *rgb);
  * exponent, emission (16 floats).  With unlit, the colour is the emission
  * (radiosity's per-vertex radiance). */
 enum { MESH_FLOATS = 16, MAX_LIGHTS = 16 };
-typedef struct { GLuint vao, vbo; int vertex_count; } mesh;
+typedef struct {
+    GLuint vao, vbo;
+    int vertex_count;
+} mesh;
 void mesh_upload(mesh *m, const float *vertices, int vertex_count);
 void mesh_destroy(mesh *m);
 typedef struct {

@@ -64,15 +64,15 @@ static struct {
     /* view state */
     double exposure, zoom, cx, cy; /* zoom 1 = fit; (cx, cy): image point at the panel centre, 0..1 */
     bool diff, split, help;
-    int reference, split_b;        /* panel indices */
-    bool reference_given;          /* by --reference, --diff, --split, 1..9 or a right click */
-    double split_position;         /* 0..1 of the width */
+    int reference, split_b; /* panel indices */
+    bool reference_given;   /* by --reference, --diff, --split, 1..9 or a right click */
+    double split_position;  /* 0..1 of the width */
     double mouse_x, mouse_y;
     bool cursor_given, mouse_inside;
     bool dragging, panning;
     double drag_x, drag_y;
     bool redraw, camera_moved;
-    double restart_at;             /* when to restart the children after the camera moved; 0 none */
+    double restart_at; /* when to restart the children after the camera moved; 0 none */
     int screenshot_counter;
 
     /* content */
@@ -81,15 +81,19 @@ static struct {
     scene scene;
     bool scene_loaded;
     mesh_uniforms uniforms;
-    int aspect_w, aspect_h;        /* of the images, for the layout */
+    int aspect_w, aspect_h; /* of the images, for the layout */
     vec3 bounds_lo, bounds_hi;
     char temp_dir[PATH_LEN];
     child_spec spec;
-    target screen;                 /* headless framebuffer */
+    target screen; /* headless framebuffer */
 } V;
 
 static volatile sig_atomic_t quit_requested;
-static void on_signal(int sig) { (void)sig; quit_requested = 1; }
+static void on_signal(int sig)
+{
+    (void)sig;
+    quit_requested = 1;
+}
 
 static int add_file_panel(const char *path, char *err, size_t err_size)
 {
@@ -137,10 +141,10 @@ typedef struct {
     const char *name, *alias; /* alias: the same option under an older name */
     const char *value;        /* what follows it, as shown ("WxH"); NULL: a flag */
     option_kind kind;
-    void *target;             /* bool *, const char **, double *, int * */
-    double lo, hi;            /* OPT_NUMBER, OPT_INT */
-    option_handler *handle;   /* OPT_CUSTOM */
-    const char *help;         /* '\n' starts an indented continuation line */
+    void *target;           /* bool *, const char **, double *, int * */
+    double lo, hi;          /* OPT_NUMBER, OPT_INT */
+    option_handler *handle; /* OPT_CUSTOM */
+    const char *help;       /* '\n' starts an indented continuation line */
 } option;
 
 static struct {
@@ -237,8 +241,10 @@ static int opt_scene(const char *name, const char *value, int arg, char *err, si
 static int opt_reference(const char *name, const char *value, int arg, char *err, size_t err_size)
 {
     if (!parse_panel_number(value, &V.reference))
-        return bad(err, err_size, arg, !strcmp(name, "--diff") ? "--diff wants a panel number, not"
-                                                                : "--reference wants a panel number, not", value);
+        return bad(err, err_size, arg,
+                   !strcmp(name, "--diff") ? "--diff wants a panel number, not"
+                                           : "--reference wants a panel number, not",
+                   value);
     V.reference_given = true;
     V.diff |= !strcmp(name, "--diff");
     return 0;
@@ -297,12 +303,30 @@ static int opt_chapter(const char *name, const char *value, int arg, char *err, 
     return 0;
 }
 
-#define SECTION(title) {NULL, NULL, NULL, OPT_SECTION, NULL, 0, 0, NULL, title}
-#define FLAG(name, field, help) {name, NULL, NULL, OPT_FLAG, &V.field, 0, 0, NULL, help}
-#define STRING(name, value, field, help) {name, NULL, value, OPT_STRING, &V.field, 0, 0, NULL, help}
-#define NUMBER(name, value, field, lo, hi, help) {name, NULL, value, OPT_NUMBER, &V.field, lo, hi, NULL, help}
-#define INT(name, value, field, lo, hi, help) {name, NULL, value, OPT_INT, &V.field, lo, hi, NULL, help}
-#define CUSTOM(name, value, handler, help) {name, NULL, value, OPT_CUSTOM, NULL, 0, 0, handler, help}
+#define SECTION(title)                                                                                                 \
+    {                                                                                                                  \
+        NULL, NULL, NULL, OPT_SECTION, NULL, 0, 0, NULL, title                                                         \
+    }
+#define FLAG(name, field, help)                                                                                        \
+    {                                                                                                                  \
+        name, NULL, NULL, OPT_FLAG, &V.field, 0, 0, NULL, help                                                         \
+    }
+#define STRING(name, value, field, help)                                                                               \
+    {                                                                                                                  \
+        name, NULL, value, OPT_STRING, &V.field, 0, 0, NULL, help                                                      \
+    }
+#define NUMBER(name, value, field, lo, hi, help)                                                                       \
+    {                                                                                                                  \
+        name, NULL, value, OPT_NUMBER, &V.field, lo, hi, NULL, help                                                    \
+    }
+#define INT(name, value, field, lo, hi, help)                                                                          \
+    {                                                                                                                  \
+        name, NULL, value, OPT_INT, &V.field, lo, hi, NULL, help                                                       \
+    }
+#define CUSTOM(name, value, handler, help)                                                                             \
+    {                                                                                                                  \
+        name, NULL, value, OPT_CUSTOM, NULL, 0, 0, handler, help                                                       \
+    }
 
 static const option OPTIONS[] = {
     SECTION("modes:"),
@@ -310,10 +334,12 @@ static const option OPTIONS[] = {
      "compare: the images in a grid, with the stats JSON beside each (same name .json)"},
     CUSTOM("--scene", "NAME", opt_scene, "compare DIR/NAME-NN_*.pfm (DIR: --dir, default out)"),
     {"--dir", NULL, "DIR", OPT_STRING, &compare_args.dir, 0, 0, NULL, "where --scene looks (default out)"},
-    CUSTOM("--live", "SCENE", opt_mode, "run every chapter (build/0*_*) as a child with the viewer's camera and show\n"
-                                        "its progressive images; orbiting restarts them.  A GLSL raster is panel 1."),
-    CUSTOM("--raster", "SCENE", opt_mode, "the scene rasterised by a GLSL Blinn-Phong shader (chapter 1's local model,\n"
-                                          "no shadows) beside chapter 1's ray-cast image of the same camera"),
+    CUSTOM("--live", "SCENE", opt_mode,
+           "run every chapter (build/0*_*) as a child with the viewer's camera and show\n"
+           "its progressive images; orbiting restarts them.  A GLSL raster is panel 1."),
+    CUSTOM("--raster", "SCENE", opt_mode,
+           "the scene rasterised by a GLSL Blinn-Phong shader (chapter 1's local model,\n"
+           "no shadows) beside chapter 1's ray-cast image of the same camera"),
     CUSTOM("--ply", "FILE.ply", opt_mode, "radiosity's mesh with smooth per-vertex radiance, orbitable"),
     SECTION("display:"),
     CUSTOM("--backend", "glfw|egl|osmesa", opt_backend, "context (default glfw with a display, else egl, else osmesa)"),
@@ -322,7 +348,8 @@ static const option OPTIONS[] = {
     CUSTOM("--render-size", "WxH", opt_size, "size of 3D panels and children's images (default: fit the panel)"),
     STRING("--out", "FILE.png|.ppm", out_path, "write what the window shows (headless: the first complete frame)"),
     STRING("--screenshot", "FILE", screenshot_path, "in a window: save the first complete frame there and exit"),
-    STRING("--panel-out", "FILE.pfm", panel_out_path, "write panel 1's linear radiance (the GLSL raster, the PLY view ...)"),
+    STRING("--panel-out", "FILE.pfm", panel_out_path,
+           "write panel 1's linear radiance (the GLSL raster, the PLY view ...)"),
     NUMBER("--exposure", "STOPS", exposure, -64, 64, "shared exposure (as the chapters' --exposure)"),
     CUSTOM("--diff", "N", opt_reference, "error heat map of every panel against panel N"),
     FLAG("--heat", diff, "error heat map against the default reference (the best image: see below)"),
@@ -334,8 +361,9 @@ static const option OPTIONS[] = {
     FLAG("--help-overlay", help, "show the key help"),
     CUSTOM("--help-keys", NULL, opt_help, "print the keys (and mouse) as a Markdown table and exit"),
     INT("--frames", "N", frames, 1, 1e6, "render N frames, print frames per second and exit"),
-    STRING("--font", "FILE.ttf", font_path, "the labels' font (default " FONT_DEFAULT_PATH ";\n"
-                                            "missing: the 8x8 bitmap font)"),
+    STRING("--font", "FILE.ttf", font_path,
+           "the labels' font (default " FONT_DEFAULT_PATH ";\n"
+           "missing: the 8x8 bitmap font)"),
     INT("--font-size", "PX", font_px, 6, 96, "its pixel height (default 14); the layout below scales with it"),
     CUSTOM("--help", NULL, opt_help, "this list (also -h)"),
     SECTION("3D and live:"),
@@ -348,7 +376,8 @@ static const option OPTIONS[] = {
     {"--budget", "--live-time", "SECONDS", OPT_NUMBER, &V.live_time, 0.01, 1e6, NULL,
      "each child's --time per camera (default 30: the path tracer converged\n"
      "enough to judge); --live-time is the same"},
-    INT("--exit-after-updates", "N", exit_after_updates, 1, 1e6, "headless live: stop after N updates of every chapter"),
+    INT("--exit-after-updates", "N", exit_after_updates, 1, 1e6,
+        "headless live: stop after N updates of every chapter"),
     FLAG("--no-shadows", no_shadows, "chapter 1's option, for the raster and passed to 01_local"),
     NUMBER("--ambient", "LA", ambient, 0, 1e6, "chapter 1's ambient radiance, likewise"),
     STRING("--raster-shader", "FILE.frag", raster_shader, "replace the built-in Blinn-Phong fragment shader"),
@@ -503,7 +532,10 @@ static int write_rgb8(const char *path, int w, int h, const unsigned char *rgb, 
  * image, or a column beside it) that make the images largest for their
  * aspect ratio, judged on the nominal cell (width / cols, height / rows,
  * rounded down); ties keep fewer columns, and the label above. */
-typedef struct { int cols, rows; bool beside; } grid;
+typedef struct {
+    int cols, rows;
+    bool beside;
+} grid;
 
 static double fitted_height(int area_w, int area_h)
 {
@@ -693,7 +725,8 @@ static void draw_frame(GLuint fbo, int width, int height)
         if (V.split) {
             panel *a = &V.panels[V.reference], *b = &V.panels[V.split_b];
             int split_x = (int)lround(width * V.split_position);
-            rect left = {area.x, area.y, split_x - area.x, area.h}, right = {split_x, area.y, area.x + area.w - split_x, area.h};
+            rect left = {area.x, area.y, split_x - area.x, area.h},
+                 right = {split_x, area.y, area.x + area.w - split_x, area.h};
             double ox, oy, s;
             placement(a, area, &ox, &oy, &s);
             gfx_image(left, a->texture, ox, oy, s, V.exposure, PANEL_RADIANCE, 0);
@@ -733,8 +766,7 @@ static void render_3d_panels(void)
         panel *p = &V.panels[i];
         if (p->kind != SOURCE_RASTER && p->kind != SOURCE_PLY)
             continue;
-        camera_matrix(&V.cam, p->target.width, p->target.height, V.bounds_lo, V.bounds_hi,
-                      V.uniforms.view_projection);
+        camera_matrix(&V.cam, p->target.width, p->target.height, V.bounds_lo, V.bounds_hi, V.uniforms.view_projection);
         V.uniforms.eye[0] = (float)V.cam.eye.x, V.uniforms.eye[1] = (float)V.cam.eye.y;
         V.uniforms.eye[2] = (float)V.cam.eye.z;
         V.uniforms.unlit = p->kind == SOURCE_PLY;
@@ -765,8 +797,8 @@ static int start_children(char *err, size_t err_size)
                 printf("spawn %s pid %ld%s\n", V.panels[i].method, (long)V.panels[i].pid,
                        V.panels[i].stale ? " (the old image stale until its first pass)" : "");
             if (used < sizeof pids)
-                used += (size_t)snprintf(pids + used, sizeof pids - used, "%s%ld", count ? "," : "",
-                                         (long)V.panels[i].pid);
+                used +=
+                    (size_t)snprintf(pids + used, sizeof pids - used, "%s%ld", count ? "," : "", (long)V.panels[i].pid);
             count++;
         }
     if (count) {
@@ -983,8 +1015,8 @@ static int set_up(char *err, size_t err_size)
             return 2;
         vec3 centre = v3_scale(v3_add(V.bounds_lo, V.bounds_hi), 0.5);
         double radius = 0.5 * v3_length(v3_sub(V.bounds_hi, V.bounds_lo));
-        V.scene_cam = (camera){.eye = v3_add(centre, v3(0, 0, -2.6 * radius)), .look = centre, .up = v3(0, 1, 0),
-                               .fov_degrees = 40.0};
+        V.scene_cam = (camera){
+            .eye = v3_add(centre, v3(0, 0, -2.6 * radius)), .look = centre, .up = v3(0, 1, 0), .fov_degrees = 40.0};
         aspect_w = V.width, aspect_h = V.height - LABEL_BAND - STATUS_BAND;
     } else {
         if (scene_load(V.scene_path, &V.scene, err, err_size))
@@ -1019,7 +1051,8 @@ static int set_up(char *err, size_t err_size)
     }
     for (int i = 0; i < V.panel_count; i++) {
         panel *p = &V.panels[i];
-        if ((p->kind == SOURCE_RASTER || p->kind == SOURCE_PLY) && target_create(&p->target, rw, rh, true, err, err_size))
+        if ((p->kind == SOURCE_RASTER || p->kind == SOURCE_PLY) &&
+            target_create(&p->target, rw, rh, true, err, err_size))
             return 2;
     }
     if (V.verbose)
@@ -1039,8 +1072,11 @@ static int set_up_children(int rw, int rh, char *err, size_t err_size)
         }
         static char ambient[32];
         snprintf(ambient, sizeof ambient, "%.17g", V.ambient);
-        V.spec = (child_spec){.scene_path = V.scene_path, .width = rw, .height = rh,
-                              .time_budget = V.mode == MODE_LIVE ? V.live_time : 0.0, .directory = V.temp_dir};
+        V.spec = (child_spec){.scene_path = V.scene_path,
+                              .width = rw,
+                              .height = rh,
+                              .time_budget = V.mode == MODE_LIVE ? V.live_time : 0.0,
+                              .directory = V.temp_dir};
         if (V.mode == MODE_RASTER) {
             if (V.no_shadows)
                 V.spec.extra[V.spec.extra_count++] = "--no-shadows";
@@ -1080,8 +1116,8 @@ static vec3 rotate(vec3 v, vec3 axis, double angle)
 static void log_camera(const char *what)
 {
     if (V.verbose && !V.frames)
-        printf("camera: %s eye=%.17g,%.17g,%.17g look=%.17g,%.17g,%.17g\n", what, V.cam.eye.x, V.cam.eye.y,
-               V.cam.eye.z, V.cam.look.x, V.cam.look.y, V.cam.look.z);
+        printf("camera: %s eye=%.17g,%.17g,%.17g look=%.17g,%.17g,%.17g\n", what, V.cam.eye.x, V.cam.eye.y, V.cam.eye.z,
+               V.cam.look.x, V.cam.look.y, V.cam.look.z);
 }
 
 /* Yaw about the camera's up, then pitch about its right axis (skipped near
@@ -1240,13 +1276,22 @@ static const key_binding KEYS[] = {
     {"Z", {GLFW_KEY_Z}, {0}, key_zoom_in, "zoom in by 1.25 (each panel about its centre)"},
     {"X", {GLFW_KEY_X}, {0}, key_zoom_out, "zoom out by 1.25"},
     {"F", {GLFW_KEY_F}, {0}, key_fit, "fit: zoom 1, centred"},
-    {"Left / Right / Up / Down", {GLFW_KEY_LEFT, GLFW_KEY_RIGHT, GLFW_KEY_UP, GLFW_KEY_DOWN}, {0}, key_arrow,
+    {"Left / Right / Up / Down",
+     {GLFW_KEY_LEFT, GLFW_KEY_RIGHT, GLFW_KEY_UP, GLFW_KEY_DOWN},
+     {0},
+     key_arrow,
      "pan 40 window pixels (Left shows more of the left); 3D: orbit 5 degrees"},
-    {"PgUp / PgDn", {GLFW_KEY_PAGE_UP, GLFW_KEY_PAGE_DOWN}, {0}, key_dolly, "3D: dolly in / out (distance x 0.9, / 0.9)"},
+    {"PgUp / PgDn",
+     {GLFW_KEY_PAGE_UP, GLFW_KEY_PAGE_DOWN},
+     {0},
+     key_dolly,
+     "3D: dolly in / out (distance x 0.9, / 0.9)"},
     {"D", {GLFW_KEY_D}, {0}, key_heat, "heat map: relative error vs the reference (default: the best image)"},
     {"1..9",
      {GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4, GLFW_KEY_5, GLFW_KEY_6, GLFW_KEY_7, GLFW_KEY_8, GLFW_KEY_9},
-     {0}, key_reference, "pick the reference panel"},
+     {0},
+     key_reference,
+     "pick the reference panel"},
     {"S", {GLFW_KEY_S}, {0}, key_split, "A/B split between the reference and panel B"},
     {"Tab", {GLFW_KEY_TAB}, {0}, key_next_b, "next panel B (skipping the reference)"},
     {", / .", {GLFW_KEY_COMMA, GLFW_KEY_PERIOD}, {0}, key_slider, "split slider 2 % of the width left / right"},
@@ -1567,7 +1612,8 @@ int main(int argc, char **argv)
     signal(SIGPIPE, SIG_IGN);
 
     /* The backend: the window when there is a display, else headless. */
-    bool display = (getenv("DISPLAY") && *getenv("DISPLAY")) || (getenv("WAYLAND_DISPLAY") && *getenv("WAYLAND_DISPLAY"));
+    bool display =
+        (getenv("DISPLAY") && *getenv("DISPLAY")) || (getenv("WAYLAND_DISPLAY") && *getenv("WAYLAND_DISPLAY"));
     if (!V.backend_given)
         V.backend = V.headless || !display ? BACKEND_EGL : BACKEND_GLFW;
     if (V.backend != BACKEND_GLFW)

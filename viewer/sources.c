@@ -246,8 +246,8 @@ static const char **child_argv(child_args *a, const panel *p, const child_spec *
     snprintf(a->fov, sizeof a->fov, "%.17g", spec->cam.fov_degrees);
     const char **argv = a->argv;
     int argc = 0;
-    const char *fixed[] = {p->exe, spec->scene_path, "--quiet", "--out", p->path, "--stats", p->stats_path,
-                           "--size", a->size};
+    const char *fixed[] = {p->exe,    spec->scene_path, "--quiet", "--out", p->path,
+                           "--stats", p->stats_path,    "--size",  a->size};
     for (size_t k = 0; k < sizeof fixed / sizeof *fixed; k++)
         argv[argc++] = fixed[k];
     if (spec->time_budget > 0) {
@@ -328,7 +328,7 @@ bool child_poll_warnings(panel *p)
         while (fgets(line, sizeof line, f)) {
             size_t n = strlen(line);
             if (n == 0 || (line[n - 1] != '\n' && n + 1 < sizeof line))
-                break; /* a line still being written: read it next time */
+                break;              /* a line still being written: read it next time */
             p->log_read += (long)n; /* (a longer line: the rest is read as a line of its own) */
             line[strcspn(line, "\n")] = '\0';
             if (strncmp(line, "warning:", 8) == 0) {
@@ -431,9 +431,10 @@ int scene_mesh(const scene *s, mesh *m, mesh_uniforms *u, vec3 ambient, char *er
         const material *mat = &s->materials[sf->material];
         for (int r = 0; r < SPHERE_RINGS; r++)
             for (int g = 0; g < SPHERE_SEGMENTS; g++) {
-                vec3 q[6] = {sphere_point(sf->center, sf->radius, r, g), sphere_point(sf->center, sf->radius, r + 1, g),
-                             sphere_point(sf->center, sf->radius, r + 1, g + 1), sphere_point(sf->center, sf->radius, r, g),
-                             sphere_point(sf->center, sf->radius, r + 1, g + 1), sphere_point(sf->center, sf->radius, r, g + 1)};
+                vec3 q[6] = {
+                    sphere_point(sf->center, sf->radius, r, g),         sphere_point(sf->center, sf->radius, r + 1, g),
+                    sphere_point(sf->center, sf->radius, r + 1, g + 1), sphere_point(sf->center, sf->radius, r, g),
+                    sphere_point(sf->center, sf->radius, r + 1, g + 1), sphere_point(sf->center, sf->radius, r, g + 1)};
                 for (int k = 0; k < 6; k++)
                     put_vertex(v + MESH_FLOATS * n++, q[k], v3_normalize(v3_sub(q[k], sf->center)), mat);
             }
@@ -492,14 +493,18 @@ int scene_mesh(const scene *s, mesh *m, mesh_uniforms *u, vec3 ambient, char *er
  * radiance r g b, red green blue, radiance_r ...; uchar colours are taken as
  * sRGB and decoded), faces as index lists (fans).  Enough for radiosity's
  * output, Blender's and MeshLab's. */
-typedef struct { char name[64]; int type; int list_count_type; } ply_property; /* type: 0 none 1 int 2 float 3 uchar... */
+typedef struct {
+    char name[64];
+    int type;
+    int list_count_type;
+} ply_property; /* type: 0 none 1 int 2 float 3 uchar... */
 
 enum { PLY_CHAR, PLY_UCHAR, PLY_SHORT, PLY_USHORT, PLY_INT, PLY_UINT, PLY_FLOAT, PLY_DOUBLE, PLY_BAD };
 
 static int ply_type(const char *t)
 {
-    static const char *names[][2] = {{"char", "int8"},   {"uchar", "uint8"}, {"short", "int16"},  {"ushort", "uint16"},
-                                     {"int", "int32"},   {"uint", "uint32"}, {"float", "float32"}, {"double", "float64"}};
+    static const char *names[][2] = {{"char", "int8"}, {"uchar", "uint8"}, {"short", "int16"},   {"ushort", "uint16"},
+                                     {"int", "int32"}, {"uint", "uint32"}, {"float", "float32"}, {"double", "float64"}};
     for (int i = 0; i < PLY_BAD; i++)
         if (!strcmp(t, names[i][0]) || !strcmp(t, names[i][1]))
             return i;
@@ -530,8 +535,17 @@ static double ply_read(FILE *f, int type, bool ascii, bool *ok)
     case PLY_USHORT: return (double)(uint16_t)u;
     case PLY_INT: return (double)(int32_t)u;
     case PLY_UINT: return (double)(uint32_t)u;
-    case PLY_FLOAT: { uint32_t w = (uint32_t)u; float x; memcpy(&x, &w, 4); return x; }
-    default: { double x; memcpy(&x, &u, 8); return x; }
+    case PLY_FLOAT: {
+        uint32_t w = (uint32_t)u;
+        float x;
+        memcpy(&x, &w, 4);
+        return x;
+    }
+    default: {
+        double x;
+        memcpy(&x, &u, 8);
+        return x;
+    }
     }
 }
 
@@ -650,12 +664,18 @@ int ply_mesh(const char *path, mesh *m, vec3 *lo, vec3 *hi, char *err, size_t er
         for (int k = 0; k < vprop_count; k++) {
             double x = ply_read(f, vprops[k].type, ascii, &ok);
             bool byte_colour = vprops[k].type == PLY_UCHAR;
-            if (k == ix) out[0] = x;
-            if (k == iy) out[1] = x;
-            if (k == iz) out[2] = x;
-            if (k == ir) out[3] = byte_colour ? srgb_decode(x / 255.0) : x;
-            if (k == ig) out[4] = byte_colour ? srgb_decode(x / 255.0) : x;
-            if (k == ib) out[5] = byte_colour ? srgb_decode(x / 255.0) : x;
+            if (k == ix)
+                out[0] = x;
+            if (k == iy)
+                out[1] = x;
+            if (k == iz)
+                out[2] = x;
+            if (k == ir)
+                out[3] = byte_colour ? srgb_decode(x / 255.0) : x;
+            if (k == ig)
+                out[4] = byte_colour ? srgb_decode(x / 255.0) : x;
+            if (k == ib)
+                out[5] = byte_colour ? srgb_decode(x / 255.0) : x;
         }
         *lo = v3_min(*lo, v3(out[0], out[1], out[2]));
         *hi = v3_max(*hi, v3(out[0], out[1], out[2]));
