@@ -1541,3 +1541,13 @@ def test_live_children_die_with_a_killed_viewer(ctx):
             proc.kill()
             proc.wait()
         proc.stdout.close()
+
+
+def test_scene_or_mesh_in_compare_mode_points_to_its_mode(ctx):
+    """`build/viewer x.scene` is a mistake a new user makes: the message names
+    the mode that shows a scene (--live) or a mesh (--ply), exit 2."""
+    for path, mode in (("scenes/cornell.scene", "--live"), ("out/x.ply", "--ply")):
+        r = run_viewer(ctx, "--headless", "--out", ctx.path("never.png"), path)
+        assert r.returncode == 2 and r.stderr.startswith(f"{path}:") and mode in r.stderr, \
+            f"{path}: exit {r.returncode}, {r.stderr!r}"
+        assert not os.path.exists(ctx.path("never.png"))

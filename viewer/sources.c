@@ -181,6 +181,15 @@ static void stem(const char *path, char *out, size_t out_size)
 int panel_load_pfm(panel *p, const char *path, char *err, size_t err_size)
 {
     image img;
+    /* A scene or a mesh is not an image to compare: say which mode shows it. */
+    if (path_has_extension(path, ".scene")) {
+        snprintf(err, err_size, "%s:0: a scene, not an image: --live %s renders it with every chapter", path, path);
+        return 2;
+    }
+    if (path_has_extension(path, ".ply")) {
+        snprintf(err, err_size, "%s:0: a mesh, not an image: --ply %s shows it", path, path);
+        return 2;
+    }
     if (image_read_pfm(path, &img, err, err_size))
         return 2;
     image_free(&p->img);

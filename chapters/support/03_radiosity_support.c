@@ -57,8 +57,8 @@ const option RADIOSITY_OPTIONS[] = {
      .default_text = "jacobi", .help = "how L = E + KL is solved"},
     {"--tol", "T", OPTION_DOUBLE, OPTION_FIELD(tolerance), .min = 0.0, .max = 1.0, .default_text = "1e-4",
      .help = "stop when the residual falls below T (a fraction of the source power)"},
-    {"--iterations", "N", OPTION_INT, OPTION_FIELD(max_iterations), .min = 1, .max = 100000000,
-     .default_text = "1000", .help = "at most N iterations (shooting: N x patches shots)"},
+    {"--iterations", "N", OPTION_INT, OPTION_FIELD(max_iterations), .min = 1, .max = 100000000, .default_text = "1000",
+     .help = "at most N iterations (shooting: N x patches shots)"},
     {"--max-patches", "N", OPTION_INT, OPTION_FIELD(max_patches), .min = 1, .max = 1 << 30, .default_text = "16384",
      .help = "refuse matrix solvers above N patches (16384: 2 GiB of doubles for the direct solve)"},
     {"--quadrature", "M", OPTION_INT, OPTION_FIELD(quadrature), .min = 1, .max = 16, .default_text = "4",
@@ -94,8 +94,8 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
     fprintf(json, ",\n  \"solver\": \"%s\",\n  \"solver_used\": \"%s\",\n  \"patch_size\": ", solver_names[o->solver],
             r->solver_used ? r->solver_used : "none");
     json_number(json, o->patch_size);
-    fprintf(json, ",\n  \"patches\": %d,\n  \"refinements\": %d,\n  \"iterations\": %d,\n  \"shots\": %d",
-            patches, r->refinements, r->iterations, r->shots);
+    fprintf(json, ",\n  \"patches\": %d,\n  \"refinements\": %d,\n  \"iterations\": %d,\n  \"shots\": %d", patches,
+            r->refinements, r->iterations, r->shots);
     json_field_number(json, "residual", r->residual);
     json_field_number(json, "tolerance", o->tolerance);
     fprintf(json, ",\n  \"converged\": %s,\n  \"no_light\": %s,\n  \"residual_history\": [",
@@ -122,12 +122,13 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
 void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int patches, bool quiet)
 {
     if (r->no_light)
-        fprintf(stderr, "03_radiosity: nothing in the scene emits light (no emitter, no point light): "
+        fprintf(stderr, "warning: 03_radiosity: the scene has no light (no point light, no emitter): "
                         "the solution is zero and the image black\n");
     else if (!r->converged)
-        fprintf(stderr, "03_radiosity: %s stopped at the iteration cap (%d iterations) with residual %.3g "
-                        "above --tol %.3g; raise --iterations\n", r->solver_used, r->iterations, r->residual,
-                o->tolerance);
+        fprintf(stderr,
+                "warning: 03_radiosity: %s stopped at the iteration cap (%d iterations) with residual %.3g "
+                "above --tol %.3g; raise --iterations\n",
+                r->solver_used, r->iterations, r->residual, o->tolerance);
     if (!quiet)
         fprintf(stderr, "03_radiosity: %d patches, form factors %.2f s, %s %d iterations %.2f s, residual %.3g\n",
                 patches, r->formfactor_s, r->solver_used, r->iterations, r->solve_s, r->residual);
@@ -148,7 +149,8 @@ int radiosity_check_matrix_size(const radiosity_options *o, int n, char *err, si
 {
     if (o->solver == SOLVER_SHOOTING || n <= o->max_patches)
         return 0;
-    snprintf(err, err_size, "argv:0: %d patches need a %d x %d matrix (%.2f GiB as doubles), over the limit "
+    snprintf(err, err_size,
+             "argv:0: %d patches need a %d x %d matrix (%.2f GiB as doubles), over the limit "
              "--max-patches %d (2 GiB); use --solver shooting, a larger --patch-size, or raise --max-patches",
              n, n, n, (double)n * n * 8.0 / 1073741824.0, o->max_patches);
     return 2;
