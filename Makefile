@@ -6,6 +6,7 @@
 #   make fuzz       libFuzzer on the scene parser (FUZZ_SECONDS=60)
 #   make tradeoff   error against time for every method (QUICK=1: under a minute)
 #   make slides     lecture decks (HTML + PDF) into out/slides/
+#   make format     rewrite the C sources in the style of .clang-format (make test checks it)
 #   make deps       install the Debian packages the project needs
 #   make clean
 # Options: NATIVE=1 adds -march=native; CC=clang builds with clang;
@@ -34,7 +35,7 @@ COMMON_OBJ := $(COMMON_SRC:%.c=$(BUILD)/%.o)
 CHAPTERS   := $(patsubst chapters/%.c,$(BUILD)/%,$(wildcard chapters/*.c))
 TESTS      := $(patsubst tests/%.c,$(BUILD)/tests/%,$(wildcard tests/test_*.c))
 
-.PHONY: all tests demo test test-plain bench deps print-deps fuzz clean
+.PHONY: all tests demo test test-plain bench deps print-deps fuzz format clean
 .DEFAULT_GOAL := all
 .SECONDARY:
 
@@ -48,6 +49,14 @@ $(BUILD)/common/%.o: common/%.c
 $(BUILD)/%: chapters/%.c $(COMMON_OBJ)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) -Icommon $< $(filter %.o,$^) -o $@ $(LDFLAGS) $(LDLIBS)
+
+# A chapter's helper files, chapters/support/NN_name_*.c (what its lecture
+# does not teach: option tables, statistics), are linked into it alone.
+$(BUILD)/chapters/support/%.o: chapters/support/%.c
+	@mkdir -p $(dir $@)
+	$(CC) $(CFLAGS) -Icommon -c $< -o $@
+$(foreach c,$(CHAPTERS),$(eval $(c): $(patsubst chapters/support/%.c,$(BUILD)/chapters/support/%.o,\
+  $(wildcard chapters/support/$(notdir $(c))_*.c))))
 
 # Chapter 2 shades with chapter 1's local model (chapters/local_model.h):
 # it links chapter 1's object with that chapter's main renamed, so neither
@@ -134,6 +143,11 @@ fuzz: deps
 	cp -n scenes/*.scene tests/bad/*.scene build/fuzz/corpus/ 2>/dev/null || true
 	cd tests/bad && ../../build/fuzz/fuzz_scene -max_total_time=$(FUZZ_SECONDS) -max_len=4096 \
 	  -artifact_prefix=../fuzz/findings/ ../../build/fuzz/corpus
+
+# Rewrite every C file in the project's style (.clang-format); make test checks it.
+format:
+	clang-format -i --style=file $$(/usr/bin/python3 -c 'import sys; sys.path.insert(0, "tests"); \
+	  import grade_style; print(" ".join(grade_style.c_files()))')
 
 clean:
 	rm -rf build out

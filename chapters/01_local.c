@@ -185,9 +185,9 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
 
     vec3 zero = v3_splat(0.0);
     vec3 emitted = keep(state, 0) && m->kind == MATERIAL_EMITTER && front ? m->emission : zero; /* E */
-    vec3 direct = keep(state, 1) ? direct_light(&state->local, s, h.point, n, w_o, &shaded,
-                                                state->local.light_samples, g, counters)
-                                 : zero;                                         /* KE (R1) */
+    vec3 direct = keep(state, 1) ? direct_light(&state->local, s, h.point, n, w_o, &shaded, state->local.light_samples,
+                                                g, counters)
+                                 : zero; /* KE (R1) */
     bool keep_all_from_2 = state->bounce_min <= 2 && state->bounce_max == RENDER_BOUNCES_UNLIMITED;
     vec3 ambient = keep_all_from_2 ? ambient_light(&state->local, &shaded) : zero; /* rho La */
     return v3_add(emitted, v3_add(ambient, direct));
@@ -247,7 +247,8 @@ static void write_stats(const void *state_pointer, FILE *json)
 const option LOCAL_MODEL_OPTIONS[] = {
     {"--model", NULL, OPTION_CHOICE, MODEL(model), .choices = "phong|blinn", .default_text = "blinn",
      .help = "specular lobe"},
-    {"--normalised", NULL, OPTION_FLAG, MODEL(normalised), .help = "energy-normalised lobes instead of the classic ones"},
+    {"--normalised", NULL, OPTION_FLAG, MODEL(normalised),
+     .help = "energy-normalised lobes instead of the classic ones"},
     {"--normalized", NULL, OPTION_FLAG, 0, .alias_of = "--normalised"},
     {"--ambient", "LA", OPTION_DOUBLE, MODEL(ambient), .min = 0.0, .max = 1e6, .default_text = "0",
      .help = "constant ambient radiance standing in for K^2 E and beyond"},

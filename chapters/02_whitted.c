@@ -35,16 +35,16 @@
 /* ---- state and options ------------------------------------------------------------ */
 
 typedef enum { FRESNEL_EXACT, FRESNEL_SCHLICK } fresnel_formula; /* the order of --fresnel's choices */
-typedef enum { GLASS_FILTERS, GLASS_OPAQUE } glass_shadows;        /* the order of --shadows' choices */
+typedef enum { GLASS_FILTERS, GLASS_OPAQUE } glass_shadows;      /* the order of --shadows' choices */
 
 enum { MAX_DEPTH_LIMIT = 64 };
 
 typedef struct {
-    local_model local;        /* the shading at non-specular hits, as in chapter 1 */
-    int fresnel;              /* fresnel_formula: --fresnel exact|schlick */
-    int glass_shadows;        /* glass_shadows: --shadows opaque = glass blocks shadow rays like stone */
-    int max_depth;            /* --max-depth: deepest ray of the tree (camera ray = 0) */
-    double min_weight;        /* --min-weight: prune branches weighing less (Hall & Greenberg 1983) */
+    local_model local;          /* the shading at non-specular hits, as in chapter 1 */
+    int fresnel;                /* fresnel_formula: --fresnel exact|schlick */
+    int glass_shadows;          /* glass_shadows: --shadows opaque = glass blocks shadow rays like stone */
+    int max_depth;              /* --max-depth: deepest ray of the tree (camera ray = 0) */
+    double min_weight;          /* --min-weight: prune branches weighing less (Hall & Greenberg 1983) */
     double absorption_distance; /* --absorption D: > 0 turns a glass tint into Beer-Lambert absorption */
     int bounce_min, bounce_max; /* --bounces A:B, copied from the driver's options in prepare() */
     /* Histogram of the ray-tree depth per camera ray, max_depth + 1 bins.
@@ -69,10 +69,10 @@ enum {
  * points to the front, outside the glass.  A glass ball in air has IOR 1.5;
  * an air bubble in water has IOR 1 / 1.33 (its outside is water). */
 typedef struct {
-    vec3 normal;      /* unit, on the side the ray comes from */
-    double n_i, n_t;  /* indices on the incident and transmitted side */
-    double cos_i;     /* cos(theta_i) > 0 */
-    bool entering;    /* the ray comes from the front (outside) */
+    vec3 normal;     /* unit, on the side the ray comes from */
+    double n_i, n_t; /* indices on the incident and transmitted side */
+    double cos_i;    /* cos(theta_i) > 0 */
+    bool entering;   /* the ray comes from the front (outside) */
 } interface;
 
 static interface interface_at(const material *m, vec3 geometric_normal, vec3 direction)
@@ -235,8 +235,8 @@ static vec3 dielectric(ray_tree *tree, ray r, const hit *h, const material *m, i
 
     double R = fresnel_reflectance(state, &at);
     vec3 refracted_direction;
-    bool total_internal_reflection = R >= 1.0 || !refract_direction(r.direction, at.normal, at.n_i / at.n_t,
-                                                                    &refracted_direction);
+    bool total_internal_reflection =
+        R >= 1.0 || !refract_direction(r.direction, at.normal, at.n_i / at.n_t, &refracted_direction);
     if (total_internal_reflection) {
         tree->counters->value[COUNT_TOTAL_INTERNAL_REFLECTIONS]++;
         R = 1.0; /* all of it is reflected, whatever Schlick says */
@@ -289,8 +289,8 @@ static vec3 trace(ray_tree *tree, ray r, int depth, vec3 weight)
     if (m->kind == MATERIAL_EMITTER && front && keep_term(tree, depth)) /* L_e: the term K^depth E */
         L = m->emission;
     if (keep_term(tree, depth + 1)) /* one more reflection, off this surface: K^(depth+1) E */
-        L = v3_add(L, direct_light(&state->local, s, h.point, n, w_o, m, state->local.light_samples, tree->g,
-                                   tree->counters));
+        L = v3_add(
+            L, direct_light(&state->local, s, h.point, n, w_o, m, state->local.light_samples, tree->g, tree->counters));
     /* The ambient term stands in for all terms from K^(depth+2) E on; it is
      * kept only when --bounces keeps all of those. */
     if (state->bounce_min <= depth + 2 && state->bounce_max == RENDER_BOUNCES_UNLIMITED)
@@ -332,8 +332,8 @@ static void write_stats(const void *state_pointer, FILE *json)
 {
     const whitted_state *state = state_pointer;
     fprintf(json, ",\n  \"fresnel\": \"%s\",\n  \"glass_shadows\": \"%s\",\n  \"max_depth\": %d,\n  \"min_weight\": ",
-            state->fresnel == FRESNEL_EXACT ? "exact" : "schlick", state->glass_shadows == GLASS_OPAQUE ? "opaque" : "filtered",
-            state->max_depth);
+            state->fresnel == FRESNEL_EXACT ? "exact" : "schlick",
+            state->glass_shadows == GLASS_OPAQUE ? "opaque" : "filtered", state->max_depth);
     json_number(json, state->min_weight);
     json_field_number(json, "absorption_distance", state->absorption_distance);
     fprintf(json, ",\n  \"model\": \"%s\",\n  \"normalised\": %s,\n  \"shadows\": %s,\n  \"light_samples\": %d",
@@ -385,8 +385,8 @@ int main(int argc, char **argv)
         .options = {{LOCAL_MODEL_OPTIONS, &state.local}, {WHITTED_OPTIONS, &state}},
         .default_spp = 1,
         .counter_names = {"shadow_rays", "point_light_samples", "area_light_samples", "reflected_rays",
-                          "refracted_rays", "total_internal_reflections", "pruned_branches",
-                          "depth_limited_branches", NULL},
+                          "refracted_rays", "total_internal_reflections", "pruned_branches", "depth_limited_branches",
+                          NULL},
         .prepare = prepare,
         .radiance = radiance,
         .write_stats = write_stats,

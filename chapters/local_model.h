@@ -31,11 +31,11 @@ typedef vec3 (*light_transmittance_function)(const void *context, const scene *s
                                              render_counters *counters);
 
 typedef struct {
-    int model;              /* specular_model: --model phong|blinn */
-    bool normalised;        /* energy-normalised lobes instead of the classic ones */
-    double ambient;         /* La: constant incident radiance standing in for all other bounces */
-    int light_samples;      /* points per emitter per call of direct_light() */
-    bool no_shadows;        /* every light is visible (no shadow rays) */
+    int model;         /* specular_model: --model phong|blinn */
+    bool normalised;   /* energy-normalised lobes instead of the classic ones */
+    double ambient;    /* La: constant incident radiance standing in for all other bounces */
+    int light_samples; /* points per emitter per call of direct_light() */
+    bool no_shadows;   /* every light is visible (no shadow rays) */
     /* Visibility V(x, y) of (R9).  NULL: opaque occluders, one shadow ray
      * (scene_occluded).  Chapter 2 lets light through glass. */
     light_transmittance_function transmittance;

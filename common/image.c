@@ -119,8 +119,8 @@ int image_read_pfm(const char *path, image *out, char *err, size_t err_size)
     char magic[3] = {0};
     int width = 0, height = 0;
     double scale = 0.0;
-    if (fscanf(f, "%2s %d %d %lf", magic, &width, &height, &scale) != 4 || strcmp(magic, "PF") != 0 ||
-        width <= 0 || height <= 0 || width > 1 << 15 || height > 1 << 15 || scale == 0.0 || fgetc(f) == EOF) {
+    if (fscanf(f, "%2s %d %d %lf", magic, &width, &height, &scale) != 4 || strcmp(magic, "PF") != 0 || width <= 0 ||
+        height <= 0 || width > 1 << 15 || height > 1 << 15 || scale == 0.0 || fgetc(f) == EOF) {
         fclose(f);
         snprintf(err, err_size, "%s:1: not a colour PFM file (expected 'PF', size and scale)", path);
         return 2;
@@ -142,10 +142,9 @@ int image_read_pfm(const char *path, image *out, char *err, size_t err_size)
                 snprintf(err, err_size, "%s:0: truncated PFM data", path);
                 return 2;
             }
-            uint32_t bits = little_endian ? (uint32_t)b[0] | (uint32_t)b[1] << 8 | (uint32_t)b[2] << 16 |
-                                                (uint32_t)b[3] << 24
-                                          : (uint32_t)b[3] | (uint32_t)b[2] << 8 | (uint32_t)b[1] << 16 |
-                                                (uint32_t)b[0] << 24;
+            uint32_t bits = little_endian
+                                ? (uint32_t)b[0] | (uint32_t)b[1] << 8 | (uint32_t)b[2] << 16 | (uint32_t)b[3] << 24
+                                : (uint32_t)b[3] | (uint32_t)b[2] << 8 | (uint32_t)b[1] << 16 | (uint32_t)b[0] << 24;
             memcpy(&row[i], &bits, 4);
         }
     }

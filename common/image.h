@@ -75,7 +75,9 @@ double srgb_encode(double linear01);
  *       HDR radiance (a light of 1700) would make a bad image score high.
  * ssim: mean SSIM (Wang et al. 2004) of the tone-mapped luminance,
  *       8x8 windows, stride 4, constants K1 = 0.01, K2 = 0.03. */
-typedef struct { double rmse, relmse, psnr, ssim; } image_metrics;
+typedef struct {
+    double rmse, relmse, psnr, ssim;
+} image_metrics;
 image_metrics image_compare(const image *test, const image *reference);
 
 /* Does the path end in ext (".png")?  Case-insensitive. */

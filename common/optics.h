@@ -39,15 +39,19 @@ static inline double fresnel_dielectric(double cos_i, double n_i, double n_t, do
     cos_i = fmin(fmax(cos_i, 0.0), 1.0);
     double sin_t = n_i / n_t * sqrt(fmax(0.0, 1.0 - cos_i * cos_i));
     if (sin_t >= 1.0) {
-        if (rs2) *rs2 = 1.0;
-        if (rp2) *rp2 = 1.0;
+        if (rs2)
+            *rs2 = 1.0;
+        if (rp2)
+            *rp2 = 1.0;
         return 1.0;
     }
     double cos_t = sqrt(fmax(0.0, 1.0 - sin_t * sin_t));
     double r_s = (n_i * cos_i - n_t * cos_t) / (n_i * cos_i + n_t * cos_t);
     double r_p = (n_t * cos_i - n_i * cos_t) / (n_t * cos_i + n_i * cos_t);
-    if (rs2) *rs2 = r_s * r_s;
-    if (rp2) *rp2 = r_p * r_p;
+    if (rs2)
+        *rs2 = r_s * r_s;
+    if (rp2)
+        *rp2 = r_p * r_p;
     return 0.5 * (r_s * r_s + r_p * r_p);
 }
 

@@ -57,9 +57,7 @@ static int parse_value(const option *row, void *state, const char *text, int ind
     char *end;
     errno = 0;
     switch (row->type) {
-    case OPTION_FLAG:
-        *(bool *)field_of(row, state) = true;
-        return 0;
+    case OPTION_FLAG: *(bool *)field_of(row, state) = true; return 0;
     case OPTION_INT: {
         long v = strtol(text, &end, 10);
         if (errno || end == text || *end || v < row->min || v > row->max) {
@@ -92,9 +90,7 @@ static int parse_value(const option *row, void *state, const char *text, int ind
         *(int *)field_of(row, state) = index;
         return 0;
     }
-    case OPTION_STRING:
-        *(const char **)field_of(row, state) = text;
-        return 0;
+    case OPTION_STRING: *(const char **)field_of(row, state) = text; return 0;
     case OPTION_CUSTOM: {
         char why[512];
         if (row->parse(state, text, index, why, sizeof why) == 0)
@@ -224,9 +220,10 @@ void options_print_help(FILE *out, const option *table)
         else
             snprintf(line, sizeof line, "%s%s%s%s", row->help, *parenthesis ? " (" : "", parenthesis,
                      *parenthesis ? ")" : "");
-        fprintf(out, "  %-*s ", NAME_COLUMNS, left);
         if ((int)strlen(left) > NAME_COLUMNS)
-            fprintf(out, "\n%*s", NAME_COLUMNS + 3, "");
+            fprintf(out, "  %s\n%*s", left, NAME_COLUMNS + 3, ""); /* a long name: the help on the next line */
+        else
+            fprintf(out, "  %-*s ", NAME_COLUMNS, left);
         print_wrapped(out, line, NAME_COLUMNS + 3, WIDTH);
     }
 }

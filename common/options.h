@@ -33,13 +33,13 @@ typedef struct option {
     const char *name;       /* "--max-depth"; NULL ends a table */
     const char *value_name; /* what --help shows for the value ("N"); NULL for flags and choices */
     option_type type;
-    size_t offset;          /* offsetof(the state struct, the field) */
-    double min, max;        /* OPTION_INT and OPTION_DOUBLE: the value must lie in [min, max] */
-    bool min_exclusive;     /* OPTION_DOUBLE: the value must be > min rather than >= min */
-    const char *choices;    /* OPTION_CHOICE: the words, separated by '|' */
+    size_t offset;            /* offsetof(the state struct, the field) */
+    double min, max;          /* OPTION_INT and OPTION_DOUBLE: the value must lie in [min, max] */
+    bool min_exclusive;       /* OPTION_DOUBLE: the value must be > min rather than >= min */
+    const char *choices;      /* OPTION_CHOICE: the words, separated by '|' */
     const char *default_text; /* parsed like a value given on the command line; NULL: zero */
-    const char *help;       /* one line for --help */
-    const char *alias_of;   /* "--shading smooth": this name is a short way of writing that */
+    const char *help;         /* one line for --help */
+    const char *alias_of;     /* "--shading smooth": this name is a short way of writing that */
     /* OPTION_CUSTOM: parse `value` (argv[argv_index]) into the state; 0, or
      * 2 with the reason (without "argv:N: --name") in why. */
     int (*parse)(void *state, const char *value, int argv_index, char *why, size_t why_size);

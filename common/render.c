@@ -94,50 +94,6 @@ void json_vec3(FILE *f, vec3 v)
 
 /* --- command line ---------------------------------------------------------------- */
 
-static const char *value_of(int argc, char **argv, int *i, char *err, size_t err_size) /* LEGACY */
-{
-    if (*i + 1 >= argc) {
-        snprintf(err, err_size, "argv:%d: %s needs a value (see --help)", *i, argv[*i]);
-        return NULL;
-    }
-    return argv[++*i];
-}
-
-int parse_int_option(int argc, char **argv, int *i, long lo, long hi, int *out, char *err, size_t err_size)
-{
-    const char *flag = argv[*i];
-    const char *text = value_of(argc, argv, i, err, err_size);
-    if (!text)
-        return 2;
-    char *end;
-    errno = 0;
-    long v = strtol(text, &end, 10);
-    if (errno || end == text || *end || v < lo || v > hi) {
-        snprintf(err, err_size, "argv:%d: %s wants a whole number in [%ld, %ld], not '%s'", *i, flag, lo, hi, text);
-        return 2;
-    }
-    *out = (int)v;
-    return 1;
-}
-
-int parse_double_option(int argc, char **argv, int *i, double lo, double hi, double *out, char *err,
-                        size_t err_size)
-{
-    const char *flag = argv[*i];
-    const char *text = value_of(argc, argv, i, err, err_size);
-    if (!text)
-        return 2;
-    char *end;
-    errno = 0;
-    double v = strtod(text, &end);
-    if (errno || end == text || *end || !isfinite(v) || v < lo || v > hi) {
-        snprintf(err, err_size, "argv:%d: %s wants a number in [%g, %g], not '%s'", *i, flag, lo, hi, text);
-        return 2;
-    }
-    *out = v;
-    return 1;
-}
-
 /* The options every chapter shares (DESIGN.md's contract), one row each. */
 static int parse_out(void *state, const char *value, int argv_index, char *why, size_t why_size)
 {
@@ -181,10 +137,14 @@ static int parse_seed(void *state, const char *value, int argv_index, char *why,
     return 0;
 }
 
-/* --eye, --look, --up: X,Y,Z; each sets its bit of camera_override. */
-static int parse_point(const char *value, vec3 *p, char *why, size_t why_size)
+/* --eye, --look, --up: X,Y,Z into *p, and `given` into camera_override. */
+static int parse_camera_point(void *state, int given, vec3 *p, const char *value, int argv_index, char *why,
+                              size_t why_size)
 {
+    render_options *o = state;
     char tail;
+    o->camera_argv = argv_index;
+    o->camera_override |= given;
     if (sscanf(value, "%lf,%lf,%lf%c", &p->x, &p->y, &p->z, &tail) != 3 || !v3_is_finite(*p)) {
         snprintf(why, why_size, "wants X,Y,Z (three numbers, commas, no spaces), not '%s'", value);
         return 2;
@@ -193,24 +153,18 @@ static int parse_point(const char *value, vec3 *p, char *why, size_t why_size)
 }
 static int parse_eye(void *state, const char *value, int argv_index, char *why, size_t why_size)
 {
-    render_options *o = state;
-    o->camera_argv = argv_index;
-    o->camera_override |= CAMERA_EYE;
-    return parse_point(value, &o->camera_eye, why, why_size);
+    vec3 *eye = &((render_options *)state)->camera_eye;
+    return parse_camera_point(state, CAMERA_EYE, eye, value, argv_index, why, why_size);
 }
 static int parse_look(void *state, const char *value, int argv_index, char *why, size_t why_size)
 {
-    render_options *o = state;
-    o->camera_argv = argv_index;
-    o->camera_override |= CAMERA_LOOK;
-    return parse_point(value, &o->camera_look, why, why_size);
+    vec3 *look = &((render_options *)state)->camera_look;
+    return parse_camera_point(state, CAMERA_LOOK, look, value, argv_index, why, why_size);
 }
 static int parse_up(void *state, const char *value, int argv_index, char *why, size_t why_size)
 {
-    render_options *o = state;
-    o->camera_argv = argv_index;
-    o->camera_override |= CAMERA_UP;
-    return parse_point(value, &o->camera_up, why, why_size);
+    vec3 *up = &((render_options *)state)->camera_up;
+    return parse_camera_point(state, CAMERA_UP, up, value, argv_index, why, why_size);
 }
 
 /* --bounces A:B, A: or A (R6). */
@@ -244,7 +198,8 @@ static const option DRIVER_OPTIONS[] = {
     {"--out", "FILE", OPTION_CUSTOM, 0, .parse = parse_out,
      .help = "write the image: .pfm linear radiance, .png tone-mapped sRGB; may be given several times; "
              "default out/<scene>-<chapter>.png"},
-    {"--size", "WxH", OPTION_CUSTOM, 0, .parse = parse_size, .help = "image size; default: the scene's `image` statement"},
+    {"--size", "WxH", OPTION_CUSTOM, 0, .parse = parse_size,
+     .help = "image size; default: the scene's `image` statement"},
     {"--spp", "N", OPTION_INT, DRIVER(spp), .min = 1, .max = 1 << 24,
      .help = "samples per pixel; a cap when --time is given"},
     {"--time", "SECONDS", OPTION_DOUBLE, DRIVER(time_budget), .min = 1e-3, .max = 1e6,
@@ -257,8 +212,8 @@ static const option DRIVER_OPTIONS[] = {
      .help = "print error metrics against a reference: RMSE; relative MSE, the mean of (t - r)^2 / (r^2 + 0.01); "
              "PSNR of the displayed image (clamped to [0, 1], sRGB; peak 1); SSIM of its luminance"},
     {"--stats", "FILE.json", OPTION_STRING, DRIVER(stats_path), .help = "write statistics as one JSON object"},
-    {"--bounces", "A:B", OPTION_CUSTOM, 0, .parse = parse_bounces, .default_text = "0:",
-     .help = "keep only the Neumann terms K^A E .. K^B E (R6); 'A:' = A and up"},
+    {"--bounces", "A:B", OPTION_CUSTOM, 0, .parse = parse_bounces,
+     .default_text = "0:", .help = "keep only the Neumann terms K^A E .. K^B E (R6); 'A:' = A and up"},
     {"--exposure", "STOPS", OPTION_DOUBLE, DRIVER(exposure), .min = -64, .max = 64, .default_text = "0",
      .help = "PNG exposure in stops"},
     {"--eye", "X,Y,Z", OPTION_CUSTOM, 0, .parse = parse_eye, .help = "camera position (overrides the scene's)"},
@@ -277,8 +232,8 @@ static void print_help(const chapter *ch, const char *program)
            "usage: %s [scene] [options]\n\n"
            "  %-24s %s\n"
            "  %-24s %s\n",
-           ch->name, ch->description, program, "scene", "a .scene file (default scenes/cornell.scene)",
-           "--help", "this text");
+           ch->name, ch->description, program, "scene", "a .scene file (default scenes/cornell.scene)", "--help",
+           "this text");
     /* The default of --spp is the chapter's: shown here, applied after parsing. */
     option driver[sizeof DRIVER_OPTIONS / sizeof DRIVER_OPTIONS[0]];
     char default_spp[16];
@@ -291,12 +246,10 @@ static void print_help(const chapter *ch, const char *program)
     printf("\n%s options:\n", ch->name);
     for (int g = 0; g < OPTION_MAX_GROUPS && ch->options[g].table; g++)
         options_print_help(stdout, ch->options[g].table);
-    if (ch->options_help)
-        printf("%s", ch->options_help);
 }
 
-static int parse_command_line(int argc, char **argv, const chapter *ch, void *state, render_options *o, bool *help,
-                              char *err, size_t err_size)
+static int parse_command_line(int argc, char **argv, const chapter *ch, render_options *o, bool *help, char *err,
+                              size_t err_size)
 {
     *o = (render_options){0};
     option_group groups[OPTION_MAX_GROUPS + 1] = {{DRIVER_OPTIONS, o}};
@@ -314,9 +267,6 @@ static int parse_command_line(int argc, char **argv, const chapter *ch, void *st
             *help = true;
             return 0;
         } else if ((status = options_parse_one(groups, group_count, argc, argv, &i, err, err_size)) != 0) {
-            if (status != 1)
-                return status;
-        } else if (ch->parse_option && (status = ch->parse_option(state, argc, argv, &i, err, err_size))) {
             if (status != 1)
                 return status;
         } else if (a[0] == '-' && a[1] != '\0') {
@@ -404,9 +354,9 @@ static void on_interrupt(int signal_number)
 }
 
 typedef struct {
-    double *sum;   /* running sum of samples of completed passes, 3 per pixel */
-    double *pass;  /* this pass's samples, added to sum only if the pass completes */
-    long samples;  /* per pixel so far */
+    double *sum;  /* running sum of samples of completed passes, 3 per pixel */
+    double *pass; /* this pass's samples, added to sum only if the pass completes */
+    long samples; /* per pixel so far */
     uint64_t nonfinite;
     render_counters counters;
 } accumulation;
@@ -573,7 +523,7 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
     double start = now_seconds();
     render_options o;
     bool help = false;
-    if (parse_command_line(argc, argv, ch, state, &o, &help, err, err_size))
+    if (parse_command_line(argc, argv, ch, &o, &help, err, err_size))
         return 2;
     if (help) {
         print_help(ch, argv[0]);
@@ -671,8 +621,7 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
             if (interrupted)
                 break;
         }
-        render_pass(ch, state, &s, &o, width, height, (int)acc.samples, pass_samples,
-                    spp_for_offsets, &acc);
+        render_pass(ch, state, &s, &o, width, height, (int)acc.samples, pass_samples, spp_for_offsets, &acc);
         if (interrupted)
             break;
         passes++;
@@ -721,8 +670,7 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
     if (write_outputs(ch, state, &s, &o, &img, err, err_size))
         goto done;
     summary.time_total = now_seconds() - start;
-    if (o.stats_path &&
-        write_stats(ch, state, &s, &o, width, height, &acc, probes, &summary, err, err_size))
+    if (o.stats_path && write_stats(ch, state, &s, &o, width, height, &acc, probes, &summary, err, err_size))
         goto done;
     if (acc.nonfinite)
         fprintf(stderr, "warning: %llu non-finite samples were rejected (counted in stats)\n",
@@ -730,8 +678,7 @@ static int run(int argc, char **argv, const chapter *ch, void *state, char *err,
     status = 0;
     if (interrupted) {
         /* The conventional status of a program ended by SIGINT (128 + 2). */
-        fprintf(stderr, "%s: interrupted; wrote the %ld samples per pixel completed so far\n", ch->name,
-                acc.samples);
+        fprintf(stderr, "%s: interrupted; wrote the %ld samples per pixel completed so far\n", ch->name, acc.samples);
         status = 130;
     }
 

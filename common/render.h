@@ -32,17 +32,17 @@ typedef struct {
     const char *outputs[RENDER_MAX_OUTPUTS];
     int output_argv[RENDER_MAX_OUTPUTS]; /* where each --out stood on the command line (for messages) */
     int output_count;
-    int width, height;  /* --size, or the scene's `image` */
-    int spp;            /* samples per pixel (a cap when --time is given) */
+    int width, height; /* --size, or the scene's `image` */
+    int spp;           /* samples per pixel (a cap when --time is given) */
     bool spp_given;
     double time_budget; /* seconds; 0 = no budget */
     uint64_t seed;
-    int threads;        /* 0 = OpenMP default */
+    int threads; /* 0 = OpenMP default */
     const char *reference_path;
     const char *stats_path;
     int bounce_min, bounce_max; /* --bounces A:B: keep Neumann terms K^A E .. K^B E (R6) */
     bool bounces_given;
-    double exposure;    /* PNG exposure in stops (--exposure) */
+    double exposure;                         /* PNG exposure in stops (--exposure) */
     vec3 camera_eye, camera_look, camera_up; /* --eye --look --up --fov override the scene's camera */
     double camera_fov;
     int camera_override; /* which of them were given: CAMERA_EYE | CAMERA_LOOK | ... */
@@ -50,26 +50,25 @@ typedef struct {
 } render_options;
 
 /* Per-thread event counts (rays of each kind ...), named by the chapter. */
-typedef struct { uint64_t value[RENDER_MAX_COUNTERS]; } render_counters;
+typedef struct {
+    uint64_t value[RENDER_MAX_COUNTERS];
+} render_counters;
 
 /* A probe's irradiance estimate and its standard error (0 when exact). */
-typedef struct { vec3 irradiance, standard_error; } probe_result;
+typedef struct {
+    vec3 irradiance, standard_error;
+} probe_result;
 
 typedef struct chapter {
-    const char *name;         /* "01_local": the executable and the stats' "chapter" */
-    const char *description;  /* one line for --help */
+    const char *name;        /* "01_local": the executable and the stats' "chapter" */
+    const char *description; /* one line for --help */
     /* The chapter's own options: tables and the state each one's offsets
      * are relative to, ended by an empty group (see options.h). */
     option_group options[OPTION_MAX_GROUPS];
-    const char *options_help; /* legacy: extra --help text for parse_option (may be NULL) */
     int default_spp;
     /* Names of the counters the chapter increments, NULL-terminated. */
     const char *counter_names[RENDER_MAX_COUNTERS + 1];
 
-    /* The chapter's own option at argv[*i].  Return 1 if consumed (advance *i
-     * past its values), 0 if not the chapter's, 2 on a bad value (write the
-     * message into err).  May be NULL. */
-    int (*parse_option)(void *state, int argc, char **argv, int *i, char *err, size_t err_size);
     /* After the scene is loaded, before any pixel: precomputation (the
      * radiosity solve).  Return 0, or 2 with a message.  May be NULL. */
     int (*prepare)(void *state, const scene *s, const render_options *o, char *err, size_t err_size);
@@ -77,8 +76,7 @@ typedef struct chapter {
      * once: treat state and scene as read-only, use only g and counters. */
     vec3 (*radiance)(const void *state, const scene *s, ray r, rng *g, render_counters *counters);
     /* Irradiance at a probe (may be NULL: no probes reported). */
-    probe_result (*probe)(const void *state, const scene *s, const probe *p, uint64_t seed,
-                          render_counters *counters);
+    probe_result (*probe)(const void *state, const scene *s, const probe *p, uint64_t seed, render_counters *counters);
     /* Extra members of the stats object, written as `"key": value` pairs each
      * preceded by ",\n  " (may be NULL). */
     void (*write_stats)(const void *state, FILE *json);
@@ -115,10 +113,5 @@ void json_vec3(FILE *f, vec3 v);
 /* One more member of the stats object: `,\n  "key": value`. */
 void json_field_number(FILE *f, const char *key, double v);
 
-/* Parse helpers for chapter options: a whole number / a finite double in
- * [lo, hi]; on failure write "argv:N: message" into err and return 2. */
-int parse_int_option(int argc, char **argv, int *i, long lo, long hi, int *out, char *err, size_t err_size);
-int parse_double_option(int argc, char **argv, int *i, double lo, double hi, double *out, char *err,
-                        size_t err_size);
 
 #endif

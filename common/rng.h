@@ -18,7 +18,9 @@
 
 #include <stdint.h>
 
-typedef struct { uint64_t state, increment; } rng;
+typedef struct {
+    uint64_t state, increment;
+} rng;
 
 /* SplitMix64 finaliser: spreads nearby integers (pixel 17, pixel 18) to
  * unrelated 64-bit values. */

@@ -11,39 +11,6 @@
 
 #include "vec.h"
 
-/* sin(2 pi u) and cos(2 pi u) for u >= 0 a fraction of a turn: the azimuth
- * phi = 2 pi u2 that every direction sampler below draws.  Written out
- * rather than calling libm's sin and cos, which first have to reduce an
- * arbitrary angle modulo 2 pi (with a 2 pi that is itself rounded) and are
- * a function call each, at every bounce of every path.
- *
- * A fraction of a turn reduces exactly: 4u = q + r with q the nearest
- * integer (the quarter turn) and |r| <= 1/2, and 4u - q loses no bits.  The
- * angle a = r pi/2 then lies in [-pi/4, pi/4], where the Taylor series of
- * sin to a^15 and of cos to a^16 are within 5e-17 of the true values (the
- * first term left out bounds the error: (pi/4)^17 / 17! < 5e-17), and a
- * quarter turn q swaps and negates them: (sin, cos)(a + pi/2) = (cos a, -sin a).
- * Together with rounding the result is within 2.5e-16 of the exact
- * sin(2 pi u), cos(2 pi u) (tests/test_common.c checks it against libm's
- * long double sinl and cosl); libm's sin(2 * M_PI * u) is off by as much
- * as 7e-16 near u = 1 from rounding 2 pi u alone. */
-static inline void sincos_turns(double u, double *sin_out, double *cos_out)
-{
-    int q = (int)(4.0 * u + 0.5); /* the nearest quarter turn (u >= 0) */
-    double a = (4.0 * u - q) * (M_PI / 2.0);
-    double a2 = a * a;
-    /* Horner's rule; the coefficients are 1/k! with alternating signs. */
-    double s = a * (1.0 + a2 * (-1.0 / 6.0 + a2 * (1.0 / 120.0 + a2 * (-1.0 / 5040.0 + a2 * (1.0 / 362880.0
-                + a2 * (-1.0 / 39916800.0 + a2 * (1.0 / 6227020800.0 + a2 * (-1.0 / 1307674368000.0))))))));
-    double c = 1.0 + a2 * (-1.0 / 2.0 + a2 * (1.0 / 24.0 + a2 * (-1.0 / 720.0 + a2 * (1.0 / 40320.0
-                + a2 * (-1.0 / 3628800.0 + a2 * (1.0 / 479001600.0 + a2 * (-1.0 / 87178291200.0
-                + a2 * (1.0 / 20922789888000.0))))))));
-    /* Turn by q quarter turns: odd q swaps sin and cos; the signs follow the quadrant. */
-    double sin_q = (q & 1) ? c : s, cos_q = (q & 1) ? s : c;
-    *sin_out = (q & 2) ? -sin_q : sin_q;
-    *cos_out = ((q + 1) & 2) ? -cos_q : cos_q;
-}
-
 /* sqrt(1 - z^2) for |z| <= 1, as sqrt((1 - z)(1 + z)): never the root of a
  * negative number (no clamp needed) and accurate near z = 1 too. */
 static inline double sqrt_one_minus_square(double z) { return sqrt((1.0 - z) * (1.0 + z)); }
@@ -53,9 +20,8 @@ static inline double sqrt_one_minus_square(double z) { return sqrt((1.0 - z) * (
 static inline vec3 uniform_sample_hemisphere(double u1, double u2)
 {
     double z = u1, r = sqrt_one_minus_square(z);
-    double sin_phi, cos_phi;
-    sincos_turns(u2, &sin_phi, &cos_phi);
-    return v3(r * cos_phi, r * sin_phi, z);
+    double phi = 2.0 * M_PI * u2;
+    return v3(r * cos(phi), r * sin(phi), z);
 }
 static inline double uniform_hemisphere_pdf(void) { return 1.0 / (2.0 * M_PI); }
 
@@ -67,9 +33,8 @@ static inline double uniform_hemisphere_pdf(void) { return 1.0 / (2.0 * M_PI); }
 static inline vec3 cosine_sample_hemisphere(double u1, double u2)
 {
     double r = sqrt(u1);
-    double sin_phi, cos_phi;
-    sincos_turns(u2, &sin_phi, &cos_phi);
-    return v3(r * cos_phi, r * sin_phi, sqrt(1.0 - u1));
+    double phi = 2.0 * M_PI * u2;
+    return v3(r * cos(phi), r * sin(phi), sqrt(1.0 - u1));
 }
 static inline double cosine_hemisphere_pdf(double cos_theta) { return cos_theta > 0.0 ? cos_theta / M_PI : 0.0; }
 
@@ -77,9 +42,8 @@ static inline double cosine_hemisphere_pdf(double cos_theta) { return cos_theta 
 static inline vec3 uniform_sample_sphere(double u1, double u2)
 {
     double z = 1.0 - 2.0 * u1, r = sqrt_one_minus_square(z);
-    double sin_phi, cos_phi;
-    sincos_turns(u2, &sin_phi, &cos_phi);
-    return v3(r * cos_phi, r * sin_phi, z);
+    double phi = 2.0 * M_PI * u2;
+    return v3(r * cos(phi), r * sin(phi), z);
 }
 static inline double uniform_sphere_pdf(void) { return 1.0 / (4.0 * M_PI); }
 
@@ -89,11 +53,21 @@ static inline double uniform_sphere_pdf(void) { return 1.0 / (4.0 * M_PI); }
 static inline vec3 uniform_sample_cone(double u1, double u2, double cos_theta_max)
 {
     double z = 1.0 - u1 * (1.0 - cos_theta_max), r = sqrt_one_minus_square(z);
-    double sin_phi, cos_phi;
-    sincos_turns(u2, &sin_phi, &cos_phi);
-    return v3(r * cos_phi, r * sin_phi, z);
+    double phi = 2.0 * M_PI * u2;
+    return v3(r * cos(phi), r * sin(phi), z);
 }
 static inline double uniform_cone_pdf(double cos_theta_max) { return 1.0 / (2.0 * M_PI * (1.0 - cos_theta_max)); }
+
+/* A density p_A per unit area at the point y (unit normal n_y), converted to
+ * a density per steradian of the direction from x to y: dw = cos(theta_y) dA
+ * / |x - y|^2 (R7), so p_w = p_A |x - y|^2 / cos(theta_y).  0 if y is seen
+ * edge-on (or is x itself). */
+static inline double area_pdf_to_solid_angle(double pdf_area, vec3 x, vec3 y, vec3 n_y)
+{
+    vec3 to_y = v3_sub(y, x);
+    double r2 = v3_dot(to_y, to_y), cos_y = fabs(v3_dot(n_y, to_y)) / sqrt(r2);
+    return cos_y > 0.0 ? pdf_area * r2 / cos_y : 0.0;
+}
 
 /* Uniform point on triangle (a, b, c): pdf = 1 / area.  The square-root
  * warp keeps the density constant (a naive (u1, u2) with u1 + u2 <= 1
@@ -107,13 +81,6 @@ static inline vec3 uniform_sample_triangle(vec3 a, vec3 b, vec3 c, double u1, do
 static inline double triangle_area(vec3 a, vec3 b, vec3 c)
 {
     return 0.5 * v3_length(v3_cross(v3_sub(b, a), v3_sub(c, a)));
-}
-
-/* Multiple importance sampling, power heuristic with beta = 2 (Veach 1997). */
-static inline double power_heuristic(double pdf_this, double pdf_other)
-{
-    double a = pdf_this * pdf_this, b = pdf_other * pdf_other;
-    return a + b > 0.0 ? a / (a + b) : 0.0;
 }
 
 #endif

@@ -48,9 +48,8 @@ static inline bool sample_bsdf(const material *m, vec3 n, vec3 w_o, rng *g, vec3
     if (rng_uniform(g) >= share) {
         *w_i = onb_to_world(onb_from_normal(n), cosine_sample_hemisphere(u1, u2));
     } else {
-        double c = pow(u1, 1.0 / (m->exponent + 1.0)), sin_phi, cos_phi;
-        sincos_turns(u2, &sin_phi, &cos_phi);
-        vec3 local = v3(sqrt_one_minus_square(c) * cos_phi, sqrt_one_minus_square(c) * sin_phi, c);
+        double c = pow(u1, 1.0 / (m->exponent + 1.0)), s = sqrt_one_minus_square(c), phi = 2.0 * M_PI * u2;
+        vec3 local = v3(s * cos(phi), s * sin(phi), c); /* cos(alpha) = u1^(1/(n+1)) around the mirror direction */
         *w_i = onb_to_world(onb_from_normal(mirror), local);
     }
     double cos_i = v3_dot(n, *w_i), cos_alpha = fmax(0.0, v3_dot(*w_i, mirror));

@@ -38,8 +38,8 @@ static inline bool sphere_cone_cos_max(vec3 center, double radius, vec3 x, doubl
  * *direction* x -> y per steradian.  Outside: cone sampling.  Inside: uniform
  * area sampling converted to solid angle, pdf_A * |x - y|^2 / |cos theta_y|
  * (R7).  Returns false if the sample is degenerate (pdf 0). */
-static inline bool sphere_light_sample(vec3 center, double radius, vec3 x, double u1, double u2, vec3 *y,
-                                       vec3 *normal, double *pdf_solid_angle)
+static inline bool sphere_light_sample(vec3 center, double radius, vec3 x, double u1, double u2, vec3 *y, vec3 *normal,
+                                       double *pdf_solid_angle)
 {
     double cos_max;
     if (sphere_cone_cos_max(center, radius, x, &cos_max)) {
@@ -61,13 +61,8 @@ static inline bool sphere_light_sample(vec3 center, double radius, vec3 x, doubl
     vec3 d = uniform_sample_sphere(u1, u2);
     *y = v3_madd(center, d, radius);
     *normal = d;
-    vec3 to_y = v3_sub(*y, x);
-    double r2 = v3_dot(to_y, to_y);
-    double cos_y = r2 > 0.0 ? fabs(v3_dot(d, to_y)) / sqrt(r2) : 0.0;
-    if (cos_y <= 0.0)
-        return false;
-    *pdf_solid_angle = r2 / (cos_y * 4.0 * M_PI * radius * radius);
-    return true;
+    *pdf_solid_angle = area_pdf_to_solid_angle(1.0 / (4.0 * M_PI * radius * radius), x, *y, d);
+    return *pdf_solid_angle > 0.0;
 }
 
 /* The pdf per steradian with which sphere_light_sample, called at x, picks
@@ -78,10 +73,7 @@ static inline double sphere_light_pdf(vec3 center, double radius, vec3 x, vec3 y
     double cos_max;
     if (sphere_cone_cos_max(center, radius, x, &cos_max))
         return uniform_cone_pdf(cos_max);
-    vec3 to_y = v3_sub(y, x);
-    double r2 = v3_dot(to_y, to_y);
-    double cos_y = r2 > 0.0 ? fabs(v3_dot(n_y, to_y)) / sqrt(r2) : 0.0;
-    return cos_y > 0.0 ? r2 / (cos_y * 4.0 * M_PI * radius * radius) : 0.0;
+    return area_pdf_to_solid_angle(1.0 / (4.0 * M_PI * radius * radius), x, y, n_y);
 }
 
 #endif

@@ -15,7 +15,9 @@
 #define M_PI 3.14159265358979323846
 #endif
 
-typedef struct { double x, y, z; } vec3;
+typedef struct {
+    double x, y, z;
+} vec3;
 
 static inline vec3 v3(double x, double y, double z) { return (vec3){x, y, z}; }
 static inline vec3 v3_splat(double s) { return (vec3){s, s, s}; }
@@ -58,7 +60,9 @@ static inline vec3 v3_reflect(vec3 d, vec3 n) { return v3_sub(d, v3_scale(n, 2.0
  * branch-free construction of Duff et al., "Building an Orthonormal Basis,
  * Revisited" (JCGT 2017).  Used to turn local hemisphere samples into world
  * directions. */
-typedef struct { vec3 tangent, bitangent, normal; } onb;
+typedef struct {
+    vec3 tangent, bitangent, normal;
+} onb;
 
 static inline onb onb_from_normal(vec3 n)
 {

@@ -723,7 +723,7 @@ class Deck:
             if key not in PLOTS:
                 fail(where, f"unknown plot '{key}' (known: {', '.join(sorted(PLOTS))})")
             self.plot(where, key)
-            return f'<figure class="plot"><img src="fig/plot-{key}.svg" alt="plot {key}"></figure>'
+            return f'<figure class="plot r-stretch"><img src="fig/plot-{key}.svg" alt="plot {key}"></figure>'
         if name == "tradeoff":
             return self.tradeoff(where)
         fail(where, f"unknown directive {{{{{name}}}}}")
@@ -757,14 +757,14 @@ class Deck:
                 published.append((name, self.ctx.publish(os.path.join(out_dir, name))))
             # the first error-against-time plot large; the others one click away
             others = ", ".join(f'<a href="{src}">{html.escape(name)}</a>' for name, src in published[1:])
-            return (f'<figure class="plot big"><img src="{published[0][1]}" alt="{published[0][0]}">'
+            return (f'<figure class="plot big r-stretch"><img src="{published[0][1]}" alt="{published[0][0]}">'
                     f'<figcaption>from <code>make tradeoff</code> ({html.escape(rel(out_dir))}/tradeoff.csv, '
                     f'tradeoff.md): {html.escape(published[0][0])}' + (f"; also {others}" if others else "") +
                     '</figcaption></figure>')
         self.ctx.tradeoff_source = "own sweep (no out/tradeoff.csv)"
         out = os.path.join(self.ctx.out, "fig", "plot-tradeoff.svg")
         own_tradeoff(self.ctx, where, out)
-        return ('<figure class="plot"><img src="fig/plot-tradeoff.svg" alt="error against time">'
+        return ('<figure class="plot r-stretch"><img src="fig/plot-tradeoff.svg" alt="error against time">'
                 '<figcaption>quick sweep by the slide build, 32&times;32 pixels (run <code>make tradeoff</code> '
                 'for the full study)</figcaption></figure>')
 
@@ -815,7 +815,12 @@ class Deck:
             cells.append(f'<figure><img src="{src}" alt="{html.escape(" ".join(words + args))}">'
                          f'<figcaption>{caption}</figcaption></figure>')
         cols = int(options.get("cols", min(len(cells), 4)))
-        shown = min(260, int(1.4 * int(size.split("x")[0]))) if re.fullmatch(r"\d+x\d+", size) else 260
+        rows = -(-len(cells) // cols)
+        # As large as the slide allows (1280 x 800 with a title and a line of
+        # text: about 1200 x 440 for the grid), at most twice the render's size.
+        fit = min((1200 - 16 * (cols - 1)) // cols, 440 // rows - 36)
+        rendered = int(size.split("x")[0]) if re.fullmatch(r"\d+x\d+", size) else 260
+        shown = max(120, min(fit, 2 * rendered))
         return (f'<div class="grid" style="grid-template-columns: repeat({cols}, 1fr); --img-max: {shown}px">'
                 f'{"".join(cells)}</div>')
 

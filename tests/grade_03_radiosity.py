@@ -430,7 +430,7 @@ def test_nothing_emits_gives_black_image_and_message(ctx):
         r = ctx.run(CHAPTER, scene, "--quiet", "--size", "8x8", "--patch-size", 0.5, "--solver", solver,
                     "--out", ctx.path("dark.pfm"), "--stats", ctx.path("dark.json"))
         assert r.returncode == 0, r.stderr
-        assert "nothing in the scene emits" in r.stderr, r.stderr
+        assert "warning: 03_radiosity: the scene has no light" in r.stderr, r.stderr
         stats = read_json(ctx.path("dark.json"))
         assert stats["no_light"] and stats["converged"] and stats["residual"] == 0.0
         from lib import read_pfm

@@ -25,7 +25,7 @@ import math
 import os
 
 from lib import (ROOT, check_bad_input, check_probes_match_lambert, check_thread_independence, finite_image,
-                 probe)
+                 probe, read_pfm)
 
 CHAPTER = "04_pathtrace"
 ESTIMATORS = ("hemisphere", "cosine", "light", "mis")
@@ -411,3 +411,13 @@ def test_bad_options_exit_2(ctx):
     for args in (["--estimator", "photon"], ["--estimator"], ["--rr-depth", "-1"], ["--max-depth", "x"],
                  ["--probe-samples", "0"], ["--surface-samples", "-5"], ["--bounces", "2:1"]):
         check_bad_input(ctx, CHAPTER, ["scenes/cornell.scene", *args])
+
+
+def test_rr_depth_0_is_said_to_act_as_1(ctx):
+    """--rr-depth 0 is valid but does what --rr-depth 1 does (the first
+    scattering is bounce 1): one warning line says so, and the images agree."""
+    a, _ = ctx.render(CHAPTER, "scenes/cornell.scene", "--size", "16x16", "--spp", 4, "--rr-depth", 1, name="rr1")
+    r = ctx.run(CHAPTER, "scenes/cornell.scene", "--quiet", "--size", "16x16", "--spp", 4, "--rr-depth", 0,
+                "--out", ctx.path("rr0.pfm"))
+    assert r.returncode == 0 and sum("--rr-depth 0" in line for line in r.stderr.splitlines()) == 1, r.stderr
+    assert read_pfm(ctx.path("rr0.pfm")).pixels == a.pixels, "--rr-depth 0 and 1 should give the same image"

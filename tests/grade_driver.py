@@ -76,3 +76,40 @@ def test_failed_write_like_a_full_disk(ctx):
     assert r.stderr.startswith(out + ":0: write failed"), r.stderr
     assert not os.path.exists(out), "a partial output file was left under the output name"
     assert not [f for f in os.listdir(ctx.scratch) if ".tmp." in f], "temporary file left behind"
+
+
+def every_chapter(ctx):
+    from grade_bad_input import chapters
+    return chapters(ctx)
+
+
+DARK_SCENE = """\
+camera eye 0 10 0  look 0 0 0  up 0 0 1  fov 30
+image 8 8
+material floor diffuse 0.5 0.5 0.5
+quad floor floor  -50 0 -50  -50 0 50  50 0 50  50 0 -50
+"""
+
+
+def test_scene_without_light_warns_once(ctx):
+    """A scene with no light is valid but surprising: every chapter renders it
+    (black, background 0) with exit 0 and says so in one warning line."""
+    scene = ctx.write("dark.scene", DARK_SCENE)
+    for chapter in every_chapter(ctx):
+        pfm = ctx.path(chapter + "-dark.pfm")
+        r = ctx.run(chapter, scene, "--quiet", "--spp", 1, "--out", pfm)
+        assert r.returncode == 0, f"{chapter}: exit {r.returncode}: {r.stderr}"
+        warnings = [line for line in r.stderr.splitlines() if line.startswith("warning:") and "no light" in line]
+        assert len(warnings) == 1, f"{chapter}: expected one 'no light' warning, got stderr {r.stderr!r}"
+        assert all(p == (0.0, 0.0, 0.0) for p in read_pfm(pfm).pixels), f"{chapter}: a dark scene is not black"
+
+
+def test_command_line_errors_name_the_argument(ctx):
+    """Errors about one argument point at it (argv:N), never at argv:0."""
+    for chapter in every_chapter(ctx):
+        out = ctx.path("never.png")
+        r = ctx.run(chapter, "scenes/cornell.scene", "--quiet", "--size", "8x8", "--out", out, "--out", "x.jpg")
+        assert r.returncode == 2 and r.stderr.startswith("argv:8: --out 'x.jpg'"), f"{chapter}: {r.stderr!r}"
+        assert not os.path.exists(out), f"{chapter}: an output was written despite the error"
+        r = ctx.run(chapter, "scenes/cornell.scene", "--eye", "278,273,0", "--look", "278,273,0")
+        assert r.returncode == 2 and r.stderr.startswith("argv:5:"), f"{chapter}: degenerate camera: {r.stderr!r}"

@@ -21,7 +21,8 @@ Truth comes from outside the viewer:
     D the heat map against the reference picked with 1..9 (an input against
     itself black), S / Tab / , / . the A/B split, its panels and its slider.
 The layout the tests rely on is the documented one (build/viewer --help):
-ceil(sqrt(n)) columns, a 34-pixel label band on top of each panel, the
+a 14-pixel status line at the bottom of the window, above it ceil(sqrt(n))
+columns, a 34-pixel label band on top of each panel, the
 image scaled to fit the rest, centred on a whole pixel.
 
 Standard library only.  PNGs are decoded here (zlib + the five PNG filters).
@@ -38,7 +39,12 @@ import zlib
 
 import lib
 
-LABEL_BAND = 34
+# The documented layout (build/viewer --help) at the default font size 14:
+FONT_PX = 14
+LINE = FONT_PX + 4
+LABEL_BAND = 3 * LINE + 4     # a label above its image: 3 lines
+STATUS_BAND = LINE + 4        # the status line at the bottom of the window
+LABEL_COLUMN = 18 * FONT_PX   # a label beside its image
 
 
 # ---- helpers ---------------------------------------------------------------------------------
@@ -130,12 +136,37 @@ def write_pfm(path, width, height, pixel):
             f.write(b"".join(struct.pack("<3f", *pixel(x, y)) for x in range(width)))
 
 
-def grid_image_origin(i, n, width, height):
-    """Top-left pixel of panel i's area under the documented layout."""
-    cols = math.ceil(math.sqrt(n))
-    rows = (n + cols - 1) // cols
+def choose_grid(n, width, height, iw, ih):
+    """(columns, rows, label beside?) that make panel 1's iw x ih image the
+    largest in the nominal cell; ties keep fewer columns, the label above."""
+    def fitted(aw, ah):
+        return 0.0 if aw < 1 or ah < 1 else min(aw * ih / iw, float(ah))
+    best, best_h = (1, n, False), -1.0
+    for cols in range(1, n + 1):
+        rows = (n + cols - 1) // cols
+        cw, ch = width // cols, (height - STATUS_BAND) // rows
+        for beside, h in ((False, fitted(cw, ch - LABEL_BAND)), (True, fitted(cw - LABEL_COLUMN, ch))):
+            if h > best_h:
+                best, best_h = (cols, rows, beside), h
+    return best
+
+
+def panel_area(i, n, width, height, iw, ih):
+    """(x, y, w, h) of panel i's image area under the documented layout."""
+    cols, rows, beside = choose_grid(n, width, height, iw, ih)
     c, r = i % cols, i // cols
-    return c * width // cols, r * height // rows + LABEL_BAND
+    height -= STATUS_BAND
+    x0, x1 = c * width // cols, (c + 1) * width // cols
+    y0, y1 = r * height // rows, (r + 1) * height // rows
+    if beside:
+        return x0 + LABEL_COLUMN, y0, x1 - x0 - LABEL_COLUMN, y1 - y0
+    return x0, y0 + LABEL_BAND, x1 - x0, y1 - y0 - LABEL_BAND
+
+
+def grid_image_origin(i, n, width, height, iw, ih):
+    """Top-left pixel of panel i's area under the documented layout."""
+    x, y, _, _ = panel_area(i, n, width, height, iw, ih)
+    return x, y
 
 
 def synthetic_inputs(ctx):
@@ -156,10 +187,11 @@ def synthetic_inputs(ctx):
 def check_grid(png, inputs, exposure=0.0):
     """Every image pixel of every panel equals the tone-mapped input within 1."""
     n, (w, h) = len(inputs), (png[0], png[1])
+    first = lib.read_pfm(inputs[0])
     worst = 0
     for i, path in enumerate(inputs):
         img = lib.read_pfm(path)
-        ox, oy = grid_image_origin(i, n, w, h)
+        ox, oy = grid_image_origin(i, n, w, h, first.width, first.height)
         for y in range(img.height):
             for x in range(img.width):
                 expected = [tonemap(v, exposure) for v in img.at(x, y)]
@@ -171,9 +203,9 @@ def check_grid(png, inputs, exposure=0.0):
     return worst
 
 
-def label_has_text(png, i, n):
+def label_has_text(png, i, n, iw, ih):
     w, h = png[0], png[1]
-    ox, oy = grid_image_origin(i, n, w, h)
+    ox, oy = grid_image_origin(i, n, w, h, iw, ih)
     return any(max(rgb_at(png, x, y)) > 200 for y in range(oy - LABEL_BAND, oy) for x in range(ox, ox + 90))
 
 
@@ -181,17 +213,17 @@ def label_has_text(png, i, n):
 
 def compare_grid(ctx, backend):
     inputs, w, h = synthetic_inputs(ctx)
-    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"  # 3 panels: 2 columns, 2 rows, images at scale 1
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"  # 3 panels: 2 columns, 2 rows, images at scale 1
     for exposure in (0.0, 1.5):
         out = ctx.path(f"grid-{backend}-{exposure}.png")
         result = run_viewer(ctx, "--headless", "--backend", backend, "--size", size, "--exposure", exposure,
                             "--out", out, *inputs)
         ok(result, f"viewer --backend {backend}")
         png = read_png(out)
-        assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND)), f"screenshot is {png[0]}x{png[1]}, not {size}"
+        assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND) + STATUS_BAND), f"screenshot is {png[0]}x{png[1]}, not {size}"
         check_grid(png, inputs, exposure)
         for i in range(3):
-            assert label_has_text(png, i, 3), f"panel {i + 1} has no label text"
+            assert label_has_text(png, i, 3, w, h), f"panel {i + 1} has no label text"
     return result
 
 
@@ -215,7 +247,7 @@ def test_split_and_heat_map(ctx):
     tone-mapped inputs.  Heat map: a panel identical to the reference is
     black (zero error), a different one is not."""
     inputs, w, h = synthetic_inputs(ctx)
-    width, height = w, h + LABEL_BAND
+    width, height = w, h + LABEL_BAND + STATUS_BAND
     out = ctx.path("split.png")
     ok(run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", f"{width}x{height}", "--split", "1,3,0.5",
                   "--out", out, *inputs), "viewer --split")
@@ -234,18 +266,18 @@ def test_split_and_heat_map(ctx):
 
     same = [inputs[1], inputs[0], inputs[1]]
     out = ctx.path("heat.png")
-    ok(run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", f"{2 * w}x{2 * height}", "--diff", "1",
+    ok(run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}", "--diff", "1",
                   "--out", out, *same), "viewer --diff")
     png = read_png(out)
     reference = lib.read_pfm(same[0])
     for i, expect_black in ((2, True), (1, False)):
-        ox, oy = grid_image_origin(i, 3, png[0], png[1])
+        ox, oy = grid_image_origin(i, 3, png[0], png[1], w, h)
         pixels = [rgb_at(png, ox + x, oy + y) for y in range(h) for x in range(w)]
         if expect_black:
             assert all(p == (0, 0, 0) for p in pixels), "a panel equal to the reference must show zero error (black)"
         else:
             assert sum(1 for p in pixels if max(p) > 0) > w * h // 4, "a different panel shows no error"
-    ox, oy = grid_image_origin(0, 3, png[0], png[1])  # the reference itself: plain tone map
+    ox, oy = grid_image_origin(0, 3, png[0], png[1], w, h)  # the reference itself: plain tone map
     for y in range(0, h, 5):
         for x in range(0, w, 5):
             expected = [tonemap(v) for v in reference.at(x, y)]
@@ -274,7 +306,7 @@ def start_xvfb():
 
 def test_glfw_window_under_xvfb_equals_headless(ctx):
     inputs, w, h = synthetic_inputs(ctx)
-    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
     headless = ctx.path("headless.png")
     ok(run_viewer(ctx, "--headless", "--backend", "egl", "--size", size, "--out", headless, *inputs), "headless")
     proc, display = start_xvfb()
@@ -299,8 +331,8 @@ def test_glfw_window_under_xvfb_equals_headless(ctx):
 # ---- the window driven by synthetic input (xdotool, XTEST) under Xvfb ------------------------------
 #
 # The documented input mapping (viewer/README.md, the H overlay): `+` / `-`
-# half a stop of exposure per press, `P` a screenshot viewer-N.png in the
-# current directory, left drag orbits 0.3 degrees per pixel about the look
+# half a stop of exposure per press, `P` a screenshot out/viewer-N.png under
+# the current directory (out/ made, nothing written beside it), left drag orbits 0.3 degrees per pixel about the look
 # point (distance kept), each wheel step scales the distance to the look point
 # by 0.9 (in) or 1/0.9 (out), `Q` / Esc quit with status 0.  The viewer's
 # stdout says what happened (`live: start|restart ... eye=... pids ...`,
@@ -452,7 +484,7 @@ def test_window_exposure_keys(ctx):
     Then `-` three times (-1/2), the keypad's `+` three times (+1: one step
     per press, not two) and `0` (back to 0), each checked the same way."""
     inputs, w, h = synthetic_inputs(ctx)
-    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
     shots = ((["plus", "plus"], 2 * EXPOSURE_STEP),
              (["minus", "minus", "minus"], -EXPOSURE_STEP),
              (["KP_Add", "KP_Add", "KP_Add"], 2 * EXPOSURE_STEP),
@@ -462,9 +494,11 @@ def test_window_exposure_keys(ctx):
         after = 0
         for n, (keys, exposure) in enumerate(shots, 1):
             s.xdo("key", *keys, "p")
-            line, after = s.wait_line(f"wrote viewer-{n}.png", after)
-            png = read_png(ctx.path(f"viewer-{n}.png"))
-            assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND)), f"screenshot {png[0]}x{png[1]}, not {size}"
+            line, after = s.wait_line(f"wrote out/viewer-{n}.png", after)
+            png = read_png(ctx.path(f"out/viewer-{n}.png"))
+            stray = [name for name in os.listdir(ctx.scratch) if name.endswith(".png")]
+            assert not stray, f"P must write under out/, not into the current directory: {stray}"
+            assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND) + STATUS_BAND), f"screenshot {png[0]}x{png[1]}, not {size}"
             try:
                 check_grid(png, inputs, exposure)
             except AssertionError as e:
@@ -591,18 +625,8 @@ SPLIT_STEP = 0.02        # fraction of the width per `,` / `.`
 def shoot(s, ctx, keys, n, after):
     """Press keys, then `P`; wait for `wrote viewer-n.png`; the decoded PNG."""
     s.xdo("key", *keys, "p")
-    _, after = s.wait_line(f"wrote viewer-{n}.png", after)
-    return read_png(ctx.path(f"viewer-{n}.png")), after
-
-
-def panel_area(i, n, width, height):
-    """(x, y, w, h) of panel i's image area under the documented layout."""
-    cols = math.ceil(math.sqrt(n))
-    rows = (n + cols - 1) // cols
-    c, r = i % cols, i // cols
-    x0, x1 = c * width // cols, (c + 1) * width // cols
-    y0, y1 = r * height // rows, (r + 1) * height // rows
-    return x0, y0 + LABEL_BAND, x1 - x0, y1 - y0 - LABEL_BAND
+    _, after = s.wait_line(f"wrote out/viewer-{n}.png", after)
+    return read_png(ctx.path(f"out/viewer-{n}.png")), after
 
 
 def placement(area, iw, ih, zoom=1.0, shift=(0, 0)):
@@ -662,7 +686,7 @@ def check_view(png, images, zoom=1.0, shift=(0, 0), what=""):
     At least a quarter of every image area must be compared."""
     n = len(images)
     for i, tm in enumerate(images):
-        area = panel_area(i, n, png[0], png[1])
+        area = panel_area(i, n, png[0], png[1], len(images[0][0]), len(images[0]))
         s, ox, oy = placement(area, len(tm[0]), len(tm), zoom, shift)
         count = check_image_in(png, area, tm, s, ox, oy, f"{what} panel {i + 1}")
         assert count >= area[2] * area[3] // 4, \
@@ -685,9 +709,9 @@ def test_window_zoom_pan_fit_keys(ctx):
     that window point would hold every image's left edge still."""
     inputs, w, h = synthetic_inputs(ctx)
     images = [tonemapped(lib.read_pfm(p)) for p in inputs]
-    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
     z = ZOOM_STEP
-    with WindowSession(ctx, "--size", f"{2 * w}x{h + LABEL_BAND}", *inputs[:2]) as s:
+    with WindowSession(ctx, "--size", f"{2 * w}x{h + LABEL_BAND + STATUS_BAND}", *inputs[:2]) as s:
         s.xdo("mousemove", "--window", s.window, 5, 5)
         after = 0
         for n, (keys, zoom) in enumerate(((["z"], z), (["z"], z * z), (["x", "x", "x"], 1 / z)), 1):
@@ -709,7 +733,7 @@ def test_window_zoom_pan_fit_keys(ctx):
         after = 0
         for n, (keys, zoom, shift) in enumerate(shots, 1):
             png, after = shoot(s, ctx, keys, n, after)
-            assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND)), f"screenshot {png[0]}x{png[1]}, not {size}"
+            assert (png[0], png[1]) == (2 * w, 2 * (h + LABEL_BAND) + STATUS_BAND), f"screenshot {png[0]}x{png[1]}, not {size}"
             check_view(png, images, zoom, shift, f"after {' '.join(keys)} (zoom {zoom:g}, image moved {shift})")
         check_grid(png, inputs)  # F: exactly the fitted grid of the exposure test
         status = s.finish("q")
@@ -736,7 +760,7 @@ def luminance(p):
 
 def panel_pixels(png, i, n, w, h):
     """Panel i's image pixels at scale 1 (rows of RGB tuples)."""
-    ox, oy = grid_image_origin(i, n, png[0], png[1])
+    ox, oy = grid_image_origin(i, n, png[0], png[1], w, h)
     return [[rgb_at(png, ox + x, oy + y) for x in range(w)] for y in range(h)]
 
 
@@ -798,7 +822,7 @@ def test_window_heat_map_and_reference_keys(ctx):
     inputs, err = heat_inputs(ctx)
     w, h, n = 96, 64, 3
     r_img, x_img = lib.read_pfm(inputs[0]), lib.read_pfm(inputs[1])
-    size = f"{2 * w}x{2 * (h + LABEL_BAND)}"
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
     with WindowSession(ctx, "--size", size, *inputs) as s:
         s.xdo("mousemove", "--window", s.window, 5, 5)
         png, after = shoot(s, ctx, ["1", "d"], 1, 0)
@@ -853,7 +877,7 @@ def check_split(png, images, a, b, position, what):
     slider column itself one uniform line.  a, b: 0-based panel indices."""
     width, height = png[0], png[1]
     split_x = math.floor(width * position + 0.5)  # lround, position >= 0
-    area = panel_area(0, 1, width, height)
+    area = panel_area(0, 1, width, height, len(images[0][0]), len(images[0]))
     tm_a, tm_b = images[a], images[b]
     iw = len(tm_a[0])
     s, ox, oy = placement(area, iw, len(tm_a))
@@ -890,7 +914,7 @@ def test_window_split_keys(ctx):
     double arithmetic and clamping, so no rounding is left to chance."""
     inputs = channel_inputs(ctx)
     images = [tonemapped(lib.read_pfm(p)) for p in inputs]
-    width, height = 200, 2 * 64 + LABEL_BAND
+    width, height = 200, 2 * 64 + LABEL_BAND + STATUS_BAND
     position = 0.5
     steps = (  # keys, (reference, B) 0-based, slider column
         (["s"], (0, 1), 100),
@@ -1011,7 +1035,7 @@ def test_raster_matches_chapter1(ctx):
     scene, n = "scenes/cornell-point.scene", 96
     raster = ctx.path("raster.pfm")
     shot = ctx.path("raster.png")
-    size = f"{2 * n}x{n + LABEL_BAND}"
+    size = f"{2 * n}x{n + LABEL_BAND + STATUS_BAND}"
     ok(run_viewer(ctx, "--raster", scene, "--no-shadows", "--headless", "--backend", "osmesa", "--size", size,
                   "--panel-out", raster, "--out", shot, "--verbose"), "viewer --raster")
     gpu = lib.read_pfm(raster)
@@ -1037,13 +1061,42 @@ def test_raster_matches_chapter1(ctx):
     # Panel 2 is chapter 1 run by the viewer with the viewer's camera: it must
     # be the image we rendered ourselves, tone-mapped.
     png = read_png(shot)
-    ox, oy = grid_image_origin(1, 2, png[0], png[1])
+    ox, oy = grid_image_origin(1, 2, png[0], png[1], n, n)
     for y in range(0, n, 3):
         for x in range(0, n, 3):
             expected = [tonemap(v) for v in cpu.at(x, y)]
             got = rgb_at(png, ox + x, oy + y)
             assert max(abs(e - g) for e, g in zip(expected, got)) <= 1, \
                 f"chapter-1 panel pixel ({x},{y}) shows {got}, expected {expected}"
+
+
+def test_raster_light_below_ceiling_has_no_depth_stripes(ctx):
+    """cornell.scene's light is a quad 0.1 mm below the ceiling, seen from
+    about 800 mm.  The depth buffer must resolve that: every pixel whose 3x3
+    neighbourhood sees only the light (by the Python ray caster) shows the
+    light's radiance (17, 12, 4) -- the emitter is lit edge-on by its own
+    point, so nothing else adds to it -- not stripes of the ceiling
+    (radiance ~0.1), which a near plane at far x 1e-4 produced (0.3 mm of
+    depth resolution at 800 mm with a 24-bit buffer)."""
+    scene, n = "scenes/cornell.scene", 240
+    raster = ctx.path("raster-light.pfm")
+    ok(run_viewer(ctx, "--raster", scene, "--headless", "--backend", "osmesa", "--size", f"{2 * n}x{n + LABEL_BAND + STATUS_BAND}",
+                  "--render-size", f"{n}x{n}", "--panel-out", raster), "viewer --raster cornell")
+    gpu = lib.read_pfm(raster)
+    assert (gpu.width, gpu.height) == (n, n), f"raster is {gpu.width}x{gpu.height}"
+    ids = surface_ids(scene, n, n)
+    inside, wrong = 0, []
+    for y in range(1, n - 1):
+        for x in range(1, n - 1):
+            if any(ids[y + j][x + i] != "light" for j in (-1, 0, 1) for i in (-1, 0, 1)):
+                continue
+            inside += 1
+            got = gpu.at(x, y)
+            if any(abs(g - e) > 1e-3 * e for g, e in zip(got, (17.0, 12.0, 4.0))):
+                wrong.append((x, y, got))
+    assert inside >= 100, f"only {inside} pixels inside the light's rectangle"
+    assert not wrong, f"{len(wrong)} of {inside} pixels of the light are not its radiance (17, 12, 4), " \
+                      f"e.g. {wrong[:4]}: the ceiling shows through (depth precision)"
 
 
 def test_raster_shader_error_is_reported(ctx):
@@ -1066,6 +1119,230 @@ def test_bad_input(ctx):
     assert not os.path.exists(ctx.path("x.png"))
 
 
+# ---- labels --------------------------------------------------------------------------------------------
+
+def test_labels_say_what_each_panel_is(ctx):
+    """Four path-tracing images of the same chapter must not all read
+    "04_pathtrace spp 64": line 1 of each label names the chapter and its
+    variant (estimator, solver, model, bounces from the stats JSON), line 2
+    the numbers and the file name.  --verbose prints each label as drawn."""
+    w, h = 32, 24
+    variants = [("hemisphere", [0, 1000000]), ("cosine", [0, 1000000]), ("light", [1, 1]), ("mis", [2, 1000000])]
+    inputs = []
+    for estimator, bounces in variants:
+        path = ctx.path(f"cornell-04_pathtrace-{estimator}.pfm")
+        write_pfm(path, w, h, lambda x, y: (0.5, 0.25, 0.125))
+        ctx.write(f"cornell-04_pathtrace-{estimator}.json",
+                  '{\n  "chapter": "04_pathtrace",\n  "spp": 64,\n  "time_s": 1.5,\n'
+                  f'  "bounces": [{bounces[0]}, {bounces[1]}],\n  "estimator": "{estimator}",\n  "rr_depth": 3\n}}\n')
+        inputs.append(path)
+    radiosity = ctx.path("cornell-03_radiosity.pfm")
+    write_pfm(radiosity, w, h, lambda x, y: (0.5, 0.25, 0.125))
+    ctx.write("cornell-03_radiosity.json", '{"chapter": "03_radiosity", "patches": 1057, "bounces": [0, 1000000], '
+                                           '"solver": "gauss-seidel", "solver_used": "gauss-seidel"}\n')
+    local = ctx.path("cornell-01_local.pfm")
+    write_pfm(local, w, h, lambda x, y: (0.5, 0.25, 0.125))
+    ctx.write("cornell-01_local.json", '{"chapter": "01_local", "spp": 4, "bounces": [0, 1], "model": "phong", '
+                                       '"normalised": true, "shadows": false}\n')
+    inputs += [radiosity, local]
+    result = run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", "640x360", "--verbose",
+                        "--out", ctx.path("labels.png"), *inputs)
+    ok(result, "viewer with labelled inputs")
+    labels = {}
+    for line in result.stdout.splitlines():
+        if line.startswith("label "):
+            number, text = line[len("label "):].split(": ", 1)
+            labels[int(number)] = text
+    assert sorted(labels) == list(range(1, len(inputs) + 1)), f"--verbose must print every label: {labels}"
+    expected = [("04_pathtrace  estimator hemisphere", "spp 64"), ("04_pathtrace  estimator cosine", "spp 64"),
+                ("04_pathtrace  estimator light  bounces 1:1", "spp 64"),
+                ("04_pathtrace  estimator mis  bounces 2:", "spp 64"),
+                ("03_radiosity  solver gauss-seidel", "patches 1057"),
+                ("01_local  model phong normalised no shadows  bounces 0:1", "spp 4")]
+    for i, (title, numbers) in enumerate(expected):
+        line1, line2 = labels[i + 1].split(" | ")
+        assert line1 == f"[{i + 1}] {title}", f"label {i + 1} line 1 is {line1!r}, expected '[{i + 1}] {title}'"
+        assert numbers in line2 and os.path.basename(inputs[i]) in line2, \
+            f"label {i + 1} line 2 {line2!r} must give {numbers!r} and the file name"
+    assert len({labels[i].split(" | ")[0].split("] ")[1] for i in range(1, 5)}) == 4, \
+        "the four path-tracing panels must read differently"
+
+
+# ---- the default reference, the legend, the status line ------------------------------------------------
+
+def reference_inputs(ctx, w, h, rmse_of_panel_2=None):
+    """Four flat images with stats: [1] 01_local spp 4, [2] 04_pathtrace
+    cosine spp 16, [3] 04_pathtrace mis spp 1024 (the best: unbiased, the
+    most samples), [4] 04_pathtrace mis spp 4096 but bounces 1:1 only
+    (biased: not a reference).  Each image a different grey."""
+    stats = [('"chapter": "01_local", "spp": 4, "bounces": [0, 1000000], "model": "blinn"', 0.2),
+             ('"chapter": "04_pathtrace", "spp": 16, "bounces": [0, 1000000], "estimator": "cosine"', 0.3),
+             ('"chapter": "04_pathtrace", "spp": 1024, "bounces": [0, 1000000], "estimator": "mis"', 0.4),
+             ('"chapter": "04_pathtrace", "spp": 4096, "bounces": [1, 1], "estimator": "mis"', 0.5)]
+    paths = []
+    for k, (body, grey) in enumerate(stats, 1):
+        if k == 2 and rmse_of_panel_2 is not None:
+            body += f', "rmse": {rmse_of_panel_2}'
+        path = ctx.path(f"ref{k}-{rmse_of_panel_2}.pfm")
+        write_pfm(path, w, h, lambda x, y, g=grey: (g, g, g))
+        ctx.write(f"ref{k}-{rmse_of_panel_2}.json", "{" + body + "}\n")
+        paths.append(path)
+    return paths
+
+
+def heat_reference_shown(ctx, inputs, w, h, *options):
+    """Headless --heat: which panel shows its plain tone map (the reference),
+    and the screenshot."""
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
+    out = ctx.path(f"reference-{len(options)}-{os.path.basename(inputs[0])}.png")
+    ok(run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", size, "--heat", *options, "--out", out, *inputs),
+       "viewer --heat")
+    png = read_png(out)
+    plain = []
+    for i, path in enumerate(inputs):
+        grey = tonemap(lib.read_pfm(path).at(0, 0)[0])
+        pixels = panel_pixels(png, i, len(inputs), w, h)
+        if all(max(abs(c - grey) for c in p) <= 1 for row in pixels for p in row):
+            plain.append(i + 1)
+    return plain, png
+
+
+def test_heat_map_default_reference_is_the_best_image(ctx):
+    """D / --heat compare against the best image on screen, not panel 1: an
+    unbiased path tracer over all bounces with the most samples beats a
+    chapter-1 image and a biased one with more samples; a measured error
+    (stats rmse) beats everything; --reference N names one."""
+    w, h = 192, 24
+    plain, _ = heat_reference_shown(ctx, reference_inputs(ctx, w, h), w, h)
+    assert plain == [3], f"the reference (plain tone map) must be panel 3 (mis, 1024 spp, all bounces), not {plain}"
+    plain, _ = heat_reference_shown(ctx, reference_inputs(ctx, w, h, rmse_of_panel_2=0.01), w, h)
+    assert plain == [2], f"panel 2 has the only measured error (rmse): it must be the reference, not {plain}"
+    plain, _ = heat_reference_shown(ctx, reference_inputs(ctx, w, h), w, h, "--reference", "4")
+    assert plain == [4], f"--reference 4 must make panel 4 the reference, not {plain}"
+
+
+def test_status_line_and_heat_legend_stay_with_the_mouse_over(ctx):
+    """The status line (exposure, help hint, heat scale) is the bottom strip of
+    the window and stays there with the pointer over a panel (--cursor), and
+    with the heat map it shows the colour legend: black (error 1e-3) to the
+    top colour (error >= 1), heat_inputs' saturated colour."""
+    w, h = 192, 24
+    inputs = reference_inputs(ctx, w, h)
+    size = f"{2 * w}x{2 * (h + LABEL_BAND) + STATUS_BAND}"
+    height = 2 * (h + LABEL_BAND) + STATUS_BAND
+    for options in ([], ["--heat"]):
+        out = ctx.path(f"status-{len(options)}.png")
+        ok(run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", size, "--cursor", "40,50", *options,
+                      "--out", out, *inputs), "viewer --cursor")
+        png = read_png(out)
+        strip = [rgb_at(png, x, y) for y in range(height - STATUS_BAND, height) for x in range(png[0])]
+        # yellow text, anti-aliased: red and green well above blue
+        assert sum(1 for p in strip if p[0] > 120 and p[1] > 0.7 * p[0] and p[0] > p[2] + 80) > 50, \
+            f"{options}: no status text in the bottom {STATUS_BAND} pixels with the pointer over panel 1"
+        top = (252, 255, 163)  # heat(1): vec3(0.99, 1.0, 0.64)
+        has_top = any(max(abs(a - b) for a, b in zip(p, top)) <= 2 for p in strip)
+        assert has_top == bool(options), f"{options}: the legend's top colour {'missing' if options else 'shown'}"
+
+
+# ---- layout and font ---------------------------------------------------------------------------------
+
+def test_layout_fills_the_window_and_labels_are_readable(ctx):
+    """The demo's case: four square images in a 1280x720 window.  The grid
+    and the label's place (above, or beside the image) are chosen so that the
+    images are as large as the window allows: they cover more than half the
+    frame (a 2x2 grid with 3 lines of label above each covered 46 %).  The
+    labels are DejaVu Sans through stb_truetype at 14 px (the viewer says
+    so), so the text of a label line is more than 8 pixels tall."""
+    side = 256
+    inputs = []
+    for k in range(4):
+        path = ctx.path(f"square{k}.pfm")
+        write_pfm(path, side, side, lambda x, y: (0.5, 0.5, 0.5))
+        inputs.append(path)
+    out = ctx.path("layout.png")
+    result = run_viewer(ctx, "--headless", "--backend", "osmesa", "--size", "1280x720", "--out", out, *inputs)
+    ok(result, "viewer, 4 squares in 1280x720")
+    assert "font: /usr/share/fonts/truetype/dejavu/DejaVuSans.ttf, 14 px" in result.stdout, \
+        f"the labels must use DejaVu Sans (fonts-dejavu-core): {result.stdout}"
+    png = read_png(out)
+    grey = tonemap(0.5)
+    covered = sum(1 for row in png[2] for x in range(png[0]) if row[3 * x:3 * x + 3] == bytes((grey, grey, grey)))
+    fraction = covered / (png[0] * png[1])
+    assert fraction > 0.5, f"the images cover {100 * fraction:.1f} % of the frame (more than 50 % possible)"
+    cols, rows, beside = choose_grid(4, png[0], png[1], side, side)
+    x0, y0, w, h = panel_area(0, 4, png[0], png[1], side, side)
+    s, ox, oy = placement((x0, y0, w, h), side, side)
+    assert rgb_at(png, ox + 1, oy + 1) == (grey, grey, grey) and rgb_at(png, ox - 1, oy + 1) != (grey, grey, grey), \
+        f"panel 1's image must sit where the documented layout puts it ({cols}x{rows}, label beside: {beside})"
+    # the label of panel 1: its first text line, rows with bright text pixels
+    label_x0 = 0
+    label_x1 = LABEL_COLUMN if beside else png[0] // cols
+    lit = [y for y in range(0, LINE + 4) if any(max(rgb_at(png, x, y)) > 150 for x in range(label_x0, label_x1))]
+    assert lit and lit[-1] - lit[0] + 1 > 8, f"label text spans rows {lit[:1]}..{lit[-1:]}: not readable"
+
+
+# ---- the key table ---------------------------------------------------------------------------------
+
+def markdown_table_rows(lines, header):
+    """The rows of the Markdown table that starts at the line `header` (header and rule left out)."""
+    assert header in lines, f"no table with the header {header!r}"
+    start = lines.index(header)
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        rows.append(line)
+    return rows
+
+
+def test_help_keys_match_readme(ctx):
+    """`build/viewer --help-keys` prints the one key table of main.c (the same
+    table dispatches the keys and draws the H overlay) as Markdown;
+    viewer/README.md must carry exactly those rows: every key with its help
+    line, and no key the table lacks."""
+    result = run_viewer(ctx, "--help-keys")
+    ok(result, "--help-keys")
+    printed = result.stdout.splitlines()
+    header = "| key | action |"
+    assert printed[:2] == [header, "|---|---|"], f"--help-keys must print a Markdown table: {printed[:2]}"
+    rows = markdown_table_rows(printed, header)
+    assert len(rows) == len(printed) - 2, "--help-keys prints only the table"
+    keys = [row.split(" | ")[0].lstrip("| ") for row in rows]
+    for expected in ("`H` / `F1`", "`D`", "`P`", "`Q` / `Esc`", "`1..9`", "`S`", "`Tab`"):
+        assert expected in keys, f"the key table lacks {expected}: {keys}"
+    with open(os.path.join(lib.ROOT, "viewer", "README.md"), encoding="utf-8") as f:
+        readme = [line.rstrip() for line in f.read().splitlines()]
+    documented = markdown_table_rows(readme, header)
+    missing = [row for row in rows if row not in documented]
+    extra = [row for row in documented if row not in rows]
+    assert not missing, "viewer/README.md lacks these rows of --help-keys:\n" + "\n".join(missing)
+    assert not extra, "viewer/README.md documents keys the table lacks:\n" + "\n".join(extra)
+    assert documented == rows, "viewer/README.md lists the keys in another order than --help-keys"
+
+
+def test_help_lists_exactly_the_options_the_parser_takes(ctx):
+    """--help is printed from the parser's own option table: every option it
+    lists is accepted (whatever else then goes wrong, never "unknown option"),
+    and a name it does not list is refused."""
+    result = run_viewer(ctx, "--help")
+    ok(result, "--help")
+    options = []
+    for line in result.stdout.splitlines():
+        if line.startswith("  --"):
+            head = line[2:].split("  ")[0]  # "--name VALUE", two spaces before the help
+            options.append((head.split()[0], " " in head))
+    assert len(options) > 30, f"--help lists only {len(options)} options"
+    for name, takes_value in options:
+        if name in ("--help", "--help-keys"):
+            continue
+        args = [name, "1"] if takes_value else [name]
+        r = run_viewer(ctx, *args, timeout=30)
+        assert "unknown option" not in r.stderr and "missing value" not in r.stderr, \
+            f"--help lists {name}{' VALUE' if takes_value else ''} but the parser says: {r.stderr.strip()}"
+    r = run_viewer(ctx, "--no-such-option")
+    assert r.returncode == 2 and "unknown option" in r.stderr, r.stderr
+
+
 # ---- PLY ------------------------------------------------------------------------------------------------
 
 def test_ply_per_vertex_radiance(ctx):
@@ -1081,7 +1358,7 @@ def test_ply_per_vertex_radiance(ctx):
     # fov 90 at distance 1 sees exactly [-1, 1]^2 (camera_ray convention)
     w = h = 64
     out, pfm = ctx.path("ply.png"), ctx.path("ply.pfm")
-    ok(run_viewer(ctx, "--ply", ply, "--headless", "--backend", "egl", "--size", f"{w}x{h + LABEL_BAND}",
+    ok(run_viewer(ctx, "--ply", ply, "--headless", "--backend", "egl", "--size", f"{w}x{h + LABEL_BAND + STATUS_BAND}",
                   "--eye", "0,0,1", "--look", "0,0,0", "--up", "0,1,0", "--fov", "90", "--out", out,
                   "--panel-out", pfm), "viewer --ply")
     img = lib.read_pfm(pfm)
@@ -1122,6 +1399,111 @@ def test_live_progressive_updates(ctx):
     assert "exit 01_local" not in result.stdout, "the 20 s budget cannot have run out: updates came from --time passes"
 
 
+FAKE_CHAPTER = """#!/usr/bin/python3
+# A stand-in chapter for the live tests: logs its arguments, warns on stderr
+# (after a line that is not a warning), writes one grey image (0.5) with its
+# stats, and waits to be stopped.  Runs after the first wait DELAY seconds
+# before their first pass, so the restarted panel is stale that long.
+import json, os, struct, sys, time
+args = sys.argv[1:]
+def opt(name):
+    return args[args.index(name) + 1] if name in args else None
+with open(LOG, "a") as f:
+    f.write(" ".join(args) + "\\n")
+with open(LOG) as f:
+    run = len(f.read().splitlines())
+sys.stderr.write("note: not a warning\\nwarning: the fake chapter warns (run %d)\\n" % run)
+sys.stderr.flush()
+if run > 1:
+    time.sleep(DELAY)
+w, h = map(int, opt("--size").split("x"))
+with open(opt("--out") + ".tmp", "wb") as f:
+    f.write(b"PF\\n%d %d\\n-1.0\\n" % (w, h) + struct.pack("<3f", 0.5, 0.5, 0.5) * (w * h))
+os.replace(opt("--out") + ".tmp", opt("--out"))
+with open(opt("--stats") + ".tmp", "w") as f:
+    json.dump({"chapter": "09_fake", "spp": 1, "bounces": [0, 1000000]}, f)
+os.replace(opt("--stats") + ".tmp", opt("--stats"))
+time.sleep(600)
+"""
+
+
+def fake_chapter(ctx, delay=2.0):
+    """build-like directory with the fake chapter 09_fake; the file its runs log their arguments to."""
+    directory = ctx.path("chapters")
+    os.makedirs(directory, exist_ok=True)
+    log = ctx.path("fake-args.log")
+    path = os.path.join(directory, "09_fake")
+    with open(path, "w") as f:
+        f.write(FAKE_CHAPTER.replace("LOG", repr(log)).replace("DELAY", repr(delay)))
+    os.chmod(path, 0o755)
+    return directory, log
+
+
+def image_centre(png, i, n, side):
+    area = panel_area(i, n, png[0], png[1], side, side)
+    s, ox, oy = placement(area, side, side)
+    return rgb_at(png, ox + int(s * side / 2), oy + int(s * side / 2))
+
+
+def orange_in(png, rect):
+    x0, y0, w, h = rect
+    return sum(1 for y in range(y0, y0 + h) for x in range(x0, x0 + w)
+               if (lambda p: p[0] > 150 and p[1] < 0.6 * p[0] and p[2] < 0.4 * p[0])(rgb_at(png, x, y)))
+
+
+def test_window_live_restart_is_stale_and_warnings_show(ctx):
+    """--live with a fake chapter whose runs after the first wait 2 s before
+    their first pass: after a drag restarts it, its panel shows the old image
+    dimmed ("restarting") until the new run's first pass, then the plain image
+    again; each run's stderr line starting "warning:" is reported (stdout
+    `09_fake: warning: ...`) and shown in its panel's label (orange), the
+    line before it (no warning) is not."""
+    chapters, _ = fake_chapter(ctx)
+    side, n = 48, 2
+    grey = tonemap(0.5)
+    with WindowSession(ctx, "--live", os.path.join(lib.ROOT, "scenes", "cornell-point.scene"), "--chapters",
+                       chapters, "--chapter", "09_fake", "--size", "400x200", "--render-size", f"{side}x{side}",
+                       "--verbose") as s:
+        s.wait_line("update 09_fake 1 ")
+        s.wait_line("09_fake: warning: the fake chapter warns (run 1)")
+        assert not any(line.startswith("09_fake: note:") for line in s.lines), "a line without warning: reported"
+        png, after = shoot(s, ctx, [], 1, 0)
+        assert image_centre(png, 1, n, side) == (grey, grey, grey), "the first pass must show plainly"
+        label = panel_area(1, n, png[0], png[1], side, side)
+        assert orange_in(png, (label[0], 0, label[2], label[1])) > 20, "the warning is not in the panel's label"
+        s.xdo("mousemove", "--window", s.window, 60, 120)
+        s.xdo("mousedown", 1)
+        for step in (10, 20, 30):
+            s.xdo("mousemove", "--window", s.window, 60 + step, 120)
+        s.xdo("mouseup", 1)
+        _, at = s.wait_line("live: restart ", after)
+        png, after = shoot(s, ctx, [], 2, at)
+        assert not any(line.startswith("update 09_fake 2 ") for line in s.lines), "the 2 s delay did not hold"
+        centre = image_centre(png, 1, n, side)
+        assert max(centre) < 0.5 * grey, f"the restarted panel must be dimmed until its first pass: {centre}"
+        s.wait_line("update 09_fake 2 ", at)
+        s.wait_line("09_fake: warning: the fake chapter warns (run 2)", at)
+        png, after = shoot(s, ctx, [], 3, after)
+        assert image_centre(png, 1, n, side) == (grey, grey, grey), "after the first new pass: plain again"
+        status = s.finish("q")
+    assert status == 0, f"Q: exit {status}\n{s.describe()}"
+
+
+def test_live_budget_option(ctx):
+    """--budget SECONDS is each child's --time; without it 30 s."""
+    chapters, log = fake_chapter(ctx)
+    for options, expected in ((["--budget", "0.5"], "--time 0.5 "), ([], "--time 30 ")):
+        if os.path.exists(log):
+            os.remove(log)
+        result = run_viewer(ctx, "--live", "scenes/cornell-point.scene", "--chapters", chapters, "--chapter", "09_fake",
+                            "--headless", "--backend", "osmesa", "--size", "200x150", "--exit-after-updates", "1",
+                            *options, "--out", ctx.path("budget.png"), timeout=60)
+        ok(result, f"viewer --live {' '.join(options)}")
+        with open(log) as f:
+            args = f.read()
+        assert expected in args, f"{options or 'default'}: the child got {args!r}, expected {expected!r}"
+
+
 def process_gone(pid):
     try:
         with open(f"/proc/{pid}/status") as f:
@@ -1159,3 +1541,13 @@ def test_live_children_die_with_a_killed_viewer(ctx):
             proc.kill()
             proc.wait()
         proc.stdout.close()
+
+
+def test_scene_or_mesh_in_compare_mode_points_to_its_mode(ctx):
+    """`build/viewer x.scene` is a mistake a new user makes: the message names
+    the mode that shows a scene (--live) or a mesh (--ply), exit 2."""
+    for path, mode in (("scenes/cornell.scene", "--live"), ("out/x.ply", "--ply")):
+        r = run_viewer(ctx, "--headless", "--out", ctx.path("never.png"), path)
+        assert r.returncode == 2 and r.stderr.startswith(f"{path}:") and mode in r.stderr, \
+            f"{path}: exit {r.returncode}, {r.stderr!r}"
+        assert not os.path.exists(ctx.path("never.png"))

@@ -1,5 +1,4 @@
 /* test_common.c — unit tests of vec.h, rng.h, sampling.h and image.c. */
-#include <float.h>
 #include <stdlib.h>
 #include <unistd.h>
 
@@ -81,7 +80,11 @@ static void check_cosine_integral(const char *what, vec3 (*sample)(double, doubl
     double mean = sum / n, variance = sum_squares / n - mean * mean;
     CHECK_NEAR(mean, M_PI, 5 * sqrt(variance / n) + 1e-12, what);
 }
-static double uniform_pdf(vec3 d) { (void)d; return uniform_hemisphere_pdf(); }
+static double uniform_pdf(vec3 d)
+{
+    (void)d;
+    return uniform_hemisphere_pdf();
+}
 static double cosine_pdf(vec3 d) { return cosine_hemisphere_pdf(d.z); }
 
 static void test_hemisphere_samplers_integrate_cosine(void)
@@ -90,38 +93,6 @@ static void test_hemisphere_samplers_integrate_cosine(void)
     check_cosine_integral("cosine hemisphere", cosine_sample_hemisphere, cosine_pdf);
     vec3 d = cosine_sample_hemisphere(0.3, 0.7);
     CHECK_NEAR(v3_length(d), 1, 1e-12, "unit direction");
-}
-
-/* sincos_turns (sampling.h), the samplers' own sin and cos of 2 pi u, against
- * libm's long double sinl and cosl of 2 pi u (64-bit mantissa: their own
- * error is some 1e-19, far below a double's).  Within 2.5e-16, as sampling.h
- * states, over a million random fractions of a turn and a regular sweep
- * through every quadrant and octant boundary; exact at the quarter turns;
- * and sin^2 + cos^2 = 1.  Where long double is only a double the reference
- * itself is off by up to 7e-16 (rounding 2 pi u), so the bound is 1e-15 there. */
-static void test_sincos_turns_matches_libm(void)
-{
-    const long double two_pi = 6.283185307179586476925286766559L;
-    const double tolerance = LDBL_MANT_DIG >= 64 ? 2.5e-16 : 1e-15;
-    rng g = rng_for(5, 6, 7);
-    double worst_sin = 0, worst_cos = 0, worst_norm = 0;
-    for (int i = 0; i < 2000000; i++) {
-        double u = i % 2 ? rng_uniform(&g) : (double)(i / 2) / 1000000.0;
-        double s, c;
-        sincos_turns(u, &s, &c);
-        worst_sin = fmax(worst_sin, (double)fabsl((long double)s - sinl(two_pi * u)));
-        worst_cos = fmax(worst_cos, (double)fabsl((long double)c - cosl(two_pi * u)));
-        worst_norm = fmax(worst_norm, fabs(s * s + c * c - 1.0));
-    }
-    CHECK(worst_sin <= tolerance, "sin(2 pi u) off by %.3g > %.3g", worst_sin, tolerance);
-    CHECK(worst_cos <= tolerance, "cos(2 pi u) off by %.3g > %.3g", worst_cos, tolerance);
-    CHECK(worst_norm <= 1e-15, "sin^2 + cos^2 - 1 = %.3g", worst_norm);
-    const double quarter[5][2] = {{0, 1}, {1, 0}, {0, -1}, {-1, 0}, {0, 1}}; /* (sin, cos) at u = k/4 */
-    for (int k = 0; k <= 4; k++) {
-        double s, c;
-        sincos_turns(k / 4.0, &s, &c);
-        CHECK(s == quarter[k][0] && c == quarter[k][1], "u = %d/4: (%.17g, %.17g)", k, s, c);
-    }
 }
 
 static void test_triangle_sampler_is_uniform(void)
@@ -249,8 +220,8 @@ static void test_psnr_is_not_fooled_by_a_bright_light(void)
     image dim_reference = image_new(16, 16), close = image_new(16, 16);
     for (int i = 0; i < 16 * 16 * 3; i++) {
         bright_reference.pixels[i] = dim_reference.pixels[i] = 0.2f;
-        noisy.pixels[i] = i % 2 ? 0.0f : 0.6f;  /* every pixel far off */
-        close.pixels[i] = 0.21f;                /* every pixel slightly off */
+        noisy.pixels[i] = i % 2 ? 0.0f : 0.6f; /* every pixel far off */
+        close.pixels[i] = 0.21f;               /* every pixel slightly off */
     }
     bright_reference.pixels[0] = noisy.pixels[0] = 1700.0f; /* the light, right in both */
     image_metrics worse = image_compare(&noisy, &bright_reference), better = image_compare(&close, &dim_reference);
@@ -267,7 +238,6 @@ int main(void)
     RUN_TEST(test_orthonormal_basis);
     RUN_TEST(test_rng_is_deterministic_and_uniform);
     RUN_TEST(test_hemisphere_samplers_integrate_cosine);
-    RUN_TEST(test_sincos_turns_matches_libm);
     RUN_TEST(test_triangle_sampler_is_uniform);
     RUN_TEST(test_cone_sampler_stays_in_cone);
     RUN_TEST(test_pfm_round_trip_and_orientation);

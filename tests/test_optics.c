@@ -128,8 +128,8 @@ static void test_schlick_is_exact_at_the_ends(void)
     for (double deg = 0.0; deg <= 90.0; deg += 1.0) {
         double c = cos(radians(deg));
         double exact = fresnel_dielectric(c, 1.0, 1.5, NULL, NULL), schlick = fresnel_schlick(c, 1.0, 1.5);
-        CHECK(exact >= previous_exact - 1e-15 && schlick >= previous_schlick - 1e-15,
-              "reflectance falls at %g deg", deg);
+        CHECK(exact >= previous_exact - 1e-15 && schlick >= previous_schlick - 1e-15, "reflectance falls at %g deg",
+              deg);
         previous_exact = exact, previous_schlick = schlick;
     }
 }

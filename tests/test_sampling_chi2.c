@@ -50,7 +50,8 @@ static void check_chi2(const char *what, const long *observed, const double *pro
     CHECK(fabs(sum_p - 1.0) < 1e-9, "%s: bin probabilities sum to %.12g, not 1", what, sum_p);
     CHECK(smallest >= 100.0, "%s: a bin expects only %.1f samples", what, smallest);
     double critical = chi2_critical(bins - 1);
-    if (getenv("CHI2_VERBOSE")) fprintf(stderr, "%s: X2 %.1f crit %.1f df %d\n", what, x2, critical, bins - 1);
+    if (getenv("CHI2_VERBOSE"))
+        fprintf(stderr, "%s: X2 %.1f crit %.1f df %d\n", what, x2, critical, bins - 1);
     CHECK(x2 <= critical, "%s: X^2 = %.1f > %.1f (df %d, alpha 1e-3)", what, x2, critical, bins - 1);
 }
 
@@ -89,8 +90,16 @@ static void direction_bin_probabilities(double (*pdf_of_cos)(double), double z_l
 
 static double cone_cos_max; /* the cone under test */
 static double pdf_cosine(double c) { return cosine_hemisphere_pdf(c); }
-static double pdf_uniform_hemisphere(double c) { (void)c; return uniform_hemisphere_pdf(); }
-static double pdf_uniform_sphere(double c) { (void)c; return uniform_sphere_pdf(); }
+static double pdf_uniform_hemisphere(double c)
+{
+    (void)c;
+    return uniform_hemisphere_pdf();
+}
+static double pdf_uniform_sphere(double c)
+{
+    (void)c;
+    return uniform_sphere_pdf();
+}
 static double pdf_cone(double c) { return c >= cone_cos_max ? uniform_cone_pdf(cone_cos_max) : 0.0; }
 
 static void check_direction_sampler(const char *what, vec3 (*sample)(double, double, double), double parameter,
@@ -115,9 +124,21 @@ static void check_direction_sampler(const char *what, vec3 (*sample)(double, dou
     check_chi2(what, observed, probability, COS_BINS * PHI_BINS, SAMPLES);
 }
 
-static vec3 cosine_sampler(double u1, double u2, double unused) { (void)unused; return cosine_sample_hemisphere(u1, u2); }
-static vec3 hemisphere_sampler(double u1, double u2, double unused) { (void)unused; return uniform_sample_hemisphere(u1, u2); }
-static vec3 sphere_sampler(double u1, double u2, double unused) { (void)unused; return uniform_sample_sphere(u1, u2); }
+static vec3 cosine_sampler(double u1, double u2, double unused)
+{
+    (void)unused;
+    return cosine_sample_hemisphere(u1, u2);
+}
+static vec3 hemisphere_sampler(double u1, double u2, double unused)
+{
+    (void)unused;
+    return uniform_sample_hemisphere(u1, u2);
+}
+static vec3 sphere_sampler(double u1, double u2, double unused)
+{
+    (void)unused;
+    return uniform_sample_sphere(u1, u2);
+}
 static vec3 cone_sampler(double u1, double u2, double cos_max) { return uniform_sample_cone(u1, u2, cos_max); }
 
 static void test_cosine_hemisphere_chi2(void)
@@ -183,7 +204,8 @@ static void test_sphere_light_cone_chi2(void)
         else
             observed[bin]++;
     }
-    CHECK(bad == 0, "sphere cone: %ld samples off the sphere, on its far side, outside the cone or with a wrong pdf", bad);
+    CHECK(bad == 0, "sphere cone: %ld samples off the sphere, on its far side, outside the cone or with a wrong pdf",
+          bad);
     check_chi2("sphere light from outside", observed, probability, COS_BINS * PHI_BINS, SAMPLES);
 }
 

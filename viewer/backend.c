@@ -182,7 +182,8 @@ static int open_egl(char *err, size_t err_size)
     gl_proc p = B.eglGetProcAddress("eglGetPlatformDisplayEXT");
     memcpy(&eglGetPlatformDisplayEXT, &p, sizeof p);
     const char *client_extensions = eglQueryString(NULL, EGL_EXTENSIONS_);
-    if (!eglGetPlatformDisplayEXT || !client_extensions || !strstr(client_extensions, "EGL_MESA_platform_surfaceless")) {
+    if (!eglGetPlatformDisplayEXT || !client_extensions ||
+        !strstr(client_extensions, "EGL_MESA_platform_surfaceless")) {
         snprintf(err, err_size, "viewer: egl: no EGL_MESA_platform_surfaceless (is Mesa's libegl-mesa0 installed?)");
         return 3;
     }
@@ -202,8 +203,9 @@ static int open_egl(char *err, size_t err_size)
         snprintf(err, err_size, "viewer: egl: desktop OpenGL is not available");
         return 3;
     }
-    const int attributes[] = {EGL_CONTEXT_MAJOR_VERSION_, 3, EGL_CONTEXT_MINOR_VERSION_, 3,
-                              EGL_CONTEXT_OPENGL_PROFILE_MASK_, EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT_, EGL_NONE_};
+    const int attributes[] = {
+        EGL_CONTEXT_MAJOR_VERSION_,           3,        EGL_CONTEXT_MINOR_VERSION_, 3, EGL_CONTEXT_OPENGL_PROFILE_MASK_,
+        EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT_, EGL_NONE_};
     B.context = eglCreateContext(B.display, NULL /* EGL_NO_CONFIG_KHR */, NULL, attributes);
     if (!B.context || !B.eglMakeCurrent(B.display, NULL, NULL, B.context)) {
         snprintf(err, err_size, "viewer: egl: cannot create an OpenGL 3.3 core context");
@@ -232,9 +234,21 @@ static int open_osmesa(char *err, size_t err_size)
         !symbol("OSMesaGetProcAddress", &B.OSMesaGetProcAddress, err, err_size) ||
         !symbol("OSMesaDestroyContext", &B.OSMesaDestroyContext, err, err_size))
         return 3;
-    const int attributes[] = {OSMESA_FORMAT_, OSMESA_RGBA_, OSMESA_DEPTH_BITS_, 24, OSMESA_STENCIL_BITS_, 0,
-                              OSMESA_ACCUM_BITS_, 0, OSMESA_PROFILE_, OSMESA_CORE_PROFILE_,
-                              OSMESA_CONTEXT_MAJOR_VERSION_, 3, OSMESA_CONTEXT_MINOR_VERSION_, 3, 0};
+    const int attributes[] = {OSMESA_FORMAT_,
+                              OSMESA_RGBA_,
+                              OSMESA_DEPTH_BITS_,
+                              24,
+                              OSMESA_STENCIL_BITS_,
+                              0,
+                              OSMESA_ACCUM_BITS_,
+                              0,
+                              OSMESA_PROFILE_,
+                              OSMESA_CORE_PROFILE_,
+                              OSMESA_CONTEXT_MAJOR_VERSION_,
+                              3,
+                              OSMESA_CONTEXT_MINOR_VERSION_,
+                              3,
+                              0};
     B.osmesa_context = OSMesaCreateContextAttribs(attributes, NULL);
     /* OSMesa wants a colour buffer to make a context current; we draw into
      * our own framebuffer object, so a tiny one does. */
@@ -254,7 +268,7 @@ int backend_open(backend_kind kind, int width, int height, const char *title, ch
 {
     memset(&B, 0, sizeof B);
     B.kind = kind;
-    int status = kind == BACKEND_GLFW ? open_glfw(width, height, title, err, err_size)
+    int status = kind == BACKEND_GLFW  ? open_glfw(width, height, title, err, err_size)
                  : kind == BACKEND_EGL ? open_egl(err, err_size)
                                        : open_osmesa(err, err_size);
     B.open = status == 0;

@@ -13,6 +13,11 @@ out=out/demo
 scene=scenes/cornell.scene
 size=${DEMO_SIZE:-256x256}
 mkdir -p "$out"
+# A converged reference (docs/reference/README.md says how it was made): with
+# it every chapter's stats carry its error, and the panels show it.
+reference=docs/reference/cornell-$size.pfm
+ref=()
+[[ -f $reference ]] && ref=(--ref "$reference")
 
 found=0
 for exe in "$build"/[0-9][0-9]_*; do
@@ -28,10 +33,11 @@ for exe in "$build"/[0-9][0-9]_*; do
   esac
   start=$(date +%s.%N)
   if "$exe" "$scene" --quiet --size "$size" --out "$out/cornell-$name.pfm" --out "$out/cornell-$name.png" \
-       --stats "$out/cornell-$name.json" "${extra[@]}"; then
+       --stats "$out/cornell-$name.json" "${ref[@]}" "${extra[@]}" 2>"$out/cornell-$name.log"; then
     printf 'demo: %-14s %5.1f s  -> %s\n' "$name" "$(awk -v a="$start" -v b="$(date +%s.%N)" 'BEGIN { print b - a }')" "$out/cornell-$name.png"
   else
-    echo "demo: $name failed (exit $?); left out of the comparison" >&2
+    echo "demo: $name failed (exit $?); left out of the comparison:" >&2
+    cat "$out/cornell-$name.log" >&2
     rm -f "$out/cornell-$name.pfm"
   fi
 done

@@ -2,11 +2,12 @@
 #include "gfx.h"
 
 #include <errno.h>
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "font8x8.h"
+#include "font.h"
 
 /* ---- shaders ------------------------------------------------------------------------------
  * Each shader is a C string, one GLSL line per C line, and remembers the C
@@ -24,13 +25,12 @@ static const char *quad_vs =
     "}\n";
 
 static const int text_fs_line = __LINE__ + 2;
-static const char *text_fs =
-    "#version 330 core\n"
-    "uniform sampler2D atlas;\n"
-    "uniform vec4 colour;\n"
-    "in vec2 uv;\n"
-    "out vec4 fragment;\n"
-    "void main() { fragment = vec4(colour.rgb, colour.a * texture(atlas, uv).r); }\n";
+static const char *text_fs = "#version 330 core\n"
+                             "uniform sampler2D atlas;\n"
+                             "uniform vec4 colour;\n"
+                             "in vec2 uv;\n"
+                             "out vec4 fragment;\n"
+                             "void main() { fragment = vec4(colour.rgb, colour.a * texture(atlas, uv).r); }\n";
 
 /* The tone map of common/image.c: v = L 2^exposure; 0 if not > 0, 1 if >= 1,
  * else the sRGB curve; the 8-bit framebuffer rounds 255 x to nearest. */
@@ -43,7 +43,7 @@ static const char *panel_fs =
     "uniform float scale;          /* framebuffer pixels per image pixel */\n"
     "uniform vec2 viewport;\n"
     "uniform float exposure;       /* stops */\n"
-    "uniform int mode;             /* 0 radiance, 1 relative error against reference */\n"
+    "uniform int mode;             /* 0 radiance, 1 relative error against reference, 2 legend */\n"
     "out vec4 fragment;\n"
     "float srgb(float linear) {\n"
     "    float v = linear * exp2(exposure);\n"
@@ -60,6 +60,7 @@ static const char *panel_fs =
     "}\n"
     "void main() {\n"
     "    vec2 p = vec2(gl_FragCoord.x, viewport.y - gl_FragCoord.y);\n"
+    "    if (mode == 2) { fragment = vec4(heat((p.x - origin.x) / scale), 1.0); return; } /* the legend */\n"
     "    vec2 q = (p - origin) / scale;\n"
     "    ivec2 size = textureSize(image, 0);\n"
     "    ivec2 t = ivec2(floor(q));\n"
@@ -81,73 +82,72 @@ static const char *panel_fs =
     "}\n";
 
 static const int mesh_vs_line = __LINE__ + 2;
-static const char *mesh_vs =
-    "#version 330 core\n"
-    "layout(location = 0) in vec3 position;\n"
-    "layout(location = 1) in vec3 normal;\n"
-    "layout(location = 2) in vec3 kd;\n"
-    "layout(location = 3) in vec3 ks;\n"
-    "layout(location = 4) in float exponent;\n"
-    "layout(location = 5) in vec3 emission;\n"
-    "uniform mat4 view_projection;\n"
-    "out vec3 P, N, Kd, Ks, Le;\n"
-    "out float n_exp;\n"
-    "void main() {\n"
-    "    P = position; N = normal; Kd = kd; Ks = ks; Le = emission; n_exp = exponent;\n"
-    "    gl_Position = view_projection * vec4(position, 1.0);\n"
-    "}\n";
+static const char *mesh_vs = "#version 330 core\n"
+                             "layout(location = 0) in vec3 position;\n"
+                             "layout(location = 1) in vec3 normal;\n"
+                             "layout(location = 2) in vec3 kd;\n"
+                             "layout(location = 3) in vec3 ks;\n"
+                             "layout(location = 4) in float exponent;\n"
+                             "layout(location = 5) in vec3 emission;\n"
+                             "uniform mat4 view_projection;\n"
+                             "out vec3 P, N, Kd, Ks, Le;\n"
+                             "out float n_exp;\n"
+                             "void main() {\n"
+                             "    P = position; N = normal; Kd = kd; Ks = ks; Le = emission; n_exp = exponent;\n"
+                             "    gl_Position = view_projection * vec4(position, 1.0);\n"
+                             "}\n";
 
 /* Chapter 1's local model (chapters/01_local.c), in linear radiance:
  *   L = Le (front side of emitters) + kd La
  *     + sum over lights [kd/pi cos(theta_i) + ks (N.H)^n] I / r^2     (R1, classic Blinn)
  * shading both sides (the normal turned toward the eye), no shadows. */
 static const int mesh_fs_line = __LINE__ + 2;
-static const char *mesh_fs =
-    "#version 330 core\n"
-    "const int MAX_LIGHTS = 16;\n"
-    "uniform vec3 eye;\n"
-    "uniform vec3 ambient;\n"
-    "uniform int light_count;\n"
-    "uniform vec3 light_position[MAX_LIGHTS];\n"
-    "uniform vec3 light_intensity[MAX_LIGHTS];\n"
-    "uniform vec3 light_normal[MAX_LIGHTS];\n"
-    "uniform int light_cosine[MAX_LIGHTS];\n"
-    "uniform bool unlit;\n"
-    "in vec3 P, N, Kd, Ks, Le;\n"
-    "in float n_exp;\n"
-    "out vec4 fragment;\n"
-    "const float PI = 3.14159265358979;\n"
-    "void main() {\n"
-    "    if (unlit) { fragment = vec4(Le, 1.0); return; }\n"
-    "    vec3 w_o = normalize(eye - P);\n"
-    "    vec3 n = normalize(N);\n"
-    "    bool front = dot(n, w_o) > 0.0;\n"
-    "    if (!front) n = -n;\n"
-    "    vec3 L = (front ? Le : vec3(0.0)) + Kd * ambient;\n"
-    "    for (int l = 0; l < light_count; l++) {\n"
-    "        vec3 d = light_position[l] - P;\n"
-    "        float r2 = dot(d, d);\n"
-    "        vec3 w_i = d * inversesqrt(r2);\n"
-    "        float cos_i = dot(n, w_i);\n"
-    "        if (cos_i <= 0.0) continue;\n"
-    "        vec3 I = light_intensity[l];\n"
-    "        if (light_cosine[l] != 0) {\n"
-    "            float cos_y = -dot(light_normal[l], w_i);\n"
-    "            if (cos_y <= 0.0) continue;\n"
-    "            I *= cos_y;\n"
-    "        }\n"
-    "        vec3 f = Kd * (cos_i / PI);\n"
-    "        float cos_h = dot(n, normalize(w_i + w_o));\n"
-    "        if (cos_h > 0.0) f += Ks * pow(cos_h, n_exp);\n"
-    "        L += f * I / r2;\n"
-    "    }\n"
-    "    fragment = vec4(L, 1.0);\n"
-    "}\n";
+static const char *mesh_fs = "#version 330 core\n"
+                             "const int MAX_LIGHTS = 16;\n"
+                             "uniform vec3 eye;\n"
+                             "uniform vec3 ambient;\n"
+                             "uniform int light_count;\n"
+                             "uniform vec3 light_position[MAX_LIGHTS];\n"
+                             "uniform vec3 light_intensity[MAX_LIGHTS];\n"
+                             "uniform vec3 light_normal[MAX_LIGHTS];\n"
+                             "uniform int light_cosine[MAX_LIGHTS];\n"
+                             "uniform bool unlit;\n"
+                             "in vec3 P, N, Kd, Ks, Le;\n"
+                             "in float n_exp;\n"
+                             "out vec4 fragment;\n"
+                             "const float PI = 3.14159265358979;\n"
+                             "void main() {\n"
+                             "    if (unlit) { fragment = vec4(Le, 1.0); return; }\n"
+                             "    vec3 w_o = normalize(eye - P);\n"
+                             "    vec3 n = normalize(N);\n"
+                             "    bool front = dot(n, w_o) > 0.0;\n"
+                             "    if (!front) n = -n;\n"
+                             "    vec3 L = (front ? Le : vec3(0.0)) + Kd * ambient;\n"
+                             "    for (int l = 0; l < light_count; l++) {\n"
+                             "        vec3 d = light_position[l] - P;\n"
+                             "        float r2 = dot(d, d);\n"
+                             "        vec3 w_i = d * inversesqrt(r2);\n"
+                             "        float cos_i = dot(n, w_i);\n"
+                             "        if (cos_i <= 0.0) continue;\n"
+                             "        vec3 I = light_intensity[l];\n"
+                             "        if (light_cosine[l] != 0) {\n"
+                             "            float cos_y = -dot(light_normal[l], w_i);\n"
+                             "            if (cos_y <= 0.0) continue;\n"
+                             "            I *= cos_y;\n"
+                             "        }\n"
+                             "        vec3 f = Kd * (cos_i / PI);\n"
+                             "        float cos_h = dot(n, normalize(w_i + w_o));\n"
+                             "        if (cos_h > 0.0) f += Ks * pow(cos_h, n_exp);\n"
+                             "        L += f * I / r2;\n"
+                             "    }\n"
+                             "    fragment = vec4(L, 1.0);\n"
+                             "}\n";
 
 static struct {
     GLuint text_program, panel_program, mesh_program;
     GLuint atlas, vao, vbo;
     GLuint dummy_texture;
+    font_atlas font;
     int width, height;
     char renderer[256];
 } G;
@@ -243,7 +243,32 @@ static char *read_text_file(const char *path, char *err, size_t err_size)
 
 const char *gfx_renderer(void) { return G.renderer; }
 
-int gfx_init(const char *raster_shader, char *err, size_t err_size)
+/* The labels' font into G.font and the atlas texture; a missing TrueType
+ * file is a warning (the 8x8 bitmap font instead), not an error. */
+static int font_init(const char *font_path, int font_px, char *err, size_t err_size)
+{
+    char why[512] = "";
+    int status = font_atlas_make(&G.font, font_path, (float)font_px, why, sizeof why);
+    if (status == 2) {
+        snprintf(err, err_size, "%s:%d: out of memory for the font atlas", __FILE__, __LINE__);
+        return 2;
+    }
+    if (status == 1)
+        fprintf(stderr, "warning: %s; labels in the 8x8 bitmap font\n", why);
+    glGenTextures(1, &G.atlas);
+    glBindTexture(GL_TEXTURE_2D, G.atlas);
+    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
+    glTexImage2D(GL_TEXTURE_2D, 0, GL_R8, G.font.width, G.font.height, 0, GL_RED, GL_UNSIGNED_BYTE, G.font.pixels);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
+    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+    return 0;
+}
+
+const char *gfx_font(void) { return G.font.source; }
+
+int gfx_init(const char *raster_shader, const char *font_path, int font_px, char *err, size_t err_size)
 {
     memset(&G, 0, sizeof G);
     const GLubyte *renderer = glGetString(GL_RENDERER), *version = glGetString(GL_VERSION);
@@ -267,25 +292,8 @@ int gfx_init(const char *raster_shader, char *err, size_t err_size)
     if (!G.mesh_program)
         return 2;
 
-    /* Font atlas: 16 x 6 glyphs of 8 x 8 for U+0020..U+007F; U+007F is a
-     * solid block, used to fill rectangles. */
-    enum { ATLAS_W = 128, ATLAS_H = 48 };
-    static unsigned char atlas[ATLAS_H][ATLAS_W];
-    memset(atlas, 0, sizeof atlas);
-    for (int g = 0; g < 96; g++)
-        for (int row = 0; row < 8; row++)
-            for (int col = 0; col < 8; col++) {
-                int on = g == 95 ? 1 : (font8x8[g][row] >> col) & 1;
-                atlas[(g / 16) * 8 + row][(g % 16) * 8 + col] = on ? 255 : 0;
-            }
-    glGenTextures(1, &G.atlas);
-    glBindTexture(GL_TEXTURE_2D, G.atlas);
-    glPixelStorei(GL_UNPACK_ALIGNMENT, 1);
-    glTexImage2D(GL_TEXTURE_2D, 0, GL_R8, ATLAS_W, ATLAS_H, 0, GL_RED, GL_UNSIGNED_BYTE, atlas);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MIN_FILTER, GL_NEAREST);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_MAG_FILTER, GL_NEAREST);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_S, GL_CLAMP_TO_EDGE);
-    glTexParameteri(GL_TEXTURE_2D, GL_TEXTURE_WRAP_T, GL_CLAMP_TO_EDGE);
+    if (font_init(font_path, font_px, err, err_size))
+        return 2;
 
     float black[3] = {0, 0, 0};
     glGenTextures(1, &G.dummy_texture);
@@ -315,6 +323,7 @@ void gfx_shutdown(void)
     glDeleteProgram(G.panel_program);
     glDeleteProgram(G.mesh_program);
     glDeleteTextures(1, &G.atlas);
+    font_atlas_free(&G.font);
     glDeleteTextures(1, &G.dummy_texture);
     glDeleteBuffers(1, &G.vbo);
     glDeleteVertexArrays(1, &G.vao);
@@ -418,9 +427,7 @@ static void use_text_program(const float rgba[4])
 
 void gfx_fill(rect r, const float rgba[4])
 {
-    float v[24];
-    /* the middle of the solid glyph (slot 95: column 15, row 5) */
-    float u = (15 * 8 + 4) / 128.0f, w = (5 * 8 + 4) / 48.0f;
+    float v[24], u = G.font.solid_s, w = G.font.solid_t;
     put_quad(v, (float)r.x, (float)r.y, (float)(r.x + r.w), (float)(r.y + r.h), u, w, u, w);
     glDisable(GL_SCISSOR_TEST);
     use_text_program(rgba);
@@ -428,9 +435,25 @@ void gfx_fill(rect r, const float rgba[4])
     glDisable(GL_BLEND);
 }
 
-int gfx_text_width(const char *text, int scale) { return (int)strlen(text) * 8 * scale; }
+static const glyph *glyph_of(int c)
+{
+    return c >= FONT_GLYPH_FIRST && c < FONT_GLYPH_FIRST + FONT_GLYPH_COUNT ? &G.font.glyphs[c - FONT_GLYPH_FIRST]
+                                                                            : NULL;
+}
 
-void gfx_text(int x, int y, int scale, const char *text, const float rgba[4], rect clip)
+int gfx_text_width(const char *text)
+{
+    float pen = 0.0f;
+    for (const char *c = text; *c; c++) {
+        const glyph *g = glyph_of((unsigned char)*c);
+        pen += g ? g->advance : 0.0f;
+    }
+    return (int)ceilf(pen);
+}
+
+int gfx_text_ascent(void) { return (int)ceilf(G.font.ascent); }
+
+void gfx_text(int x, int y, const char *text, const float rgba[4], rect clip)
 {
     size_t n = strlen(text);
     if (!n)
@@ -439,16 +462,16 @@ void gfx_text(int x, int y, int scale, const char *text, const float rgba[4], re
     if (!v)
         return;
     int quads = 0;
+    float pen = (float)x, baseline = (float)y + ceilf(G.font.ascent);
     for (size_t i = 0; i < n; i++) {
-        int c = (unsigned char)text[i];
-        if (c <= FONT_FIRST || c > FONT_LAST)
-            continue; /* spaces and anything outside the font draw nothing */
-        int g = c - FONT_FIRST;
-        float u0 = (g % 16) * 8 / 128.0f, v0 = (g / 16) * 8 / 48.0f;
-        float x0 = (float)(x + (int)i * 8 * scale), y0 = (float)y;
-        put_quad(v + 24 * quads, x0, y0, x0 + 8.0f * scale, y0 + 8.0f * scale, u0, v0, u0 + 8 / 128.0f,
-                 v0 + 8 / 48.0f);
-        quads++;
+        const glyph *g = glyph_of((unsigned char)text[i]);
+        if (!g)
+            continue; /* anything outside printable ASCII draws nothing */
+        /* whole pixels: the baked glyph is copied 1:1 (nearest sampling) */
+        float x0 = floorf(pen + g->x0 + 0.5f), y0 = baseline + g->y0;
+        if (g->x1 > g->x0)
+            put_quad(v + 24 * quads++, x0, y0, x0 + (g->x1 - g->x0), y0 + (g->y1 - g->y0), g->s0, g->t0, g->s1, g->t1);
+        pen += g->advance;
     }
     use_text_program(rgba);
     scissor(clip);
@@ -469,7 +492,7 @@ void gfx_image(rect area, GLuint texture, double origin_x, double origin_y, doub
     glUniform2f(glGetUniformLocation(p, "origin"), (float)origin_x, (float)origin_y);
     glUniform1f(glGetUniformLocation(p, "scale"), (float)scale);
     glUniform1f(glGetUniformLocation(p, "exposure"), (float)exposure);
-    glUniform1i(glGetUniformLocation(p, "mode"), mode == PANEL_HEAT);
+    glUniform1i(glGetUniformLocation(p, "mode"), mode == PANEL_LEGEND ? 2 : mode == PANEL_HEAT);
     glUniform1i(glGetUniformLocation(p, "image"), 0);
     glUniform1i(glGetUniformLocation(p, "reference"), 1);
     glActiveTexture(GL_TEXTURE1);
@@ -480,6 +503,8 @@ void gfx_image(rect area, GLuint texture, double origin_x, double origin_y, doub
     draw_quads(v, 1);
     glDisable(GL_SCISSOR_TEST);
 }
+
+void gfx_heat_legend(rect bar) { gfx_image(bar, 0, bar.x, bar.y, bar.w, 0.0, PANEL_LEGEND, 0); }
 
 void gfx_read_rgb8(int width, int height, unsigned char *rgb)
 {

@@ -23,6 +23,7 @@
 #include <unistd.h>
 
 #include "backend.h"
+#include "font.h"
 #include "viewer.h"
 #define GLFW_INCLUDE_NONE
 #include <GLFW/glfw3.h>
@@ -31,7 +32,14 @@
 
 typedef enum { MODE_COMPARE, MODE_LIVE, MODE_RASTER, MODE_PLY } viewer_mode;
 
-enum { LABEL_BAND = 34 }; /* pixels of label at the top of every panel: 3 lines of 8x8 text */
+/* Text metrics, from --font-size PX (default 14): a line of text is PX + 4
+ * pixels; a label is 3 lines (+ 4) above its image or a column 18 PX wide
+ * beside it (one field a line); the status line is 1 line (+ 4). */
+enum { FONT_PX_DEFAULT = 14 };
+#define LINE (V.font_px + 4)
+#define LABEL_BAND (3 * LINE + 4)
+#define STATUS_BAND (LINE + 4)
+#define LABEL_COLUMN (18 * V.font_px)
 
 static struct {
     /* options */
@@ -48,20 +56,23 @@ static struct {
     int exit_after_updates, frames;
     bool no_shadows, verbose;
     double ambient;
+    const char *font_path;
+    int font_px;
     camera cam, scene_cam, cam_option;
     int camera_given; /* bits: 1 eye, 2 look, 4 up, 8 fov */
 
     /* view state */
     double exposure, zoom, cx, cy; /* zoom 1 = fit; (cx, cy): image point at the panel centre, 0..1 */
     bool diff, split, help;
-    int reference, split_b;        /* panel indices */
-    double split_position;         /* 0..1 of the width */
+    int reference, split_b; /* panel indices */
+    bool reference_given;   /* by --reference, --diff, --split, 1..9 or a right click */
+    double split_position;  /* 0..1 of the width */
     double mouse_x, mouse_y;
     bool cursor_given, mouse_inside;
     bool dragging, panning;
     double drag_x, drag_y;
     bool redraw, camera_moved;
-    double restart_at;             /* when to restart the children after the camera moved; 0 none */
+    double restart_at; /* when to restart the children after the camera moved; 0 none */
     int screenshot_counter;
 
     /* content */
@@ -70,84 +81,18 @@ static struct {
     scene scene;
     bool scene_loaded;
     mesh_uniforms uniforms;
+    int aspect_w, aspect_h; /* of the images, for the layout */
     vec3 bounds_lo, bounds_hi;
     char temp_dir[PATH_LEN];
     child_spec spec;
-    target screen;                 /* headless framebuffer */
+    target screen; /* headless framebuffer */
 } V;
 
 static volatile sig_atomic_t quit_requested;
-static void on_signal(int sig) { (void)sig; quit_requested = 1; }
-
-static void usage(void)
+static void on_signal(int sig)
 {
-    printf("usage: build/viewer [A.pfm B.pfm ...] [--scene NAME [--dir DIR]]\n"
-           "                    [--live SCENE | --raster SCENE | --ply FILE.ply] [options]\n"
-           "modes:\n"
-           "  A.pfm B.pfm ...      compare: the images in a grid, with the stats JSON beside each (same name .json)\n"
-           "  --scene NAME         compare DIR/NAME-NN_*.pfm (DIR: --dir, default out)\n"
-           "  --live SCENE         run every chapter (build/0*_*) as a child with the viewer's camera and show\n"
-           "                       its progressive images; orbiting restarts them.  A GLSL raster is panel 1.\n"
-           "  --raster SCENE       the scene rasterised by a GLSL Blinn-Phong shader (chapter 1's local model,\n"
-           "                       no shadows) beside chapter 1's ray-cast image of the same camera\n"
-           "  --ply FILE.ply       radiosity's mesh with smooth per-vertex radiance, orbitable\n"
-           "display:\n"
-           "  --backend glfw|egl|osmesa  context (default glfw with a display, else egl, else osmesa)\n"
-           "  --headless           no window (egl or osmesa); needs --out or --frames\n"
-           "  --size WxH           window / framebuffer size (default 1280x720)\n"
-           "  --render-size WxH    size of 3D panels and children's images (default: fit the panel)\n"
-           "  --out FILE.png|.ppm  write what the window shows (headless: the first complete frame)\n"
-           "  --screenshot FILE    in a window: save the first complete frame there and exit\n"
-           "  --panel-out FILE.pfm write panel 1's linear radiance (the GLSL raster, the PLY view ...)\n"
-           "  --exposure STOPS     shared exposure (as the chapters' --exposure)\n"
-           "  --diff N             error heat map of every panel against panel N\n"
-           "  --split A,B[,POS]    A/B split slider between panels A and B at POS (0..1, default 0.5)\n"
-           "  --zoom Z --center U,V  shared zoom (1 = fit) and image point (0..1) at the panel centres\n"
-           "  --cursor X,Y         cursor position in pixels (shows the radiance under it in every panel)\n"
-           "  --help-overlay       show the key help\n"
-           "  --frames N           render N frames, print frames per second and exit\n"
-           "3D and live:\n"
-           "  --eye X,Y,Z --look X,Y,Z --up X,Y,Z --fov DEG   camera (default: the scene's)\n"
-           "  --chapter NAME       only this chapter (repeatable); --chapters DIR where they are\n"
-           "  --live-time S        the children's --time budget (default 10)\n"
-           "  --exit-after-updates N  headless live: stop after N image updates from every chapter\n"
-           "  --no-shadows --ambient LA  chapter 1's options, for the raster and passed to 01_local\n"
-           "  --raster-shader FILE.frag  replace the built-in Blinn-Phong fragment shader\n"
-           "  --verbose            print the layout, every update and (window) every camera move\n"
-           "Layout: ceil(sqrt(n)) columns; each panel's top %d pixels are its label, the image is scaled\n"
-           "to fit the rest (zoom 1), centred, its corner on a whole pixel, nearest-neighbour sampled.\n"
-           "Exit status: 0, 2 bad input or shader error (file:line: message), 3 no such backend here.\n",
-           LABEL_BAND);
-}
-
-static int bad(char *err, size_t err_size, int i, const char *what, const char *value)
-{
-    snprintf(err, err_size, "argv:%d: %s%s%s%s", i, what, value ? " '" : "", value ? value : "", value ? "'" : "");
-    return 2;
-}
-
-static bool parse_size(const char *s, int *w, int *h)
-{
-    char tail;
-    return s && sscanf(s, "%dx%d%c", w, h, &tail) == 2 && *w > 0 && *h > 0 && *w <= 16384 && *h <= 16384;
-}
-
-static bool parse_vec(const char *s, vec3 *v)
-{
-    char tail;
-    return s && sscanf(s, "%lf,%lf,%lf%c", &v->x, &v->y, &v->z, &tail) == 3 && v3_is_finite(*v);
-}
-
-static bool parse_number(const char *s, double lo, double hi, double *out)
-{
-    if (!s)
-        return false;
-    char *end;
-    double v = strtod(s, &end);
-    if (end == s || *end || !(v >= lo && v <= hi))
-        return false;
-    *out = v;
-    return true;
+    (void)sig;
+    quit_requested = 1;
 }
 
 static int add_file_panel(const char *path, char *err, size_t err_size)
@@ -183,158 +128,369 @@ static int add_scene_panels(const char *name, const char *dir, int arg, char *er
     return status;
 }
 
+/* ---- the option table ----------------------------------------------------------------------------
+ * One table: the parser reads it and `build/viewer --help` prints it.  Most
+ * options store into a field of V (a flag, a string, a number in a range);
+ * the others have a handler. */
+
+typedef enum { OPT_SECTION, OPT_DOC, OPT_FLAG, OPT_STRING, OPT_NUMBER, OPT_INT, OPT_CUSTOM } option_kind;
+
+typedef int option_handler(const char *name, const char *value, int arg, char *err, size_t err_size);
+
+typedef struct {
+    const char *name, *alias; /* alias: the same option under an older name */
+    const char *value;        /* what follows it, as shown ("WxH"); NULL: a flag */
+    option_kind kind;
+    void *target;           /* bool *, const char **, double *, int * */
+    double lo, hi;          /* OPT_NUMBER, OPT_INT */
+    option_handler *handle; /* OPT_CUSTOM */
+    const char *help;       /* '\n' starts an indented continuation line */
+} option;
+
+static struct {
+    const char *scene_name, *dir;
+    int scene_arg;
+} compare_args = {NULL, "out", 0};
+
+static int bad(char *err, size_t err_size, int i, const char *what, const char *value)
+{
+    snprintf(err, err_size, "argv:%d: %s%s%s%s", i, what, value ? " '" : "", value ? value : "", value ? "'" : "");
+    return 2;
+}
+
+static bool parse_size(const char *s, int *w, int *h)
+{
+    char tail;
+    return s && sscanf(s, "%dx%d%c", w, h, &tail) == 2 && *w > 0 && *h > 0 && *w <= 16384 && *h <= 16384;
+}
+
+static bool parse_vec(const char *s, vec3 *v)
+{
+    char tail;
+    return s && sscanf(s, "%lf,%lf,%lf%c", &v->x, &v->y, &v->z, &tail) == 3 && v3_is_finite(*v);
+}
+
+static bool parse_number(const char *s, double lo, double hi, double *out)
+{
+    if (!s)
+        return false;
+    char *end;
+    double v = strtod(s, &end);
+    if (end == s || *end || !(v >= lo && v <= hi))
+        return false;
+    *out = v;
+    return true;
+}
+
+static bool parse_panel_number(const char *s, int *index)
+{
+    double n;
+    if (!parse_number(s, 1, PANEL_MAX, &n) || n != floor(n))
+        return false;
+    *index = (int)n - 1;
+    return true;
+}
+
+static void usage(void);
+static void print_keys_markdown(void);
+
+static int opt_help(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    (void)value, (void)arg, (void)err, (void)err_size;
+    if (!strcmp(name, "--help-keys"))
+        print_keys_markdown();
+    else
+        usage();
+    exit(0);
+}
+
+static int opt_backend(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    if (!backend_parse(value, &V.backend))
+        return bad(err, err_size, arg, "--backend wants glfw, egl or osmesa, not", value);
+    (void)name, V.backend_given = true;
+    return 0;
+}
+
+static int opt_size(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    bool window = !strcmp(name, "--size");
+    if (!parse_size(value, window ? &V.width : &V.render_width, window ? &V.height : &V.render_height))
+        return bad(err, err_size, arg, window ? "--size wants WxH, not" : "--render-size wants WxH, not", value);
+    return 0;
+}
+
+static int opt_mode(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    (void)arg, (void)err, (void)err_size;
+    V.mode = name[2] == 'l' ? MODE_LIVE : name[2] == 'r' ? MODE_RASTER : MODE_PLY;
+    if (V.mode == MODE_PLY)
+        V.ply_path = value;
+    else
+        V.scene_path = value;
+    return 0;
+}
+
+static int opt_scene(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    (void)name, (void)err, (void)err_size;
+    compare_args.scene_name = value, compare_args.scene_arg = arg;
+    return 0;
+}
+
+static int opt_reference(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    if (!parse_panel_number(value, &V.reference))
+        return bad(err, err_size, arg,
+                   !strcmp(name, "--diff") ? "--diff wants a panel number, not"
+                                           : "--reference wants a panel number, not",
+                   value);
+    V.reference_given = true;
+    V.diff |= !strcmp(name, "--diff");
+    return 0;
+}
+
+static int opt_split(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    int pa, pb;
+    double pos = 0.5;
+    char tail;
+    int n = sscanf(value, "%d,%d,%lf%c", &pa, &pb, &pos, &tail);
+    if ((n != 2 && n != 3) || pa < 1 || pb < 1 || pa > PANEL_MAX || pb > PANEL_MAX || !(pos >= 0 && pos <= 1))
+        return bad(err, err_size, arg, "--split wants A,B[,POS] (panel numbers, 0 <= POS <= 1), not", value);
+    (void)name;
+    V.split = true, V.reference = pa - 1, V.split_b = pb - 1, V.split_position = pos, V.reference_given = true;
+    return 0;
+}
+
+static int opt_point(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    char tail;
+    bool centre = !strcmp(name, "--center");
+    double *x = centre ? &V.cx : &V.mouse_x, *y = centre ? &V.cy : &V.mouse_y;
+    if (sscanf(value, "%lf,%lf%c", x, y, &tail) != 2 || !isfinite(*x) || !isfinite(*y))
+        return bad(err, err_size, arg, centre ? "--center wants U,V, not" : "--cursor wants X,Y in pixels, not", value);
+    if (!centre)
+        V.cursor_given = V.mouse_inside = true;
+    return 0;
+}
+
+static int opt_camera(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    vec3 v;
+    if (!strcmp(name, "--fov")) {
+        if (!parse_number(value, 1e-3, 179, &V.cam_option.fov_degrees))
+            return bad(err, err_size, arg, "--fov wants degrees in (0, 179], not", value);
+        V.camera_given |= 8;
+        return 0;
+    }
+    if (!parse_vec(value, &v))
+        return bad(err, err_size, arg, "wants X,Y,Z, not", value);
+    if (name[2] == 'e')
+        V.cam_option.eye = v, V.camera_given |= 1;
+    else if (name[2] == 'l')
+        V.cam_option.look = v, V.camera_given |= 2;
+    else
+        V.cam_option.up = v, V.camera_given |= 4;
+    return 0;
+}
+
+static int opt_chapter(const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    (void)name, (void)arg, (void)err, (void)err_size;
+    if (V.chapter_filter_count < PANEL_MAX)
+        V.chapter_filter[V.chapter_filter_count++] = value;
+    return 0;
+}
+
+#define SECTION(title)                                                                                                 \
+    {                                                                                                                  \
+        NULL, NULL, NULL, OPT_SECTION, NULL, 0, 0, NULL, title                                                         \
+    }
+#define FLAG(name, field, help)                                                                                        \
+    {                                                                                                                  \
+        name, NULL, NULL, OPT_FLAG, &V.field, 0, 0, NULL, help                                                         \
+    }
+#define STRING(name, value, field, help)                                                                               \
+    {                                                                                                                  \
+        name, NULL, value, OPT_STRING, &V.field, 0, 0, NULL, help                                                      \
+    }
+#define NUMBER(name, value, field, lo, hi, help)                                                                       \
+    {                                                                                                                  \
+        name, NULL, value, OPT_NUMBER, &V.field, lo, hi, NULL, help                                                    \
+    }
+#define INT(name, value, field, lo, hi, help)                                                                          \
+    {                                                                                                                  \
+        name, NULL, value, OPT_INT, &V.field, lo, hi, NULL, help                                                       \
+    }
+#define CUSTOM(name, value, handler, help)                                                                             \
+    {                                                                                                                  \
+        name, NULL, value, OPT_CUSTOM, NULL, 0, 0, handler, help                                                       \
+    }
+
+static const option OPTIONS[] = {
+    SECTION("modes:"),
+    {"A.pfm B.pfm ...", NULL, NULL, OPT_DOC, NULL, 0, 0, NULL,
+     "compare: the images in a grid, with the stats JSON beside each (same name .json)"},
+    CUSTOM("--scene", "NAME", opt_scene, "compare DIR/NAME-NN_*.pfm (DIR: --dir, default out)"),
+    {"--dir", NULL, "DIR", OPT_STRING, &compare_args.dir, 0, 0, NULL, "where --scene looks (default out)"},
+    CUSTOM("--live", "SCENE", opt_mode,
+           "run every chapter (build/0*_*) as a child with the viewer's camera and show\n"
+           "its progressive images; orbiting restarts them.  A GLSL raster is panel 1."),
+    CUSTOM("--raster", "SCENE", opt_mode,
+           "the scene rasterised by a GLSL Blinn-Phong shader (chapter 1's local model,\n"
+           "no shadows) beside chapter 1's ray-cast image of the same camera"),
+    CUSTOM("--ply", "FILE.ply", opt_mode, "radiosity's mesh with smooth per-vertex radiance, orbitable"),
+    SECTION("display:"),
+    CUSTOM("--backend", "glfw|egl|osmesa", opt_backend, "context (default glfw with a display, else egl, else osmesa)"),
+    FLAG("--headless", headless, "no window (egl or osmesa); needs --out or --frames"),
+    CUSTOM("--size", "WxH", opt_size, "window / framebuffer size (default 1280x720)"),
+    CUSTOM("--render-size", "WxH", opt_size, "size of 3D panels and children's images (default: fit the panel)"),
+    STRING("--out", "FILE.png|.ppm", out_path, "write what the window shows (headless: the first complete frame)"),
+    STRING("--screenshot", "FILE", screenshot_path, "in a window: save the first complete frame there and exit"),
+    STRING("--panel-out", "FILE.pfm", panel_out_path,
+           "write panel 1's linear radiance (the GLSL raster, the PLY view ...)"),
+    NUMBER("--exposure", "STOPS", exposure, -64, 64, "shared exposure (as the chapters' --exposure)"),
+    CUSTOM("--diff", "N", opt_reference, "error heat map of every panel against panel N"),
+    FLAG("--heat", diff, "error heat map against the default reference (the best image: see below)"),
+    CUSTOM("--reference", "N", opt_reference, "the reference panel for the heat map and the split (default: the best)"),
+    CUSTOM("--split", "A,B[,POS]", opt_split, "A/B split slider between panels A and B at POS (0..1, default 0.5)"),
+    NUMBER("--zoom", "Z", zoom, 1e-3, 1e4, "shared zoom (1 = fit)"),
+    CUSTOM("--center", "U,V", opt_point, "image point (0..1) at the panel centres"),
+    CUSTOM("--cursor", "X,Y", opt_point, "cursor position in pixels (shows the radiance under it in every panel)"),
+    FLAG("--help-overlay", help, "show the key help"),
+    CUSTOM("--help-keys", NULL, opt_help, "print the keys (and mouse) as a Markdown table and exit"),
+    INT("--frames", "N", frames, 1, 1e6, "render N frames, print frames per second and exit"),
+    STRING("--font", "FILE.ttf", font_path,
+           "the labels' font (default " FONT_DEFAULT_PATH ";\n"
+           "missing: the 8x8 bitmap font)"),
+    INT("--font-size", "PX", font_px, 6, 96, "its pixel height (default 14); the layout below scales with it"),
+    CUSTOM("--help", NULL, opt_help, "this list (also -h)"),
+    SECTION("3D and live:"),
+    CUSTOM("--eye", "X,Y,Z", opt_camera, "camera position (default: the scene's camera)"),
+    CUSTOM("--look", "X,Y,Z", opt_camera, "the point looked at"),
+    CUSTOM("--up", "X,Y,Z", opt_camera, "the up direction"),
+    CUSTOM("--fov", "DEG", opt_camera, "vertical field of view"),
+    CUSTOM("--chapter", "NAME", opt_chapter, "only this chapter (repeatable)"),
+    STRING("--chapters", "DIR", chapters_dir, "where the chapters are (default: beside the viewer)"),
+    {"--budget", "--live-time", "SECONDS", OPT_NUMBER, &V.live_time, 0.01, 1e6, NULL,
+     "each child's --time per camera (default 30: the path tracer converged\n"
+     "enough to judge); --live-time is the same"},
+    INT("--exit-after-updates", "N", exit_after_updates, 1, 1e6,
+        "headless live: stop after N updates of every chapter"),
+    FLAG("--no-shadows", no_shadows, "chapter 1's option, for the raster and passed to 01_local"),
+    NUMBER("--ambient", "LA", ambient, 0, 1e6, "chapter 1's ambient radiance, likewise"),
+    STRING("--raster-shader", "FILE.frag", raster_shader, "replace the built-in Blinn-Phong fragment shader"),
+    FLAG("--verbose", verbose, "print the layout, every update and (window) every camera move"),
+};
+enum { OPTION_COUNT = sizeof OPTIONS / sizeof *OPTIONS };
+
+static void usage(void)
+{
+    printf("usage: build/viewer [A.pfm B.pfm ...] [--scene NAME [--dir DIR]]\n"
+           "                    [--live SCENE | --raster SCENE | --ply FILE.ply] [options]\n");
+    for (int k = 0; k < OPTION_COUNT; k++) {
+        const option *o = &OPTIONS[k];
+        if (o->kind == OPT_SECTION) {
+            printf("%s\n", o->help);
+            continue;
+        }
+        char head[64];
+        snprintf(head, sizeof head, "%s%s%s", o->name, o->value ? " " : "", o->value ? o->value : "");
+        printf(strlen(head) > 20 ? "  %s  " : "  %-20s ", head);
+        for (const char *line = o->help;;) {
+            const char *end = strchr(line, '\n');
+            printf("%.*s\n", end ? (int)(end - line) : (int)strlen(line), line);
+            if (!end)
+                break;
+            printf("%23s", "");
+            line = end + 1;
+        }
+    }
+    printf("Layout: the bottom %d pixels of the window are the status line (font size + 8).  Above it a grid of\n"
+           "n panels: the columns (rows = ceil(n / columns)) and the label's place -- a band of %d pixels above\n"
+           "the image (3 lines of font size + 4, + 4) or a column of %d pixels (18 x font size) on its left --\n"
+           "that make panel 1's image the largest in the nominal cell (width / columns x height / rows, rounded\n"
+           "down); ties keep fewer columns and the label above.  The image is scaled to fit the rest of its\n"
+           "cell (zoom 1), centred, its corner on a whole pixel, nearest-neighbour sampled.\n"
+           "Default reference: the lowest stats rmse; else a path tracer over all bounces with the most\n"
+           "samples (then mis > light > cosine > hemisphere); else the most samples; else panel 1.\n"
+           "Exit status: 0, 2 bad input or shader error (file:line: message), 3 no such backend here.\n",
+           STATUS_BAND, LABEL_BAND, LABEL_COLUMN);
+}
+
+static const option *find_option(const char *name)
+{
+    if (!strcmp(name, "-h"))
+        name = "--help";
+    for (int k = 0; k < OPTION_COUNT; k++)
+        if (OPTIONS[k].name && OPTIONS[k].kind != OPT_DOC &&
+            (!strcmp(OPTIONS[k].name, name) || (OPTIONS[k].alias && !strcmp(OPTIONS[k].alias, name))))
+            return &OPTIONS[k];
+    return NULL;
+}
+
+/* One option of the table with its value (NULL for a flag). */
+static int apply_option(const option *o, const char *name, const char *value, int arg, char *err, size_t err_size)
+{
+    double x;
+    char what[160];
+    switch (o->kind) {
+    case OPT_FLAG: *(bool *)o->target = true; return 0;
+    case OPT_STRING: *(const char **)o->target = value; return 0;
+    case OPT_CUSTOM: return o->handle(name, value, arg, err, err_size);
+    case OPT_NUMBER:
+    case OPT_INT:
+        if (parse_number(value, o->lo, o->hi, &x) && (o->kind == OPT_NUMBER || x == floor(x))) {
+            if (o->kind == OPT_NUMBER)
+                *(double *)o->target = x;
+            else
+                *(int *)o->target = (int)x;
+            return 0;
+        }
+        snprintf(what, sizeof what, "%s wants %s%s in [%g, %g], not", name, o->kind == OPT_INT ? "a whole " : "",
+                 o->value, o->lo, o->hi);
+        return bad(err, err_size, arg, what, value);
+    default: return 0;
+    }
+}
+
+static int check_options(char *err, size_t err_size);
+
 static int parse_options(int argc, char **argv, char *err, size_t err_size)
 {
     V.width = 1280, V.height = 720;
     V.zoom = 1.0, V.cx = V.cy = 0.5;
-    V.live_time = 10.0;
+    V.live_time = 30.0;
+    V.font_path = FONT_DEFAULT_PATH, V.font_px = FONT_PX_DEFAULT;
     V.split_position = 0.5;
     V.reference = 0, V.split_b = 1;
-    const char *scene_name = NULL, *dir = "out";
-    int scene_arg = 0;
     for (int i = 1; i < argc; i++) {
-        const char *a = argv[i], *value = i + 1 < argc ? argv[i + 1] : NULL;
-#define NEED_VALUE                                                                                                     \
-    do {                                                                                                               \
-        if (!value)                                                                                                    \
-            return bad(err, err_size, i, "missing value after", a);                                                    \
-        i++;                                                                                                           \
-    } while (0)
-        if (!strcmp(a, "--help") || !strcmp(a, "-h")) {
-            usage();
-            exit(0);
-        } else if (!strcmp(a, "--backend")) {
-            NEED_VALUE;
-            if (!backend_parse(value, &V.backend))
-                return bad(err, err_size, i, "--backend wants glfw, egl or osmesa, not", value);
-            V.backend_given = true;
-        } else if (!strcmp(a, "--headless")) {
-            V.headless = true;
-        } else if (!strcmp(a, "--size")) {
-            NEED_VALUE;
-            if (!parse_size(value, &V.width, &V.height))
-                return bad(err, err_size, i, "--size wants WxH, not", value);
-        } else if (!strcmp(a, "--render-size")) {
-            NEED_VALUE;
-            if (!parse_size(value, &V.render_width, &V.render_height))
-                return bad(err, err_size, i, "--render-size wants WxH, not", value);
-        } else if (!strcmp(a, "--out")) {
-            NEED_VALUE;
-            V.out_path = value;
-        } else if (!strcmp(a, "--screenshot")) {
-            NEED_VALUE;
-            V.screenshot_path = value;
-        } else if (!strcmp(a, "--panel-out")) {
-            NEED_VALUE;
-            V.panel_out_path = value;
-        } else if (!strcmp(a, "--raster-shader")) {
-            NEED_VALUE;
-            V.raster_shader = value;
-        } else if (!strcmp(a, "--scene")) {
-            NEED_VALUE;
-            scene_name = value, scene_arg = i;
-        } else if (!strcmp(a, "--dir")) {
-            NEED_VALUE;
-            dir = value;
-        } else if (!strcmp(a, "--live") || !strcmp(a, "--raster") || !strcmp(a, "--ply")) {
-            NEED_VALUE;
-            V.mode = a[2] == 'l' ? MODE_LIVE : a[2] == 'r' ? MODE_RASTER : MODE_PLY;
-            if (V.mode == MODE_PLY)
-                V.ply_path = value;
-            else
-                V.scene_path = value;
-        } else if (!strcmp(a, "--exposure")) {
-            NEED_VALUE;
-            if (!parse_number(value, -64, 64, &V.exposure))
-                return bad(err, err_size, i, "--exposure wants stops in [-64, 64], not", value);
-        } else if (!strcmp(a, "--diff")) {
-            double n;
-            NEED_VALUE;
-            if (!parse_number(value, 1, PANEL_MAX, &n) || n != floor(n))
-                return bad(err, err_size, i, "--diff wants a panel number, not", value);
-            V.diff = true, V.reference = (int)n - 1;
-        } else if (!strcmp(a, "--split")) {
-            int pa, pb;
-            double pos = 0.5;
-            char tail;
-            NEED_VALUE;
-            int n = sscanf(value, "%d,%d,%lf%c", &pa, &pb, &pos, &tail);
-            if ((n != 2 && n != 3) || pa < 1 || pb < 1 || pa > PANEL_MAX || pb > PANEL_MAX || !(pos >= 0 && pos <= 1))
-                return bad(err, err_size, i, "--split wants A,B[,POS] (panel numbers, 0 <= POS <= 1), not", value);
-            V.split = true, V.reference = pa - 1, V.split_b = pb - 1, V.split_position = pos;
-        } else if (!strcmp(a, "--zoom")) {
-            NEED_VALUE;
-            if (!parse_number(value, 1e-3, 1e4, &V.zoom))
-                return bad(err, err_size, i, "--zoom wants a factor in [0.001, 10000], not", value);
-        } else if (!strcmp(a, "--center")) {
-            char tail;
-            NEED_VALUE;
-            if (sscanf(value, "%lf,%lf%c", &V.cx, &V.cy, &tail) != 2 || !isfinite(V.cx) || !isfinite(V.cy))
-                return bad(err, err_size, i, "--center wants U,V, not", value);
-        } else if (!strcmp(a, "--cursor")) {
-            char tail;
-            NEED_VALUE;
-            if (sscanf(value, "%lf,%lf%c", &V.mouse_x, &V.mouse_y, &tail) != 2)
-                return bad(err, err_size, i, "--cursor wants X,Y in pixels, not", value);
-            V.cursor_given = V.mouse_inside = true;
-        } else if (!strcmp(a, "--help-overlay")) {
-            V.help = true;
-        } else if (!strcmp(a, "--frames")) {
-            double n;
-            NEED_VALUE;
-            if (!parse_number(value, 1, 1e6, &n))
-                return bad(err, err_size, i, "--frames wants a count, not", value);
-            V.frames = (int)n;
-        } else if (!strcmp(a, "--eye") || !strcmp(a, "--look") || !strcmp(a, "--up")) {
-            vec3 v;
-            NEED_VALUE;
-            if (!parse_vec(value, &v))
-                return bad(err, err_size, i, "wants X,Y,Z, not", value);
-            if (a[2] == 'e')
-                V.cam_option.eye = v, V.camera_given |= 1;
-            else if (a[2] == 'l')
-                V.cam_option.look = v, V.camera_given |= 2;
-            else
-                V.cam_option.up = v, V.camera_given |= 4;
-        } else if (!strcmp(a, "--fov")) {
-            NEED_VALUE;
-            if (!parse_number(value, 1e-3, 179, &V.cam_option.fov_degrees))
-                return bad(err, err_size, i, "--fov wants degrees in (0, 179], not", value);
-            V.camera_given |= 8;
-        } else if (!strcmp(a, "--chapter")) {
-            NEED_VALUE;
-            if (V.chapter_filter_count < PANEL_MAX)
-                V.chapter_filter[V.chapter_filter_count++] = value;
-        } else if (!strcmp(a, "--chapters")) {
-            NEED_VALUE;
-            V.chapters_dir = value;
-        } else if (!strcmp(a, "--live-time")) {
-            NEED_VALUE;
-            if (!parse_number(value, 0.01, 1e6, &V.live_time))
-                return bad(err, err_size, i, "--live-time wants seconds, not", value);
-        } else if (!strcmp(a, "--exit-after-updates")) {
-            double n;
-            NEED_VALUE;
-            if (!parse_number(value, 1, 1e6, &n))
-                return bad(err, err_size, i, "--exit-after-updates wants a count, not", value);
-            V.exit_after_updates = (int)n;
-        } else if (!strcmp(a, "--no-shadows")) {
-            V.no_shadows = true;
-        } else if (!strcmp(a, "--ambient")) {
-            NEED_VALUE;
-            if (!parse_number(value, 0, 1e6, &V.ambient))
-                return bad(err, err_size, i, "--ambient wants a radiance >= 0, not", value);
-        } else if (!strcmp(a, "--verbose")) {
-            V.verbose = true;
-        } else if (a[0] == '-' && a[1]) {
-            return bad(err, err_size, i, "unknown option", a);
-        } else {
+        const char *a = argv[i];
+        if (a[0] != '-' || !a[1]) {
             if (add_file_panel(a, err, err_size))
                 return 2;
+            continue;
         }
-#undef NEED_VALUE
+        const option *o = find_option(a);
+        if (!o)
+            return bad(err, err_size, i, "unknown option", a);
+        const char *value = NULL;
+        if (o->value) {
+            if (i + 1 >= argc)
+                return bad(err, err_size, i, "missing value after", a);
+            value = argv[++i];
+        }
+        if (apply_option(o, a, value, i, err, err_size))
+            return 2;
     }
-    if (scene_name && add_scene_panels(scene_name, dir, scene_arg, err, err_size))
+    return check_options(err, err_size);
+}
+
+static int check_options(char *err, size_t err_size)
+{
+    if (compare_args.scene_name &&
+        add_scene_panels(compare_args.scene_name, compare_args.dir, compare_args.scene_arg, err, err_size))
         return 2;
     if (V.mode != MODE_COMPARE && V.panel_count)
         return bad(err, err_size, 0, "image files and --live/--raster/--ply do not mix", NULL);
@@ -372,15 +528,53 @@ static int write_rgb8(const char *path, int w, int h, const unsigned char *rgb, 
 
 /* ---- layout ------------------------------------------------------------------------------------ */
 
-static void panel_rects(int i, int n, int width, int height, rect *whole, rect *area)
+/* The grid: the columns (rows follow) and the label's place (above the
+ * image, or a column beside it) that make the images largest for their
+ * aspect ratio, judged on the nominal cell (width / cols, height / rows,
+ * rounded down); ties keep fewer columns, and the label above. */
+typedef struct {
+    int cols, rows;
+    bool beside;
+} grid;
+
+static double fitted_height(int area_w, int area_h)
 {
-    int cols = (int)ceil(sqrt((double)n)), rows = (n + cols - 1) / cols;
-    int c = i % cols, r = i / cols;
-    whole->x = c * width / cols, whole->w = (c + 1) * width / cols - whole->x;
-    whole->y = r * height / rows, whole->h = (r + 1) * height / rows - whole->y;
-    *area = (rect){whole->x, whole->y + LABEL_BAND, whole->w, whole->h - LABEL_BAND};
-    if (area->h < 1)
-        area->h = 1;
+    if (area_w < 1 || area_h < 1)
+        return 0.0;
+    return fmin((double)area_w * V.aspect_h / V.aspect_w, (double)area_h);
+}
+
+static grid choose_grid(int n, int width, int height)
+{
+    grid best = {1, n > 0 ? n : 1, false};
+    double best_h = -1.0;
+    for (int cols = 1; cols <= (n > 0 ? n : 1); cols++) {
+        int rows = (n + cols - 1) / cols, cw = width / cols, ch = (height - STATUS_BAND) / (rows > 0 ? rows : 1);
+        double above = fitted_height(cw, ch - LABEL_BAND), beside = fitted_height(cw - LABEL_COLUMN, ch);
+        if (above > best_h)
+            best = (grid){cols, rows, false}, best_h = above;
+        if (beside > best_h)
+            best = (grid){cols, rows, true}, best_h = beside;
+    }
+    return best;
+}
+
+/* Panel i of n: its whole cell, its label and its image area. */
+static void panel_rects(int i, int n, int width, int height, rect *whole, rect *label, rect *area)
+{
+    grid g = choose_grid(n, width, height);
+    int c = i % g.cols, r = i / g.cols;
+    height -= STATUS_BAND;
+    whole->x = c * width / g.cols, whole->w = (c + 1) * width / g.cols - whole->x;
+    whole->y = r * height / g.rows, whole->h = (r + 1) * height / g.rows - whole->y;
+    if (g.beside) {
+        *label = (rect){whole->x, whole->y, LABEL_COLUMN, whole->h};
+        *area = (rect){whole->x + LABEL_COLUMN, whole->y, whole->w - LABEL_COLUMN, whole->h};
+    } else {
+        *label = (rect){whole->x, whole->y, whole->w, LABEL_BAND};
+        *area = (rect){whole->x, whole->y + LABEL_BAND, whole->w, whole->h - LABEL_BAND};
+    }
+    area->w = area->w < 1 ? 1 : area->w, area->h = area->h < 1 ? 1 : area->h;
 }
 
 static int shown_panels(void) { return V.split ? 1 : V.panel_count; }
@@ -399,8 +593,8 @@ static int panel_at(double x, double y, double *u, double *v)
 {
     int W = V.width, H = V.height, n = shown_panels();
     for (int i = 0; i < n; i++) {
-        rect whole, area;
-        panel_rects(i, n, W, H, &whole, &area);
+        rect whole, label, area;
+        panel_rects(i, n, W, H, &whole, &label, &area);
         if (x < area.x || y < area.y || x >= area.x + area.w || y >= area.y + area.h)
             continue;
         int index = V.split ? (x < W * V.split_position ? V.reference : V.split_b) : i;
@@ -418,7 +612,8 @@ static int panel_at(double x, double y, double *u, double *v)
 /* ---- drawing a frame ------------------------------------------------------------------------- */
 
 static const float WHITE[4] = {0.95f, 0.95f, 0.95f, 1.0f}, GREY[4] = {0.7f, 0.7f, 0.7f, 1.0f},
-                   YELLOW[4] = {1.0f, 0.85f, 0.3f, 1.0f}, BAND[4] = {0.08f, 0.08f, 0.1f, 1.0f};
+                   YELLOW[4] = {1.0f, 0.85f, 0.3f, 1.0f}, BAND[4] = {0.08f, 0.08f, 0.1f, 1.0f},
+                   ORANGE[4] = {1.0f, 0.45f, 0.2f, 1.0f}, DIM[4] = {0.0f, 0.0f, 0.0f, 0.65f};
 
 static double rmse_against(const panel *a, const panel *b)
 {
@@ -433,63 +628,105 @@ static double rmse_against(const panel *a, const panel *b)
     return sqrt(sum / (double)n);
 }
 
-static void draw_label(int index, rect whole, const char *title_suffix)
+/* What a panel is, in its label: line 1 "[N] chapter  variant" (the
+ * estimator, solver, model and bounces from the stats JSON), line 2 the
+ * numbers (samples or patches, seconds, error) and the file name. */
+static void label_lines(int index, char *title, size_t title_size, char *numbers, size_t numbers_size)
 {
     const panel *p = &V.panels[index];
-    gfx_fill((rect){whole.x, whole.y, whole.w, LABEL_BAND}, BAND);
-    char line[256];
-    snprintf(line, sizeof line, "[%d] %s%s", index + 1, p->method, title_suffix);
-    gfx_text(whole.x + 4, whole.y + 3, 1, line, WHITE, whole);
+    snprintf(title, title_size, "[%d] %s%s%s", index + 1, p->method, p->variant[0] ? "  " : "", p->variant);
     if (p->kind == SOURCE_CHILD)
-        snprintf(line, sizeof line, "%s%s  updates %d", p->detail, p->pid > 0 ? "" : "", p->updates);
+        snprintf(numbers, numbers_size, "%s  updates %d", p->detail, p->updates);
     else
-        snprintf(line, sizeof line, "%s", p->detail);
-    gfx_text(whole.x + 4, whole.y + 13, 1, line, GREY, whole);
+        snprintf(numbers, numbers_size, "%s%s%s", p->detail, p->file[0] ? "  " : "", p->file);
+}
 
+/* Label line 3: the radiance under the pointer (at the same image point
+ * in every panel), or with the heat map the error against the reference. */
+static void readout_line(int index, char *line, size_t line_size)
+{
+    const panel *p = &V.panels[index];
     double u, v;
     line[0] = '\0';
+    if (p->warning[0]) { /* a child's warning: more than anything else */
+        snprintf(line, line_size, "%s%s", p->warnings > 1 ? "(+more) " : "", p->warning);
+        return;
+    }
     int under = V.mouse_inside ? panel_at(V.mouse_x, V.mouse_y, &u, &v) : -1;
     if (under >= 0 && p->img.pixels && u >= 0 && v >= 0 && u < 1 && v < 1) {
         int x = (int)floor(u * p->img.width), y = (int)floor(v * p->img.height);
         vec3 c = image_get(&p->img, x, y);
-        snprintf(line, sizeof line, "(%d,%d) %.4g %.4g %.4g", x, y, c.x, c.y, c.z);
+        snprintf(line, line_size, "(%d,%d) %.4g %.4g %.4g", x, y, c.x, c.y, c.z);
     } else if (V.diff && !V.split && index != V.reference && V.reference < V.panel_count) {
-        snprintf(line, sizeof line, "heat: rel.err 1e-3..1 vs [%d]  rmse %.4g", V.reference + 1,
-                 rmse_against(p, &V.panels[V.reference]));
-    } else if (index == 0) {
-        snprintf(line, sizeof line, "exposure %+.1f  zoom %.2fx  H: help", V.exposure, V.zoom);
+        snprintf(line, line_size, "heat vs [%d]  rmse %.4g", V.reference + 1, rmse_against(p, &V.panels[V.reference]));
     }
-    gfx_text(whole.x + 4, whole.y + 23, 1, line, YELLOW, whole);
 }
 
-static const char *HELP[] = {
-    "H / F1      this help",
-    "+ / -  0    exposure +-1/2 stop, reset",
-    "wheel       zoom at the cursor (3D: dolly)",
-    "left drag   pan (3D: orbit; split: slider)",
-    "Z / X  F    zoom in / out, fit",
-    "arrows      pan (3D: orbit)  PgUp/PgDn dolly",
-    "D           error heat map vs reference",
-    "1..9        reference panel (right click too)",
-    "S  Tab      A/B split: reference | B, next B",
-    ", .         move the split slider",
-    "C           camera back to the scene's",
-    "P           screenshot viewer-N.png",
-    "Q / Esc     quit",
-};
+/* Above the image: 3 lines.  Beside it: every field (the parts of a line
+ * between double spaces) on a line of its own, so nothing is clipped. */
+static void draw_label(int index, rect label, bool beside, const char *title_suffix)
+{
+    gfx_fill(label, BAND);
+    char title[256], numbers[256], lines[3][512];
+    label_lines(index, title, sizeof title, numbers, sizeof numbers);
+    snprintf(lines[0], sizeof lines[0], "%s%s", title, title_suffix);
+    snprintf(lines[1], sizeof lines[1], "%s", numbers);
+    readout_line(index, lines[2], sizeof lines[2]);
+    const float *colours[3] = {WHITE, GREY, V.panels[index].warning[0] ? ORANGE : YELLOW};
+    int y = label.y + 2;
+    for (int k = 0; k < 3; k++) {
+        char *field = lines[k], *next;
+        do {
+            next = beside ? strstr(field, "  ") : NULL;
+            if (next)
+                *next = '\0', next += 2;
+            if (*field || !beside)
+                gfx_text(label.x + 4, y, field, colours[k], label), y += LINE;
+            field = next;
+        } while (field);
+    }
+}
+
+static void draw_help(int width, int height);
+
+/* The status line, the bottom STATUS_BAND pixels whatever the mouse does:
+ * with the heat map its reference and its colour legend (1e-3 black at the
+ * left end .. 1 at the right, a tick at every decade); then the exposure,
+ * the zoom and the help hint. */
+static void draw_status(int width, int height)
+{
+    rect band = {0, height - STATUS_BAND, width, STATUS_BAND};
+    gfx_fill(band, BAND);
+    int x = 4, y = band.y + (STATUS_BAND - LINE) / 2 + 2;
+    char line[256];
+    if (V.diff && !V.split && V.reference < V.panel_count) {
+        snprintf(line, sizeof line, "heat vs [%d]  1e-3", V.reference + 1);
+        gfx_text(x, y, line, YELLOW, band);
+        rect bar = {x + gfx_text_width(line) + 6, band.y + 4, 10 * V.font_px, STATUS_BAND - 8};
+        gfx_heat_legend(bar);
+        for (int k = 1; k < 3; k++)
+            gfx_fill((rect){bar.x + k * bar.w / 3, bar.y + bar.h - 3, 1, 3}, WHITE);
+        gfx_text(bar.x + bar.w + 6, y, "1", YELLOW, band);
+        x = bar.x + bar.w + 6 + 3 * V.font_px;
+    }
+    snprintf(line, sizeof line, "exposure %+.1f  zoom %.2fx  H: help", V.exposure, V.zoom);
+    gfx_text(x, y, line, YELLOW, band);
+}
 
 static void draw_frame(GLuint fbo, int width, int height)
 {
     V.width = width, V.height = height;
     gfx_begin(fbo, width, height);
     int n = shown_panels();
+    bool beside = choose_grid(n, width, height).beside;
     for (int i = 0; i < n; i++) {
-        rect whole, area;
-        panel_rects(i, n, width, height, &whole, &area);
+        rect whole, label, area;
+        panel_rects(i, n, width, height, &whole, &label, &area);
         if (V.split) {
             panel *a = &V.panels[V.reference], *b = &V.panels[V.split_b];
             int split_x = (int)lround(width * V.split_position);
-            rect left = {area.x, area.y, split_x - area.x, area.h}, right = {split_x, area.y, area.x + area.w - split_x, area.h};
+            rect left = {area.x, area.y, split_x - area.x, area.h},
+                 right = {split_x, area.y, area.x + area.w - split_x, area.h};
             double ox, oy, s;
             placement(a, area, &ox, &oy, &s);
             gfx_image(left, a->texture, ox, oy, s, V.exposure, PANEL_RADIANCE, 0);
@@ -498,7 +735,7 @@ static void draw_frame(GLuint fbo, int width, int height)
             gfx_fill((rect){split_x, area.y, 1, area.h}, WHITE);
             char suffix[160];
             snprintf(suffix, sizeof suffix, "  |  [%d] %s", V.split_b + 1, b->method);
-            draw_label(V.reference, whole, suffix);
+            draw_label(V.reference, label, beside, suffix);
             continue;
         }
         panel *p = &V.panels[i];
@@ -509,17 +746,16 @@ static void draw_frame(GLuint fbo, int width, int height)
             gfx_image(area, p->texture, ox, oy, s, V.exposure, heat ? PANEL_HEAT : PANEL_RADIANCE,
                       heat ? V.panels[V.reference].texture : 0);
         else
-            gfx_text(area.x + 8, area.y + 8, 1, p->pid > 0 ? "waiting for the first image ..." : "no image", GREY, area);
-        draw_label(i, whole, V.diff && i == V.reference ? "  (reference)" : "");
+            gfx_text(area.x + 8, area.y + 8, p->pid > 0 ? "waiting for the first image ..." : "no image", GREY, area);
+        if (p->stale) { /* restarted: the old camera's image, dimmed, until the first new pass */
+            gfx_fill(area, DIM);
+            gfx_text(area.x + 8, area.y + 8, "restarting ...", WHITE, area);
+        }
+        draw_label(i, label, beside, p->stale ? "  (restarting)" : V.diff && i == V.reference ? "  (reference)" : "");
     }
-    if (V.help) {
-        int lines = (int)(sizeof HELP / sizeof *HELP), w = 48 * 8 + 16, h = lines * 12 + 16;
-        rect box = {(width - w) / 2, (height - h) / 2, w, h};
-        const float shade[4] = {0.0f, 0.0f, 0.0f, 0.8f};
-        gfx_fill(box, shade);
-        for (int k = 0; k < lines; k++)
-            gfx_text(box.x + 8, box.y + 8 + 12 * k, 1, HELP[k], WHITE, box);
-    }
+    draw_status(width, height);
+    if (V.help)
+        draw_help(width, height);
 }
 
 /* ---- 3D panels and children ---------------------------------------------------------------------- */
@@ -530,8 +766,7 @@ static void render_3d_panels(void)
         panel *p = &V.panels[i];
         if (p->kind != SOURCE_RASTER && p->kind != SOURCE_PLY)
             continue;
-        camera_matrix(&V.cam, p->target.width, p->target.height, V.bounds_lo, V.bounds_hi,
-                      V.uniforms.view_projection);
+        camera_matrix(&V.cam, p->target.width, p->target.height, V.bounds_lo, V.bounds_hi, V.uniforms.view_projection);
         V.uniforms.eye[0] = (float)V.cam.eye.x, V.uniforms.eye[1] = (float)V.cam.eye.y;
         V.uniforms.eye[2] = (float)V.cam.eye.z;
         V.uniforms.unlit = p->kind == SOURCE_PLY;
@@ -559,10 +794,11 @@ static int start_children(char *err, size_t err_size)
             if (child_start(&V.panels[i], &V.spec, err, err_size))
                 return 2;
             if (V.verbose)
-                printf("spawn %s pid %ld\n", V.panels[i].method, (long)V.panels[i].pid);
+                printf("spawn %s pid %ld%s\n", V.panels[i].method, (long)V.panels[i].pid,
+                       V.panels[i].stale ? " (the old image stale until its first pass)" : "");
             if (used < sizeof pids)
-                used += (size_t)snprintf(pids + used, sizeof pids - used, "%s%ld", count ? "," : "",
-                                         (long)V.panels[i].pid);
+                used +=
+                    (size_t)snprintf(pids + used, sizeof pids - used, "%s%ld", count ? "," : "", (long)V.panels[i].pid);
             count++;
         }
     if (count) {
@@ -582,6 +818,50 @@ static bool children_running(void)
     return false;
 }
 
+/* Is panel a a better reference than panel b: closer to the true solution?
+ * A measured error (stats rmse) first, the lowest; then a path tracer over
+ * all bounces (unbiased), the most samples, then the better estimator;
+ * then the most samples; panels without stats last. */
+static int reference_tier(const panel *p)
+{
+    if (!p->has_stats || !p->img.pixels)
+        return 0;
+    if (isfinite(p->rmse))
+        return 3;
+    if (p->estimator_rank > 0 && p->all_bounces && isfinite(p->spp))
+        return 2;
+    return isfinite(p->spp) ? 1 : 0;
+}
+
+static bool better_reference(const panel *a, const panel *b)
+{
+    int ta = reference_tier(a), tb = reference_tier(b);
+    if (ta != tb)
+        return ta > tb;
+    if (ta == 3)
+        return a->rmse < b->rmse;
+    if (ta >= 1 && a->spp != b->spp)
+        return a->spp > b->spp;
+    return ta == 2 && a->estimator_rank > b->estimator_rank;
+}
+
+/* Unless the user named one, the reference is the best image on screen
+ * (it may change as live children progress). */
+static void auto_reference(void)
+{
+    if (V.reference_given || V.panel_count < 1)
+        return;
+    int best = 0;
+    for (int i = 1; i < V.panel_count; i++)
+        if (better_reference(&V.panels[i], &V.panels[best]))
+            best = i;
+    if (best != V.reference && V.verbose)
+        printf("reference %d %s\n", best + 1, V.panels[best].method);
+    V.reference = best;
+    if (V.split_b == V.reference && V.panel_count > 1)
+        V.split_b = (V.reference + 1) % V.panel_count;
+}
+
 /* Poll the files and children; returns true if anything changed. */
 static bool poll_sources(void)
 {
@@ -596,12 +876,18 @@ static bool poll_sources(void)
             changed = true;
             printf("update %s %d %dx%d\n", p->method, p->updates, p->img.width, p->img.height);
         }
+        if (child_poll_warnings(p)) {
+            changed = true;
+            printf("%s: %s\n", p->method, p->warning);
+        }
         if (child_reap(p)) {
             changed = true;
             if (V.verbose)
                 printf("exit %s %d\n", p->method, p->exit_status);
         }
     }
+    if (changed)
+        auto_reference();
     fflush(stdout);
     return changed;
 }
@@ -689,21 +975,32 @@ static int find_chapters(const char *only_chapter, char *err, size_t err_size)
 static void apply_camera_options(void);
 
 /* Set up the panels of each mode (the GL context exists). */
+static int set_up_compare(char *err, size_t err_size)
+{
+    for (int i = 0; i < V.panel_count; i++) {
+        panel *p = &V.panels[i];
+        char path[PATH_LEN];
+        snprintf(path, sizeof path, "%s", p->path);
+        if (panel_load_pfm(p, path, err, err_size))
+            return 2;
+    }
+    for (int i = 0; i < V.panel_count && V.verbose; i++) {
+        char title[256], numbers[256];
+        label_lines(i, title, sizeof title, numbers, sizeof numbers);
+        printf("panel %d %s %dx%d\n", i + 1, V.panels[i].path, V.panels[i].img.width, V.panels[i].img.height);
+        printf("label %d: %s | %s\n", i + 1, title, numbers);
+    }
+    V.aspect_w = V.panels[0].img.width, V.aspect_h = V.panels[0].img.height; /* the layout fits panel 1 */
+    auto_reference();
+    return 0;
+}
+
+static int set_up_children(int rw, int rh, char *err, size_t err_size);
+
 static int set_up(char *err, size_t err_size)
 {
-    if (V.mode == MODE_COMPARE) {
-        for (int i = 0; i < V.panel_count; i++) {
-            panel *p = &V.panels[i];
-            char path[PATH_LEN];
-            snprintf(path, sizeof path, "%s", p->path);
-            if (panel_load_pfm(p, path, err, err_size))
-                return 2;
-        }
-        if (V.verbose)
-            for (int i = 0; i < V.panel_count; i++)
-                printf("panel %d %s %dx%d\n", i + 1, V.panels[i].path, V.panels[i].img.width, V.panels[i].img.height);
-        return 0;
-    }
+    if (V.mode == MODE_COMPARE)
+        return set_up_compare(err, err_size);
 
     /* 3D modes: the scene (or the PLY) and the camera. */
     int aspect_w = 1, aspect_h = 1;
@@ -718,9 +1015,9 @@ static int set_up(char *err, size_t err_size)
             return 2;
         vec3 centre = v3_scale(v3_add(V.bounds_lo, V.bounds_hi), 0.5);
         double radius = 0.5 * v3_length(v3_sub(V.bounds_hi, V.bounds_lo));
-        V.scene_cam = (camera){.eye = v3_add(centre, v3(0, 0, -2.6 * radius)), .look = centre, .up = v3(0, 1, 0),
-                               .fov_degrees = 40.0};
-        aspect_w = V.width, aspect_h = V.height - LABEL_BAND;
+        V.scene_cam = (camera){
+            .eye = v3_add(centre, v3(0, 0, -2.6 * radius)), .look = centre, .up = v3(0, 1, 0), .fov_degrees = 40.0};
+        aspect_w = V.width, aspect_h = V.height - LABEL_BAND - STATUS_BAND;
     } else {
         if (scene_load(V.scene_path, &V.scene, err, err_size))
             return 2;
@@ -743,9 +1040,10 @@ static int set_up(char *err, size_t err_size)
 
     /* Render size: given, or the scene's aspect fitted into panel 1's area. */
     int rw = V.render_width, rh = V.render_height;
+    V.aspect_w = rw ? rw : aspect_w, V.aspect_h = rw ? rh : aspect_h;
     if (!rw) {
-        rect whole, area;
-        panel_rects(0, V.panel_count, V.width, V.height, &whole, &area);
+        rect whole, label, area;
+        panel_rects(0, V.panel_count, V.width, V.height, &whole, &label, &area);
         rw = area.w, rh = (int)lround((double)area.w * aspect_h / aspect_w);
         if (rh > area.h)
             rh = area.h, rw = (int)lround((double)area.h * aspect_w / aspect_h);
@@ -753,13 +1051,18 @@ static int set_up(char *err, size_t err_size)
     }
     for (int i = 0; i < V.panel_count; i++) {
         panel *p = &V.panels[i];
-        if ((p->kind == SOURCE_RASTER || p->kind == SOURCE_PLY) && target_create(&p->target, rw, rh, true, err, err_size))
+        if ((p->kind == SOURCE_RASTER || p->kind == SOURCE_PLY) &&
+            target_create(&p->target, rw, rh, true, err, err_size))
             return 2;
     }
     if (V.verbose)
         printf("render size %dx%d\n", rw, rh);
+    return set_up_children(rw, rh, err, err_size);
+}
 
-    /* Children: outputs in a private temporary directory. */
+/* Children (live and raster modes): outputs in a private temporary directory. */
+static int set_up_children(int rw, int rh, char *err, size_t err_size)
+{
     if (V.mode == MODE_LIVE || V.mode == MODE_RASTER) {
         snprintf(V.temp_dir, sizeof V.temp_dir, "%s/viewer-XXXXXX", getenv("TMPDIR") ? getenv("TMPDIR") : "/tmp");
         if (!mkdtemp(V.temp_dir)) {
@@ -769,8 +1072,11 @@ static int set_up(char *err, size_t err_size)
         }
         static char ambient[32];
         snprintf(ambient, sizeof ambient, "%.17g", V.ambient);
-        V.spec = (child_spec){.scene_path = V.scene_path, .width = rw, .height = rh,
-                              .time_budget = V.mode == MODE_LIVE ? V.live_time : 0.0, .directory = V.temp_dir};
+        V.spec = (child_spec){.scene_path = V.scene_path,
+                              .width = rw,
+                              .height = rh,
+                              .time_budget = V.mode == MODE_LIVE ? V.live_time : 0.0,
+                              .directory = V.temp_dir};
         if (V.mode == MODE_RASTER) {
             if (V.no_shadows)
                 V.spec.extra[V.spec.extra_count++] = "--no-shadows";
@@ -810,8 +1116,8 @@ static vec3 rotate(vec3 v, vec3 axis, double angle)
 static void log_camera(const char *what)
 {
     if (V.verbose && !V.frames)
-        printf("camera: %s eye=%.17g,%.17g,%.17g look=%.17g,%.17g,%.17g\n", what, V.cam.eye.x, V.cam.eye.y,
-               V.cam.eye.z, V.cam.look.x, V.cam.look.y, V.cam.look.z);
+        printf("camera: %s eye=%.17g,%.17g,%.17g look=%.17g,%.17g,%.17g\n", what, V.cam.eye.x, V.cam.eye.y, V.cam.eye.z,
+               V.cam.look.x, V.cam.look.y, V.cam.look.z);
 }
 
 /* Yaw about the camera's up, then pitch about its right axis (skipped near
@@ -863,8 +1169,8 @@ static void zoom_at(double factor, double x, double y)
 
 static void pan_pixels(double dx, double dy)
 {
-    rect whole, area;
-    panel_rects(0, shown_panels(), V.width, V.height, &whole, &area);
+    rect whole, label, area;
+    panel_rects(0, shown_panels(), V.width, V.height, &whole, &label, &area);
     const panel *p = &V.panels[V.split ? V.reference : 0];
     double ox, oy, s;
     placement(p, area, &ox, &oy, &s);
@@ -877,70 +1183,191 @@ static void pan_pixels(double dx, double dy)
 
 static void screenshot_key(void);
 
+/* ---- the key table ------------------------------------------------------------------------------
+ * One table drives everything about the keys: the dispatch (on_key for key
+ * codes, on_char for characters, whatever the keyboard layout puts them on),
+ * the H overlay and `build/viewer --help-keys`, whose Markdown table
+ * viewer/README.md carries verbatim (tests/grade_viewer.py checks that).
+ * Rows without an action are the mouse's, handled by the mouse callbacks. */
+
+typedef void key_action(int key); /* key: the GLFW key code, or the character for chars[] */
+
+typedef struct {
+    const char *label; /* the keys as shown, " / " between alternatives */
+    int keys[10];      /* GLFW key codes (on_key), 0 ends the list */
+    unsigned chars[3]; /* Unicode characters (on_char), 0 ends the list */
+    key_action *action;
+    const char *help;
+} key_binding;
+
+static void key_help(int key) { (void)key, V.help = !V.help; }
+static void key_exposure_up(int key) { (void)key, V.exposure += 0.5; }
+static void key_exposure_down(int key) { (void)key, V.exposure -= 0.5; }
+static void key_exposure_reset(int key) { (void)key, V.exposure = 0.0; }
+static void key_zoom_in(int key) { (void)key, zoom_about_centre(1.25); }
+static void key_zoom_out(int key) { (void)key, zoom_about_centre(0.8); }
+static void key_fit(int key) { (void)key, V.zoom = 1.0, V.cx = V.cy = 0.5; }
+static void key_heat(int key) { (void)key, V.diff = !V.diff; }
+static void key_screenshot(int key) { (void)key, screenshot_key(); }
+static void key_quit(int key) { (void)key, quit_requested = 1; }
+
+static void key_arrow(int key)
+{
+    int dx = key == GLFW_KEY_LEFT ? -1 : key == GLFW_KEY_RIGHT ? 1 : 0;
+    int dy = key == GLFW_KEY_UP ? 1 : key == GLFW_KEY_DOWN ? -1 : 0;
+    if (three_d())
+        orbit(5.0 * dx, 5.0 * dy);
+    else
+        pan_pixels(-40.0 * dx, 40.0 * dy);
+}
+
+static void key_dolly(int key)
+{
+    if (three_d())
+        dolly(key == GLFW_KEY_PAGE_UP ? 0.9 : 1.0 / 0.9);
+}
+
+static void key_reference(int key)
+{
+    if (key - GLFW_KEY_1 >= V.panel_count)
+        return;
+    V.reference = key - GLFW_KEY_1, V.reference_given = true;
+    if (V.split_b == V.reference)
+        V.split_b = (V.reference + 1) % V.panel_count;
+}
+
+static void key_split(int key)
+{
+    (void)key;
+    V.split = !V.split && V.panel_count > 1;
+    if (V.split_b == V.reference || V.split_b >= V.panel_count)
+        V.split_b = (V.reference + 1) % V.panel_count;
+}
+
+static void key_next_b(int key)
+{
+    (void)key;
+    if (V.panel_count > 1)
+        do
+            V.split_b = (V.split_b + 1) % V.panel_count;
+        while (V.split_b == V.reference);
+}
+
+static void key_slider(int key)
+{
+    V.split_position = fmin(1.0, fmax(0.0, V.split_position + (key == GLFW_KEY_COMMA ? -0.02 : 0.02)));
+}
+
+static void key_camera_reset(int key)
+{
+    (void)key;
+    if (three_d()) {
+        V.cam = V.scene_cam;
+        V.camera_moved = true;
+        log_camera("reset");
+    }
+}
+
+static const key_binding KEYS[] = {
+    {"H / F1", {GLFW_KEY_H, GLFW_KEY_F1}, {0}, key_help, "show / hide this help"},
+    {"+ / =", {0}, {'+', '='}, key_exposure_up, "exposure up half a stop (the keypad's + too)"},
+    {"-", {GLFW_KEY_MINUS, GLFW_KEY_KP_SUBTRACT}, {0}, key_exposure_down, "exposure down half a stop (keypad too)"},
+    {"0", {GLFW_KEY_0, GLFW_KEY_KP_0}, {0}, key_exposure_reset, "exposure back to 0 (keypad too)"},
+    {"Z", {GLFW_KEY_Z}, {0}, key_zoom_in, "zoom in by 1.25 (each panel about its centre)"},
+    {"X", {GLFW_KEY_X}, {0}, key_zoom_out, "zoom out by 1.25"},
+    {"F", {GLFW_KEY_F}, {0}, key_fit, "fit: zoom 1, centred"},
+    {"Left / Right / Up / Down",
+     {GLFW_KEY_LEFT, GLFW_KEY_RIGHT, GLFW_KEY_UP, GLFW_KEY_DOWN},
+     {0},
+     key_arrow,
+     "pan 40 window pixels (Left shows more of the left); 3D: orbit 5 degrees"},
+    {"PgUp / PgDn",
+     {GLFW_KEY_PAGE_UP, GLFW_KEY_PAGE_DOWN},
+     {0},
+     key_dolly,
+     "3D: dolly in / out (distance x 0.9, / 0.9)"},
+    {"D", {GLFW_KEY_D}, {0}, key_heat, "heat map: relative error vs the reference (default: the best image)"},
+    {"1..9",
+     {GLFW_KEY_1, GLFW_KEY_2, GLFW_KEY_3, GLFW_KEY_4, GLFW_KEY_5, GLFW_KEY_6, GLFW_KEY_7, GLFW_KEY_8, GLFW_KEY_9},
+     {0},
+     key_reference,
+     "pick the reference panel"},
+    {"S", {GLFW_KEY_S}, {0}, key_split, "A/B split between the reference and panel B"},
+    {"Tab", {GLFW_KEY_TAB}, {0}, key_next_b, "next panel B (skipping the reference)"},
+    {", / .", {GLFW_KEY_COMMA, GLFW_KEY_PERIOD}, {0}, key_slider, "split slider 2 % of the width left / right"},
+    {"C", {GLFW_KEY_C}, {0}, key_camera_reset, "3D: camera back to the scene's"},
+    {"P", {GLFW_KEY_P}, {0}, key_screenshot, "screenshot out/viewer-N.png (out/ made if missing)"},
+    {"Q / Esc", {GLFW_KEY_Q, GLFW_KEY_ESCAPE}, {0}, key_quit, "quit (exit 0, the children stopped and reaped)"},
+    {"wheel", {0}, {0}, NULL, "zoom 1.25 per step at the cursor; 3D: dolly 0.9 per step (Ctrl: zoom)"},
+    {"left drag", {0}, {0}, NULL, "pan; 3D: orbit the look point, 0.3 degrees per pixel; split: slider"},
+    {"shift drag / middle drag", {0}, {0}, NULL, "pan (in 3D too)"},
+    {"right click", {0}, {0}, NULL, "the panel under the cursor becomes the reference, heat map on"},
+};
+enum { KEY_COUNT = sizeof KEYS / sizeof *KEYS };
+
+/* `build/viewer --help-keys`: the table in Markdown, keys in backticks. */
+static void print_keys_markdown(void)
+{
+    printf("| key | action |\n|---|---|\n");
+    for (int k = 0; k < KEY_COUNT; k++) {
+        char label[128] = "", *rest = label;
+        snprintf(label, sizeof label, "%s", KEYS[k].label);
+        printf("| ");
+        for (char *token = label; token; token = rest) {
+            rest = strstr(token, " / ");
+            if (rest)
+                *rest = '\0', rest += 3;
+            printf(KEYS[k].action ? "`%s`%s" : "%s%s", token, rest ? " / " : "");
+        }
+        printf(" | %s |\n", KEYS[k].help);
+    }
+}
+
+/* The H overlay: the same table, centred on the frame. */
+static void draw_help(int width, int height)
+{
+    int label_width = 0, help_width = 0;
+    for (int k = 0; k < KEY_COUNT; k++) {
+        int lw = gfx_text_width(KEYS[k].label), hw = gfx_text_width(KEYS[k].help);
+        label_width = lw > label_width ? lw : label_width;
+        help_width = hw > help_width ? hw : help_width;
+    }
+    int w = label_width + help_width + 16 + 24, h = KEY_COUNT * LINE + 16;
+    rect box = {(width - w) / 2, (height - h) / 2, w, h};
+    const float shade[4] = {0.0f, 0.0f, 0.0f, 0.8f};
+    gfx_fill(box, shade);
+    for (int k = 0; k < KEY_COUNT; k++) {
+        gfx_text(box.x + 8, box.y + 8 + LINE * k, KEYS[k].label, YELLOW, box);
+        gfx_text(box.x + 8 + label_width + 16, box.y + 8 + LINE * k, KEYS[k].help, WHITE, box);
+    }
+}
+
 static void on_key(GLFWwindow *w, int key, int scancode, int action, int mods)
 {
     (void)w, (void)scancode, (void)mods;
     if (action == GLFW_RELEASE)
         return;
     V.redraw = true;
-    switch (key) {
-    case GLFW_KEY_ESCAPE:
-    case GLFW_KEY_Q: quit_requested = 1; break;
-    case GLFW_KEY_H:
-    case GLFW_KEY_F1: V.help = !V.help; break;
-    case GLFW_KEY_MINUS:
-    case GLFW_KEY_KP_SUBTRACT: V.exposure -= 0.5; break;
-    case GLFW_KEY_0:
-    case GLFW_KEY_KP_0: V.exposure = 0.0; break;
-    case GLFW_KEY_Z: zoom_about_centre(1.25); break;
-    case GLFW_KEY_X: zoom_about_centre(0.8); break;
-    case GLFW_KEY_F: V.zoom = 1.0, V.cx = V.cy = 0.5; break;
-    case GLFW_KEY_D: V.diff = !V.diff; break;
-    case GLFW_KEY_S:
-        V.split = !V.split && V.panel_count > 1;
-        if (V.split_b == V.reference || V.split_b >= V.panel_count)
-            V.split_b = (V.reference + 1) % V.panel_count;
-        break;
-    case GLFW_KEY_TAB:
-        if (V.panel_count > 1)
-            do
-                V.split_b = (V.split_b + 1) % V.panel_count;
-            while (V.split_b == V.reference);
-        break;
-    case GLFW_KEY_COMMA: V.split_position = fmax(0.0, V.split_position - 0.02); break;
-    case GLFW_KEY_PERIOD: V.split_position = fmin(1.0, V.split_position + 0.02); break;
-    case GLFW_KEY_C:
-        if (three_d()) {
-            V.cam = V.scene_cam;
-            V.camera_moved = true;
-            log_camera("reset");
-        }
-        break;
-    case GLFW_KEY_P: screenshot_key(); break;
-    case GLFW_KEY_LEFT: three_d() ? orbit(-5, 0) : pan_pixels(40, 0); break;
-    case GLFW_KEY_RIGHT: three_d() ? orbit(5, 0) : pan_pixels(-40, 0); break;
-    case GLFW_KEY_UP: three_d() ? orbit(0, 5) : pan_pixels(0, 40); break;
-    case GLFW_KEY_DOWN: three_d() ? orbit(0, -5) : pan_pixels(0, -40); break;
-    case GLFW_KEY_PAGE_UP: if (three_d()) dolly(0.9); break;
-    case GLFW_KEY_PAGE_DOWN: if (three_d()) dolly(1.0 / 0.9); break;
-    default:
-        if (key >= GLFW_KEY_1 && key <= GLFW_KEY_9 && key - GLFW_KEY_1 < V.panel_count) {
-            V.reference = key - GLFW_KEY_1;
-            if (V.split_b == V.reference)
-                V.split_b = (V.reference + 1) % V.panel_count;
-        }
-    }
+    for (int k = 0; k < KEY_COUNT; k++)
+        for (int j = 0; j < 10 && KEYS[k].keys[j]; j++)
+            if (KEYS[k].keys[j] == key && KEYS[k].action) {
+                KEYS[k].action(key);
+                return;
+            }
 }
 
+/* Characters: '+' wherever the layout puts it, the keypad's too (on_char,
+ * not on_key: handling GLFW_KEY_KP_ADD as well would count that key twice). */
 static void on_char(GLFWwindow *w, unsigned int codepoint)
 {
     (void)w;
-    /* '+' wherever the layout puts it, the keypad's too: on_char, not on_key
-     * (handling GLFW_KEY_KP_ADD as well would count that key twice). */
-    if (codepoint == '+' || codepoint == '=') {
-        V.exposure += 0.5;
-        V.redraw = true;
-    }
+    for (int k = 0; k < KEY_COUNT; k++)
+        for (int j = 0; j < 3 && KEYS[k].chars[j]; j++)
+            if (KEYS[k].chars[j] == codepoint && KEYS[k].action) {
+                KEYS[k].action((int)codepoint);
+                V.redraw = true;
+                return;
+            }
 }
 
 static void on_cursor(GLFWwindow *w, double x, double y)
@@ -984,7 +1411,7 @@ static void on_button(GLFWwindow *w, int button, int action, int mods)
         double u, v;
         int index = panel_at(V.mouse_x, V.mouse_y, &u, &v);
         if (index >= 0 && !V.split)
-            V.reference = index, V.diff = true;
+            V.reference = index, V.diff = true, V.reference_given = true;
     }
     V.redraw = true;
 }
@@ -1021,10 +1448,16 @@ static int save_screen(const char *path, int width, int height, char *err, size_
     return status;
 }
 
+/* P: out/viewer-N.png (out/ made if missing), N counting from 1 in each
+ * session; never into the current directory itself (the repository root). */
 static void screenshot_key(void)
 {
     char path[64], err[512];
-    snprintf(path, sizeof path, "viewer-%d.png", ++V.screenshot_counter);
+    if (mkdir("out", 0777) != 0 && errno != EEXIST) {
+        fprintf(stderr, "out:0: cannot make the screenshot directory: %s\n", strerror(errno));
+        return;
+    }
+    snprintf(path, sizeof path, "out/viewer-%d.png", ++V.screenshot_counter);
     int w, h;
     glfwGetFramebufferSize(backend_window(), &w, &h);
     draw_frame(0, w, h);
@@ -1179,7 +1612,8 @@ int main(int argc, char **argv)
     signal(SIGPIPE, SIG_IGN);
 
     /* The backend: the window when there is a display, else headless. */
-    bool display = (getenv("DISPLAY") && *getenv("DISPLAY")) || (getenv("WAYLAND_DISPLAY") && *getenv("WAYLAND_DISPLAY"));
+    bool display =
+        (getenv("DISPLAY") && *getenv("DISPLAY")) || (getenv("WAYLAND_DISPLAY") && *getenv("WAYLAND_DISPLAY"));
     if (!V.backend_given)
         V.backend = V.headless || !display ? BACKEND_EGL : BACKEND_GLFW;
     if (V.backend != BACKEND_GLFW)
@@ -1203,9 +1637,10 @@ int main(int argc, char **argv)
         glfwGetFramebufferSize(backend_window(), &fw, &fh);
         V.width = fw, V.height = fh;
     }
-    status = gfx_init(V.raster_shader, err, sizeof err);
+    status = gfx_init(V.raster_shader, V.font_path, V.font_px, err, sizeof err);
     if (!status) {
         printf("backend %s: %s\n", backend_name(V.backend), gfx_renderer());
+        printf("font: %s, %d px\n", gfx_font(), V.font_px);
         print_gl_libraries();
         status = set_up(err, sizeof err);
     }

@@ -81,6 +81,54 @@ static void json_string_of(const char *json, const char *key, char *out, size_t 
     out[n] = '\0';
 }
 
+static bool json_true(const char *json, const char *key)
+{
+    char pattern[80];
+    snprintf(pattern, sizeof pattern, "\"%s\": true", key);
+    return strstr(json, pattern) != NULL;
+}
+
+/* "bounces": [A, B]: the Neumann terms rendered; every one is [0, 1000000]. */
+static void json_bounces(const char *json, char *out, size_t out_size)
+{
+    const char *at = strstr(json, "\"bounces\": [");
+    double a, b;
+    out[0] = '\0';
+    if (!at || sscanf(at + strlen("\"bounces\": ["), "%lf , %lf", &a, &b) != 2 || (a == 0 && b >= 1e6))
+        return;
+    if (b >= 1e6)
+        snprintf(out, out_size, "bounces %.0f:", a);
+    else
+        snprintf(out, out_size, "bounces %.0f:%.0f", a, b);
+}
+
+/* What variant of its chapter an image is: the estimator (path tracing),
+ * the solver (radiosity), the local model (chapters 1, 2), the bounces. */
+static void stats_variant(const char *json, char *out, size_t out_size)
+{
+    char estimator[32] = "", solver[32] = "", model[32] = "", bounces[48];
+    json_string_of(json, "estimator", estimator, sizeof estimator);
+    json_string_of(json, "solver_used", solver, sizeof solver);
+    if (!solver[0])
+        json_string_of(json, "solver", solver, sizeof solver);
+    json_string_of(json, "model", model, sizeof model);
+    json_bounces(json, bounces, sizeof bounces);
+    size_t used = 0;
+    out[0] = '\0';
+    if (estimator[0])
+        used += (size_t)snprintf(out + used, out_size - used, "estimator %s  ", estimator);
+    if (solver[0] && used < out_size)
+        used += (size_t)snprintf(out + used, out_size - used, "solver %s  ", solver);
+    if (model[0] && used < out_size)
+        used += (size_t)snprintf(out + used, out_size - used, "model %s%s%s  ", model,
+                                 json_true(json, "normalised") ? " normalised" : "",
+                                 strstr(json, "\"shadows\": false") ? " no shadows" : "");
+    if (bounces[0] && used < out_size)
+        used += (size_t)snprintf(out + used, out_size - used, "%s  ", bounces);
+    while (used > 0 && used < out_size && out[used - 1] == ' ')
+        out[--used] = '\0';
+}
+
 void panel_read_stats(panel *p, const char *json_path)
 {
     FILE *f = fopen(json_path, "rb");
@@ -91,6 +139,17 @@ void panel_read_stats(panel *p, const char *json_path)
     fclose(f);
     json[n] = '\0';
     json_string_of(json, "chapter", p->method, sizeof p->method);
+    stats_variant(json, p->variant, sizeof p->variant);
+    char estimator[32] = "", bounces[48];
+    static const char *ranked[] = {"hemisphere", "cosine", "light", "mis"};
+    json_string_of(json, "estimator", estimator, sizeof estimator);
+    p->estimator_rank = 0;
+    for (int k = 0; k < 4; k++)
+        p->estimator_rank = strcmp(estimator, ranked[k]) ? p->estimator_rank : k + 1;
+    json_bounces(json, bounces, sizeof bounces);
+    p->all_bounces = !bounces[0] && strstr(json, "\"bounces\": [");
+    p->spp = json_number_of(json, "spp"), p->rmse = json_number_of(json, "rmse");
+    p->has_stats = true;
     char detail[160] = "";
     size_t used = 0;
     double patches = json_number_of(json, "patches"), spp = json_number_of(json, "spp");
@@ -103,6 +162,8 @@ void panel_read_stats(panel *p, const char *json_path)
         used += (size_t)snprintf(detail + used, sizeof detail - used, "%.2f s  ", time_s);
     if (isfinite(rmse) && used < sizeof detail)
         snprintf(detail + used, sizeof detail - used, "rmse %.4g", rmse);
+    for (size_t end = strlen(detail); end > 0 && detail[end - 1] == ' ';)
+        detail[--end] = '\0';
     snprintf(p->detail, sizeof p->detail, "%s", detail);
 }
 
@@ -120,6 +181,15 @@ static void stem(const char *path, char *out, size_t out_size)
 int panel_load_pfm(panel *p, const char *path, char *err, size_t err_size)
 {
     image img;
+    /* A scene or a mesh is not an image to compare: say which mode shows it. */
+    if (path_has_extension(path, ".scene")) {
+        snprintf(err, err_size, "%s:0: a scene, not an image: --live %s renders it with every chapter", path, path);
+        return 2;
+    }
+    if (path_has_extension(path, ".ply")) {
+        snprintf(err, err_size, "%s:0: a mesh, not an image: --ply %s shows it", path, path);
+        return 2;
+    }
     if (image_read_pfm(path, &img, err, err_size))
         return 2;
     image_free(&p->img);
@@ -130,6 +200,8 @@ int panel_load_pfm(panel *p, const char *path, char *err, size_t err_size)
     if (p->kind == SOURCE_FILE) {
         snprintf(p->path, sizeof p->path, "%s", path);
         stem(path, p->method, sizeof p->method);
+        const char *base = strrchr(path, '/');
+        snprintf(p->file, sizeof p->file, "%s", base ? base + 1 : path);
         snprintf(p->detail, sizeof p->detail, "%dx%d", img.width, img.height);
         /* the stats beside it: x.pfm -> x.json */
         snprintf(p->stats_path, sizeof p->stats_path, "%s", path);
@@ -137,6 +209,9 @@ int panel_load_pfm(panel *p, const char *path, char *err, size_t err_size)
         if (dot && strlen(dot) == 4 && strlen(p->stats_path) + 1 < sizeof p->stats_path)
             strcpy(dot, ".json");
         panel_read_stats(p, p->stats_path);
+    } else if (p->kind == SOURCE_CHILD) {
+        panel_read_stats(p, p->stats_path); /* the chapters rewrite the stats with every pass */
+        p->stale = false;                   /* a pass of the current run */
     }
     return 0;
 }
@@ -163,6 +238,40 @@ bool panel_poll(panel *p)
 
 /* ---- children ------------------------------------------------------------------------------- */
 
+/* The chapter's command line: its scene, outputs, size, budget, the
+ * viewer's camera and the mode's extra options. */
+typedef struct {
+    char size[64], budget[64], eye[128], look[128], up[128], fov[64];
+    const char *argv[40];
+} child_args;
+
+static const char **child_argv(child_args *a, const panel *p, const child_spec *spec)
+{
+    snprintf(a->size, sizeof a->size, "%dx%d", spec->width, spec->height);
+    snprintf(a->budget, sizeof a->budget, "%g", spec->time_budget);
+    snprintf(a->eye, sizeof a->eye, "%.17g,%.17g,%.17g", spec->cam.eye.x, spec->cam.eye.y, spec->cam.eye.z);
+    snprintf(a->look, sizeof a->look, "%.17g,%.17g,%.17g", spec->cam.look.x, spec->cam.look.y, spec->cam.look.z);
+    snprintf(a->up, sizeof a->up, "%.17g,%.17g,%.17g", spec->cam.up.x, spec->cam.up.y, spec->cam.up.z);
+    snprintf(a->fov, sizeof a->fov, "%.17g", spec->cam.fov_degrees);
+    const char **argv = a->argv;
+    int argc = 0;
+    const char *fixed[] = {p->exe,    spec->scene_path, "--quiet", "--out", p->path,
+                           "--stats", p->stats_path,    "--size",  a->size};
+    for (size_t k = 0; k < sizeof fixed / sizeof *fixed; k++)
+        argv[argc++] = fixed[k];
+    if (spec->time_budget > 0) {
+        argv[argc++] = "--time";
+        argv[argc++] = a->budget;
+    }
+    const char *camera[] = {"--eye", a->eye, "--look", a->look, "--up", a->up, "--fov", a->fov};
+    for (size_t k = 0; k < sizeof camera / sizeof *camera; k++)
+        argv[argc++] = camera[k];
+    for (int i = 0; i < spec->extra_count; i++)
+        argv[argc++] = spec->extra[i];
+    argv[argc] = NULL;
+    return argv;
+}
+
 int child_start(panel *p, const child_spec *spec, char *err, size_t err_size)
 {
     const char *name = strrchr(p->exe, '/') ? strrchr(p->exe, '/') + 1 : p->exe;
@@ -171,41 +280,15 @@ int child_start(panel *p, const child_spec *spec, char *err, size_t err_size)
     snprintf(p->stats_path, sizeof p->stats_path, "%.3000s/%.900s.json", spec->directory, name);
     snprintf(p->log_path, sizeof p->log_path, "%.3000s/%.900s.log", spec->directory, name);
     unlink(p->stats_path);
+    /* A restart: the old image stays on screen, marked stale, until the new
+     * run's first pass replaces the file (the old one is removed, so it
+     * cannot be mistaken for the new run's). */
+    p->stale = p->img.pixels != NULL;
+    unlink(p->path);
+    p->warning[0] = '\0', p->warnings = 0, p->log_read = 0;
 
-    char size[64], budget[64], eye[128], look[128], up[128], fov[64];
-    snprintf(size, sizeof size, "%dx%d", spec->width, spec->height);
-    snprintf(budget, sizeof budget, "%g", spec->time_budget);
-    snprintf(eye, sizeof eye, "%.17g,%.17g,%.17g", spec->cam.eye.x, spec->cam.eye.y, spec->cam.eye.z);
-    snprintf(look, sizeof look, "%.17g,%.17g,%.17g", spec->cam.look.x, spec->cam.look.y, spec->cam.look.z);
-    snprintf(up, sizeof up, "%.17g,%.17g,%.17g", spec->cam.up.x, spec->cam.up.y, spec->cam.up.z);
-    snprintf(fov, sizeof fov, "%.17g", spec->cam.fov_degrees);
-    const char *argv[40];
-    int argc = 0;
-    argv[argc++] = p->exe;
-    argv[argc++] = spec->scene_path;
-    argv[argc++] = "--quiet";
-    argv[argc++] = "--out";
-    argv[argc++] = p->path;
-    argv[argc++] = "--stats";
-    argv[argc++] = p->stats_path;
-    argv[argc++] = "--size";
-    argv[argc++] = size;
-    if (spec->time_budget > 0) {
-        argv[argc++] = "--time";
-        argv[argc++] = budget;
-    }
-    argv[argc++] = "--eye";
-    argv[argc++] = eye;
-    argv[argc++] = "--look";
-    argv[argc++] = look;
-    argv[argc++] = "--up";
-    argv[argc++] = up;
-    argv[argc++] = "--fov";
-    argv[argc++] = fov;
-    for (int i = 0; i < spec->extra_count; i++)
-        argv[argc++] = spec->extra[i];
-    argv[argc] = NULL;
-
+    child_args args;
+    const char **argv = child_argv(&args, p, spec);
     int log_fd = open(p->log_path, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
     pid_t parent = getpid();
     fflush(stdout);
@@ -241,6 +324,30 @@ int child_start(panel *p, const child_spec *spec, char *err, size_t err_size)
     p->generation++;
     snprintf(p->detail, sizeof p->detail, "running");
     return 0;
+}
+
+bool child_poll_warnings(panel *p)
+{
+    FILE *f = fopen(p->log_path, "r");
+    if (!f)
+        return false;
+    bool found = false;
+    char line[512];
+    if (fseek(f, p->log_read, SEEK_SET) == 0)
+        while (fgets(line, sizeof line, f)) {
+            size_t n = strlen(line);
+            if (n == 0 || (line[n - 1] != '\n' && n + 1 < sizeof line))
+                break;              /* a line still being written: read it next time */
+            p->log_read += (long)n; /* (a longer line: the rest is read as a line of its own) */
+            line[strcspn(line, "\n")] = '\0';
+            if (strncmp(line, "warning:", 8) == 0) {
+                snprintf(p->warning, sizeof p->warning, "%.159s", line);
+                p->warnings++;
+                found = true;
+            }
+        }
+    fclose(f);
+    return found;
 }
 
 void child_stop(panel *p)
@@ -333,9 +440,10 @@ int scene_mesh(const scene *s, mesh *m, mesh_uniforms *u, vec3 ambient, char *er
         const material *mat = &s->materials[sf->material];
         for (int r = 0; r < SPHERE_RINGS; r++)
             for (int g = 0; g < SPHERE_SEGMENTS; g++) {
-                vec3 q[6] = {sphere_point(sf->center, sf->radius, r, g), sphere_point(sf->center, sf->radius, r + 1, g),
-                             sphere_point(sf->center, sf->radius, r + 1, g + 1), sphere_point(sf->center, sf->radius, r, g),
-                             sphere_point(sf->center, sf->radius, r + 1, g + 1), sphere_point(sf->center, sf->radius, r, g + 1)};
+                vec3 q[6] = {
+                    sphere_point(sf->center, sf->radius, r, g),         sphere_point(sf->center, sf->radius, r + 1, g),
+                    sphere_point(sf->center, sf->radius, r + 1, g + 1), sphere_point(sf->center, sf->radius, r, g),
+                    sphere_point(sf->center, sf->radius, r + 1, g + 1), sphere_point(sf->center, sf->radius, r, g + 1)};
                 for (int k = 0; k < 6; k++)
                     put_vertex(v + MESH_FLOATS * n++, q[k], v3_normalize(v3_sub(q[k], sf->center)), mat);
             }
@@ -394,14 +502,18 @@ int scene_mesh(const scene *s, mesh *m, mesh_uniforms *u, vec3 ambient, char *er
  * radiance r g b, red green blue, radiance_r ...; uchar colours are taken as
  * sRGB and decoded), faces as index lists (fans).  Enough for radiosity's
  * output, Blender's and MeshLab's. */
-typedef struct { char name[64]; int type; int list_count_type; } ply_property; /* type: 0 none 1 int 2 float 3 uchar... */
+typedef struct {
+    char name[64];
+    int type;
+    int list_count_type;
+} ply_property; /* type: 0 none 1 int 2 float 3 uchar... */
 
 enum { PLY_CHAR, PLY_UCHAR, PLY_SHORT, PLY_USHORT, PLY_INT, PLY_UINT, PLY_FLOAT, PLY_DOUBLE, PLY_BAD };
 
 static int ply_type(const char *t)
 {
-    static const char *names[][2] = {{"char", "int8"},   {"uchar", "uint8"}, {"short", "int16"},  {"ushort", "uint16"},
-                                     {"int", "int32"},   {"uint", "uint32"}, {"float", "float32"}, {"double", "float64"}};
+    static const char *names[][2] = {{"char", "int8"}, {"uchar", "uint8"}, {"short", "int16"},   {"ushort", "uint16"},
+                                     {"int", "int32"}, {"uint", "uint32"}, {"float", "float32"}, {"double", "float64"}};
     for (int i = 0; i < PLY_BAD; i++)
         if (!strcmp(t, names[i][0]) || !strcmp(t, names[i][1]))
             return i;
@@ -432,8 +544,17 @@ static double ply_read(FILE *f, int type, bool ascii, bool *ok)
     case PLY_USHORT: return (double)(uint16_t)u;
     case PLY_INT: return (double)(int32_t)u;
     case PLY_UINT: return (double)(uint32_t)u;
-    case PLY_FLOAT: { uint32_t w = (uint32_t)u; float x; memcpy(&x, &w, 4); return x; }
-    default: { double x; memcpy(&x, &u, 8); return x; }
+    case PLY_FLOAT: {
+        uint32_t w = (uint32_t)u;
+        float x;
+        memcpy(&x, &w, 4);
+        return x;
+    }
+    default: {
+        double x;
+        memcpy(&x, &u, 8);
+        return x;
+    }
     }
 }
 
@@ -552,12 +673,18 @@ int ply_mesh(const char *path, mesh *m, vec3 *lo, vec3 *hi, char *err, size_t er
         for (int k = 0; k < vprop_count; k++) {
             double x = ply_read(f, vprops[k].type, ascii, &ok);
             bool byte_colour = vprops[k].type == PLY_UCHAR;
-            if (k == ix) out[0] = x;
-            if (k == iy) out[1] = x;
-            if (k == iz) out[2] = x;
-            if (k == ir) out[3] = byte_colour ? srgb_decode(x / 255.0) : x;
-            if (k == ig) out[4] = byte_colour ? srgb_decode(x / 255.0) : x;
-            if (k == ib) out[5] = byte_colour ? srgb_decode(x / 255.0) : x;
+            if (k == ix)
+                out[0] = x;
+            if (k == iy)
+                out[1] = x;
+            if (k == iz)
+                out[2] = x;
+            if (k == ir)
+                out[3] = byte_colour ? srgb_decode(x / 255.0) : x;
+            if (k == ig)
+                out[4] = byte_colour ? srgb_decode(x / 255.0) : x;
+            if (k == ib)
+                out[5] = byte_colour ? srgb_decode(x / 255.0) : x;
         }
         *lo = v3_min(*lo, v3(out[0], out[1], out[2]));
         *hi = v3_max(*hi, v3(out[0], out[1], out[2]));
@@ -621,6 +748,26 @@ done:
 
 /* ---- camera ------------------------------------------------------------------------------- */
 
+/* Near and far planes fitted to the bounding box as seen from the eye:
+ * far = the farthest corner, near = the distance to the box's nearest
+ * point, at least far / 1000 (the eye inside the box).  A 24-bit depth
+ * buffer resolves about z^2 / (near 2^24): for the Cornell box seen from
+ * 800 mm (near ~ 800, far ~ 1400) a few microns, where the old near plane
+ * at far x 1e-4 left 0.3 mm and the light, 0.1 mm below the ceiling,
+ * came out as stripes of ceiling.  Both get 1 % of slack. */
+static void depth_range(vec3 eye, vec3 lo, vec3 hi, double *near_plane, double *far_plane)
+{
+    vec3 nearest = v3_min(v3_max(eye, lo), hi);
+    double far_sq = 0.0;
+    for (int corner = 0; corner < 8; corner++) {
+        vec3 c = v3(corner & 1 ? hi.x : lo.x, corner & 2 ? hi.y : lo.y, corner & 4 ? hi.z : lo.z);
+        vec3 d = v3_sub(c, eye);
+        far_sq = fmax(far_sq, v3_dot(d, d));
+    }
+    *far_plane = sqrt(far_sq) * 1.01 + 1e-9;
+    *near_plane = fmax(v3_length(v3_sub(nearest, eye)) * 0.99, *far_plane * 1e-3);
+}
+
 /* Column-major view_projection: look-at, then a perspective projection
  * with the camera's vertical field of view, then y mirrored so that row 0
  * of the target is the top of the image (camera_ray's y grows downward).
@@ -630,10 +777,8 @@ void camera_matrix(const camera *cam, int width, int height, vec3 lo, vec3 hi, f
     vec3 f = v3_normalize(v3_sub(cam->look, cam->eye));
     vec3 r = v3_normalize(v3_cross(f, cam->up));
     vec3 u = v3_cross(r, f);
-    vec3 centre = v3_scale(v3_add(lo, hi), 0.5);
-    double radius = 0.5 * v3_length(v3_sub(hi, lo));
-    double far_plane = v3_length(v3_sub(centre, cam->eye)) + radius * 1.01 + 1e-9;
-    double near_plane = far_plane * 1e-4;
+    double near_plane, far_plane;
+    depth_range(cam->eye, lo, hi, &near_plane, &far_plane);
     double t = tan(0.5 * cam->fov_degrees * M_PI / 180.0), aspect = (double)width / height;
     double view[4][4] = {{r.x, r.y, r.z, -v3_dot(r, cam->eye)},
                          {u.x, u.y, u.z, -v3_dot(u, cam->eye)},

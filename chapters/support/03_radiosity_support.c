@@ -1,0 +1,212 @@
+/* 03_radiosity_support.c — chapter 3's options and statistics (see 03_radiosity_support.h). */
+#include "03_radiosity_support.h"
+
+#include <math.h>
+#include <stddef.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mesh_io.h"
+#include "render.h"
+
+const char *const solver_names[4] = {"jacobi", "gauss-seidel", "shooting", "direct"};
+
+/* --patch-size: a positive length; where it was given is kept for the
+ * message when it makes too many patches. */
+static int parse_patch_size(void *state, const char *value, int argv_index, char *why, size_t why_size)
+{
+    radiosity_options *o = state;
+    char *end;
+    double size = strtod(value, &end);
+    if (end == value || *end || !isfinite(size) || !(size > 0.0)) {
+        snprintf(why, why_size, "must be positive (scene units), not '%s'", value);
+        return 2;
+    }
+    o->patch_size = size;
+    o->patch_size_argv = argv_index > 0 ? argv_index : 0; /* 0: the default */
+    return 0;
+}
+
+/* --adaptive-levels N also turns --adaptive on. */
+static int parse_adaptive_levels(void *state, const char *value, int argv_index, char *why, size_t why_size)
+{
+    radiosity_options *o = state;
+    char *end;
+    long levels = strtol(value, &end, 10);
+    if (end == value || *end || levels < 1 || levels > 8) {
+        snprintf(why, why_size, "wants a whole number in [1, 8], not '%s'", value);
+        return 2;
+    }
+    o->adaptive_levels = (int)levels;
+    if (argv_index > 0) /* given on the command line, not the default */
+        o->adaptive = true;
+    return 0;
+}
+
+#define OPTION_FIELD(field) offsetof(radiosity_options, field)
+const option RADIOSITY_OPTIONS[] = {
+    {"--patch-size", "S", OPTION_CUSTOM, 0, .parse = parse_patch_size, .default_text = "50",
+     .help = "target patch edge in scene units (50 suits the Cornell box in mm)"},
+    {"--adaptive", NULL, OPTION_FLAG, OPTION_FIELD(adaptive),
+     .help = "refine patches where the radiance changes fast (shadow edges)"},
+    {"--adaptive-levels", "N", OPTION_CUSTOM, 0, .parse = parse_adaptive_levels, .default_text = "2",
+     .help = "refinement rounds, 1..8, each splitting patches in four; implies --adaptive"},
+    {"--adaptive-threshold", "T", OPTION_DOUBLE, OPTION_FIELD(adaptive_threshold), .min = 1e-6, .max = 1e6,
+     .default_text = "0.1", .help = "split where a patch and the mean of its corners differ by T x the mean radiance"},
+    {"--solver", NULL, OPTION_CHOICE, OPTION_FIELD(solver), .choices = "jacobi|gauss-seidel|shooting|direct",
+     .default_text = "jacobi", .help = "how L = E + KL is solved"},
+    {"--tol", "T", OPTION_DOUBLE, OPTION_FIELD(tolerance), .min = 0.0, .max = 1.0, .default_text = "1e-4",
+     .help = "stop when the residual falls below T (a fraction of the source power)"},
+    {"--iterations", "N", OPTION_INT, OPTION_FIELD(max_iterations), .min = 1, .max = 100000000, .default_text = "1000",
+     .help = "at most N iterations (shooting: N x patches shots)"},
+    {"--max-patches", "N", OPTION_INT, OPTION_FIELD(max_patches), .min = 1, .max = 1 << 30, .default_text = "16384",
+     .help = "refuse matrix solvers above N patches (16384: 2 GiB of doubles for the direct solve)"},
+    {"--quadrature", "M", OPTION_INT, OPTION_FIELD(quadrature), .min = 1, .max = 16, .default_text = "4",
+     .help = "M x M points per patch triangle for near form factors"},
+    {"--reciprocity", NULL, OPTION_CHOICE, OPTION_FIELD(enforce_reciprocity), .choices = "check|enforce",
+     .default_text = "check", .help = "report A_i F_ij against A_j F_ji, or average them"},
+    {"--shading", NULL, OPTION_CHOICE, OPTION_FIELD(smooth), .choices = "flat|smooth", .default_text = "flat",
+     .help = "patch colours, or interpolated vertex radiance"},
+    {"--smooth", NULL, OPTION_FLAG, 0, .alias_of = "--shading smooth"},
+    {"--formfactors", "FILE.csv", OPTION_STRING, OPTION_FIELD(formfactors_path),
+     .help = "write the surface-to-surface form factors (from,to,F)"},
+    {0},
+};
+#undef OPTION_FIELD
+
+void record_residual(radiosity_stats *stats, double residual)
+{
+    stats->residual = residual;
+    if (stats->history_count == stats->history_capacity) {
+        int capacity = stats->history_capacity ? 2 * stats->history_capacity : 64;
+        double *history = realloc(stats->history, (size_t)capacity * sizeof *history);
+        if (!history)
+            return;
+        stats->history = history, stats->history_capacity = capacity;
+    }
+    stats->history[stats->history_count++] = residual;
+}
+
+void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosity_stats *r, const scene *s,
+                           const patch_mesh *m, const vec3 *radiance, bool have_matrix)
+{
+    int patches = m->patch_count;
+    fprintf(json, ",\n  \"solver\": \"%s\",\n  \"solver_used\": \"%s\",\n  \"patch_size\": ", solver_names[o->solver],
+            r->solver_used ? r->solver_used : "none");
+    json_number(json, o->patch_size);
+    fprintf(json, ",\n  \"patches\": %d,\n  \"refinements\": %d,\n  \"iterations\": %d,\n  \"shots\": %d", patches,
+            r->refinements, r->iterations, r->shots);
+    json_field_number(json, "residual", r->residual);
+    json_field_number(json, "tolerance", o->tolerance);
+    fprintf(json, ",\n  \"converged\": %s,\n  \"no_light\": %s,\n  \"residual_history\": [",
+            r->converged ? "true" : "false", r->no_light ? "true" : "false");
+    for (int k = 0; k < r->history_count; k++) {
+        if (k)
+            fputs(", ", json);
+        json_number(json, r->history[k]);
+    }
+    fprintf(json, "],\n  \"formfactor_s\": ");
+    json_number(json, r->formfactor_s);
+    json_field_number(json, "solve_s", r->solve_s);
+    fprintf(json, ",\n  \"visibility_rays\": %llu,\n  \"reciprocity\": \"%s\"", (unsigned long long)r->visibility_rays,
+            o->enforce_reciprocity ? "enforce" : "check");
+    if (r->have_matrix_checks) {
+        json_field_number(json, "reciprocity_error", r->reciprocity_error);
+        json_field_number(json, "row_sum_min", r->row_sum_min);
+        json_field_number(json, "row_sum_max", r->row_sum_max);
+    }
+    fprintf(json, ",\n  \"matrix_bytes\": %.0f", have_matrix ? (double)patches * patches * 4.0 : 0.0);
+    json_surface_radiance(json, s, m, radiance);
+}
+
+void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int patches, bool quiet)
+{
+    if (r->no_light)
+        fprintf(stderr, "warning: 03_radiosity: the scene has no light (no point light, no emitter): "
+                        "the solution is zero and the image black\n");
+    else if (!r->converged)
+        fprintf(stderr,
+                "warning: 03_radiosity: %s stopped at the iteration cap (%d iterations) with residual %.3g "
+                "above --tol %.3g; raise --iterations\n",
+                r->solver_used, r->iterations, r->residual, o->tolerance);
+    if (!quiet)
+        fprintf(stderr, "03_radiosity: %d patches, form factors %.2f s, %s %d iterations %.2f s, residual %.3g\n",
+                patches, r->formfactor_s, r->solver_used, r->iterations, r->solve_s, r->residual);
+}
+
+enum { MESH_CELL_LIMIT = 4000000 }; /* beyond this even shooting would take hours */
+
+static int check_mesh_size(const radiosity_options *o, double cells, char *err, size_t err_size)
+{
+    if (!(cells > MESH_CELL_LIMIT))
+        return 0;
+    snprintf(err, err_size, "argv:%d: --patch-size %g gives about %.3g patches, more than this chapter meshes (%d)",
+             o->patch_size_argv, o->patch_size, cells, MESH_CELL_LIMIT); /* argv:0 only if the default did */
+    return 2;
+}
+
+int radiosity_check_matrix_size(const radiosity_options *o, int n, char *err, size_t err_size)
+{
+    if (o->solver == SOLVER_SHOOTING || n <= o->max_patches)
+        return 0;
+    snprintf(err, err_size,
+             "argv:0: %d patches need a %d x %d matrix (%.2f GiB as doubles), over the limit "
+             "--max-patches %d (2 GiB); use --solver shooting, a larger --patch-size, or raise --max-patches",
+             n, n, n, (double)n * n * 8.0 / 1073741824.0, o->max_patches);
+    return 2;
+}
+
+static int warned_specular, warned_phong, warned_spheres;
+
+int radiosity_mesh_scene(patch_mesh *m, const scene *s, const radiosity_options *o, char *err, size_t err_size)
+{
+    if (check_mesh_size(o, patch_mesh_estimate(s, o->patch_size), err, err_size))
+        return 2;
+    for (int i = 0; i < s->surface_count; i++)
+        if (s->surfaces[i].kind == SURFACE_SPHERE)
+            warn_once(&warned_spheres, "03_radiosity: spheres are not meshed into patches; they block light "
+                                       "but carry no radiance (black in the image)");
+    if (patch_mesh_build(m, s, o->patch_size)) {
+        snprintf(err, err_size, "argv:0: out of memory while meshing");
+        return 2;
+    }
+    return radiosity_collect_patches(m, s, o, err, err_size);
+}
+
+int radiosity_collect_patches(patch_mesh *mesh, const scene *s, const radiosity_options *o, char *err, size_t err_size)
+{
+    if (patch_mesh_collect(mesh, o->quadrature)) {
+        snprintf(err, err_size, "argv:0: out of memory for the patches");
+        return 2;
+    }
+    for (int i = 0; i < mesh->patch_count; i++) {
+        patch *p = &mesh->patches[i];
+        const material *m = &s->materials[s->surfaces[p->surface].material];
+        p->albedo = m->albedo;
+        p->emission = m->kind == MATERIAL_EMITTER ? m->emission : v3_splat(0.0);
+        if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS) {
+            warn_once(&warned_specular, "03_radiosity: radiosity models diffuse reflection only; mirrors and glass "
+                                        "are treated as diffuse surfaces with their colour as albedo");
+            p->albedo = m->specular;
+        } else if (m->kind == MATERIAL_PHONG) {
+            warn_once(&warned_phong, "03_radiosity: Phong surfaces are treated as diffuse with albedo kd (ks dropped)");
+        }
+    }
+    return 0;
+}
+
+int radiosity_refine(patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *r,
+                     const vec3 *radiance, bool quiet, char *err, size_t err_size)
+{
+    if (!o->adaptive || r->refinements == o->adaptive_levels || r->no_light)
+        return 0;
+    int split = patch_mesh_refine(m, radiance, o->adaptive_threshold);
+    if (split < 0)
+        snprintf(err, err_size, "argv:0: out of memory while refining the mesh");
+    if (split <= 0)
+        return split;
+    r->refinements++;
+    if (!quiet)
+        fprintf(stderr, "03_radiosity: refinement %d split %d of %d patches\n", r->refinements, split, m->patch_count);
+    return radiosity_collect_patches(m, s, o, err, err_size) ? -1 : split;
+}

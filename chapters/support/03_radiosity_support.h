@@ -1,0 +1,90 @@
+/* 03_radiosity_support.h — what chapter 3 needs around the lecture: its
+ * options (--patch-size, --solver ...), their defaults and help text; the
+ * steps that build and refine the patch mesh (patch_mesh.h) with the
+ * chapter's limits, material model and warnings; the solve's statistics and
+ * the radiosity members of the --stats JSON.  Kept out of the chapter so
+ * that it reads as the lecture; the driver's common options are in render.h. */
+#ifndef CHAPTERS_RADIOSITY_SUPPORT_H
+#define CHAPTERS_RADIOSITY_SUPPORT_H
+
+#include <stdbool.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdio.h>
+
+#include "options.h"
+#include "patch_mesh.h"
+#include "scene.h"
+
+/* The order of --solver's choices. */
+typedef enum { SOLVER_JACOBI, SOLVER_GAUSS_SEIDEL, SOLVER_SHOOTING, SOLVER_DIRECT } solver_kind;
+extern const char *const solver_names[4]; /* "jacobi", "gauss-seidel", "shooting", "direct" */
+
+typedef struct {
+    double patch_size;
+    bool adaptive;
+    int adaptive_levels;
+    double adaptive_threshold;
+    int solver; /* solver_kind */
+    double tolerance;
+    int max_iterations;
+    int max_patches;
+    int quadrature;    /* M: each patch triangle is sampled at the centroids of M x M sub-triangles */
+    int smooth;              /* --shading flat|smooth: 1 interpolates per-vertex radiance */
+    int enforce_reciprocity; /* --reciprocity check|enforce: 1 averages A_i F_ij and A_j F_ji */
+    const char *formfactors_path;
+    int patch_size_argv; /* where --patch-size was given, for error messages */
+} radiosity_options;
+
+/* What a solve reports. */
+typedef struct {
+    const char *solver_used;
+    int refinements, iterations, shots;
+    double residual;  /* the last one recorded */
+    double *history;  /* every residual recorded */
+    int history_count, history_capacity;
+    bool converged, no_light;
+    double formfactor_s, solve_s;
+    uint64_t visibility_rays;
+    bool have_matrix_checks;
+    double reciprocity_error, row_sum_min, row_sum_max;
+} radiosity_stats;
+
+/* The chapter's options, their ranges, defaults and help (options.h):
+ * offsets into a radiosity_options. */
+extern const option RADIOSITY_OPTIONS[];
+
+/* stats->residual = residual, and append it to the history. */
+void record_residual(radiosity_stats *stats, double residual);
+
+/* The chapter's members of the stats JSON, ending with each surface's mean
+ * radiance (json_surface_radiance, mesh_io.h). */
+void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosity_stats *r, const scene *s,
+                           const patch_mesh *m, const vec3 *radiance, bool have_matrix);
+
+/* Mesh the scene into patches of about --patch-size (refusing over
+ * 4,000,000; spheres are not meshed, said once on stderr) and collect them
+ * (radiosity_collect_patches).  Returns 0, or 2 with a message. */
+int radiosity_mesh_scene(patch_mesh *m, const scene *s, const radiosity_options *o, char *err, size_t err_size);
+
+/* Number the patches (patch_mesh_collect) and give each the albedo rho_i
+ * and emission Le_i of its material as radiosity models it: diffuse only,
+ * so mirrors and glass become diffuse with their colour as albedo, Phong
+ * surfaces keep kd (each said once on stderr).  Returns 0, or 2. */
+int radiosity_collect_patches(patch_mesh *m, const scene *s, const radiosity_options *o, char *err, size_t err_size);
+
+/* --adaptive: unless the rounds are used up (or nothing emits), split the
+ * patches where the radiance jumps (patch_mesh_refine) and collect them
+ * again.  Returns how many were split (0: done), or -1 with a message. */
+int radiosity_refine(patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *r,
+                     const vec3 *radiance, bool quiet, char *err, size_t err_size);
+
+/* Refuse a matrix solver (all but shooting) over --max-patches before
+ * trying.  Returns 0, or 2 with the message. */
+int radiosity_check_matrix_size(const radiosity_options *o, int patches, char *err, size_t err_size);
+
+/* After the solve, on stderr: a warning when nothing emits or the solver
+ * stopped at its iteration cap, and (unless quiet) a one-line summary. */
+void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int patches, bool quiet);
+
+#endif
