@@ -6,7 +6,7 @@ happens to be high): the ball is a lens, so light from the light's centre throug
 ball's centre continues to the floor at the focus; a pixel is in the region when the ray
 through its centre hits the floor (y = 0) within CAUSTIC_RADIUS of the focus without
 hitting the ball first.  The scene file gives the camera, the ball and the light.
-Standard library only (used by tradeoff.py, bench/bench_05_photonmap.py and the tests).
+Standard library only (used by tradeoff.py and bench/bench_05_photonmap.py).
 """
 import math
 import os
