@@ -59,7 +59,7 @@ enum { CHUNK = 4096, MAX_BOUNCES = 1000 };
 typedef struct {
     int surface, point_light; /* one of them is -1 */
     double probability;
-    vec3 power;               /* pi L_e A for a Lambertian emitter, 4 pi I for a point light */
+    vec3 power; /* pi L_e A for a Lambertian emitter, 4 pi I for a point light */
 } light_source;
 
 typedef struct {
@@ -139,8 +139,8 @@ static ray emit_photon(const photonmap_state *st, const scene *s, rng *g, int ph
  * probe's estimate passes a `sensor` instead: the flux crossing its disc
  * of radius r from the front (after a --bounces number of bounces) is added
  * to *crossed.  Returns the rays traced, or -1 when out of memory. */
-static int trace_photon(const photonmap_state *st, const scene *s, int photons, uint32_t path, rng *g,
-                        photon_map *out, const probe *sensor, vec3 *crossed)
+static int trace_photon(const photonmap_state *st, const scene *s, int photons, uint32_t path, rng *g, photon_map *out,
+                        const probe *sensor, vec3 *crossed)
 {
     vec3 power;
     ray r = emit_photon(st, s, g, photons, &power);
@@ -149,7 +149,8 @@ static int trace_photon(const photonmap_state *st, const scene *s, int photons, 
     for (bounces = 0; bounces < MAX_BOUNCES; bounces++) {
         hit h;
         bool found = scene_intersect(s, r, INFINITY, &h);
-        if (sensor && keeps(st, bounces) && ray_crosses_disc(r, found ? h.t : INFINITY, sensor->position, sensor->normal, st->initial_radius))
+        if (sensor && keeps(st, bounces) &&
+            ray_crosses_disc(r, found ? h.t : INFINITY, sensor->position, sensor->normal, st->initial_radius))
             *crossed = v3_add(*crossed, power);
         if (!found)
             break;
@@ -240,8 +241,8 @@ static vec3 photon_estimate(const photonmap_state *st, const photon_map *map, ve
 /* One point y on a light picked by power, as in chapter 4's next-event
  * estimation: L_e f cos(theta_i) cos(theta_y) / |x - y|^2 V / (p_A p_pick)  (R8, R9),
  * or f I cos(theta_i) / r^2 V / p_pick for a point light (R1). */
-static vec3 direct_light(const photonmap_state *st, const scene *s, vec3 x, vec3 n, vec3 w_o, const material *m,
-                         rng *g, render_counters *counters)
+static vec3 direct_light(const photonmap_state *st, const scene *s, vec3 x, vec3 n, vec3 w_o, const material *m, rng *g,
+                         render_counters *counters)
 {
     if (st->light_count == 0)
         return v3_splat(0.0);
@@ -307,8 +308,8 @@ static vec3 direct_and_caustic(const photonmap_state *st, const scene *s, hit x,
  * the global map where the walk lands next (final gathering), --maps caustic
  * goes on as a path tracer.  Light a walk finds on an emitter is direct or
  * caustic light at the vertex before, counted there already: not again. */
-static vec3 indirect_walk(const photonmap_state *st, const scene *s, hit at, vec3 normal, vec3 out, int k,
-                          vec3 weight, rng *g, render_counters *counters)
+static vec3 indirect_walk(const photonmap_state *st, const scene *s, hit at, vec3 normal, vec3 out, int k, vec3 weight,
+                          rng *g, render_counters *counters)
 {
     vec3 L = v3_splat(0.0), w_i, scatter;
     while (k < st->bounce_max) {

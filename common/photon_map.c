@@ -87,9 +87,11 @@ void photon_tally_write(FILE *json, const photon_tally *t, const scene *s, bool 
     fprintf(json, ",\n  \"photons_stored\": {\"global\": %llu, \"caustic\": %llu}",
             (unsigned long long)t->stored_global, (unsigned long long)t->stored_caustic);
     fprintf(json, ",\n  \"stored_power\": {");
-    write_estimate(json, "global", "global_standard_error", batch_estimate(t->global, t->passes, v3_splat(1.0), v3_splat(0.0)));
+    write_estimate(json, "global", "global_standard_error",
+                   batch_estimate(t->global, t->passes, v3_splat(1.0), v3_splat(0.0)));
     fputs(", ", json);
-    write_estimate(json, "caustic", "caustic_standard_error", batch_estimate(t->caustic, t->passes, v3_splat(1.0), v3_splat(0.0)));
+    write_estimate(json, "caustic", "caustic_standard_error",
+                   batch_estimate(t->caustic, t->passes, v3_splat(1.0), v3_splat(0.0)));
     fprintf(json, "},\n  \"surfaces\": [");
     int written = 0;
     for (int i = 0; i < s->surface_count && t->surface; i++) {

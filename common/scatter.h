@@ -53,7 +53,8 @@ static inline bool sample_bsdf(const material *m, vec3 n, vec3 w_o, rng *g, vec3
         *w_i = onb_to_world(onb_from_normal(mirror), local);
     }
     double cos_i = v3_dot(n, *w_i), cos_alpha = fmax(0.0, v3_dot(*w_i, mirror));
-    double pdf = (1.0 - share) * cos_i / M_PI + share * (m->exponent + 1.0) / (2.0 * M_PI) * pow(cos_alpha, m->exponent);
+    double pdf =
+        (1.0 - share) * cos_i / M_PI + share * (m->exponent + 1.0) / (2.0 * M_PI) * pow(cos_alpha, m->exponent);
     if (!(cos_i > 0.0) || !(pdf > 0.0))
         return false;
     *weight = v3_scale(bsdf(m, n, *w_i, w_o), cos_i / pdf);
@@ -65,7 +66,8 @@ static inline bool sample_bsdf(const material *m, vec3 n, vec3 w_o, rng *g, vec3
  * crossing into glass is squeezed into a smaller solid angle, times
  * (n_i / n_t)^2; flux is not (a photon's power is the same on both sides):
  * `carries_radiance` says which of the two is being carried. */
-static inline vec3 scatter_specular(const material *m, vec3 n_geometric, vec3 w_o, bool carries_radiance, rng *g, vec3 *w_i)
+static inline vec3 scatter_specular(const material *m, vec3 n_geometric, vec3 w_o, bool carries_radiance, rng *g,
+                                    vec3 *w_i)
 {
     bool entering = v3_dot(n_geometric, w_o) > 0.0;
     vec3 n = entering ? n_geometric : v3_neg(n_geometric);

@@ -12,13 +12,14 @@ import subprocess
 
 from lib import ROOT, finite_image, lambert_polygon_irradiance, probe
 
-CHAPTERS = ("01_local", "02_whitted", "03_radiosity", "04_pathtrace")
+CHAPTERS = ("01_local", "02_whitted", "03_radiosity", "04_pathtrace", "05_photonmap")
 # Per-chapter settings that keep a 32x32 render well under a second.
 QUICK = {
     "01_local": ["--light-samples", "4"],
     "02_whitted": ["--light-samples", "4"],
     "03_radiosity": ["--patch-size", "100"],
     "04_pathtrace": ["--spp", "16"],
+    "05_photonmap": ["--photons", "20000", "--probe-photons", "4096"],
 }
 
 
@@ -239,7 +240,8 @@ def test_valgrind_memcheck_each_chapter(ctx):
     scene = ctx.write("tiny.scene", FURNACE.format(e=0.5, rho=0.5) + "light lamp point 0.5 0.9 0.5  1 1 1\n"
                       "probe p  0.5 0 0.5  0 1 0\n")
     settings = {"01_local": ["--probe-samples", "64"], "02_whitted": [], "03_radiosity": ["--patch-size", "0.5"],
-                "04_pathtrace": ["--spp", "2", "--probe-samples", "64"]}
+                "04_pathtrace": ["--spp", "2", "--probe-samples", "64"],
+                "05_photonmap": ["--photons", "2000", "--probe-photons", "64"]}
     for chapter in CHAPTERS:
         exe = os.path.join(ROOT, ctx.build, chapter)
         r = subprocess.run(["valgrind", "-q", "--error-exitcode=99", "--leak-check=full",
