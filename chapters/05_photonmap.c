@@ -17,8 +17,8 @@
  *
  *   (R11)  L_r(x, w_o) ~= sum over photons p within r of x of f(x, w_p, w_o) Phi_p / (pi r^2)
  *
- * The estimate is biased (it blurs the light over a disc of radius r) but
- * consistent: with more photons and a smaller radius it converges to (R2).
+ * Biased (it blurs the light over a disc of radius r) but consistent: with
+ * more photons and a smaller radius it converges to (R2).
  *
  *   --maps global    the naive method: every photon in one map, (R11) at the
  *                    first diffuse point does all the work (direct light too);
