@@ -38,16 +38,15 @@
  * blur vanishes: the average of the passes converges to the true image.
  * (alpha = 1 keeps the radius: classic photon mapping, whose bias stays.)
  *
- * Sections: state and options · lights and photon emission · the photon
- * pass · density estimation (R11) · direct light (R9) · the eye pass ·
- * probes · passes (R12), stats and main.  (Materials: common/scatter.h.)
+ * Sections: state, options · lights, photon emission · the photon pass · density
+ * estimation (R11) · direct light (R9) · eye pass · probes · passes (R12), main.
  */
 #include <stdlib.h>
 
 #include "photon_map.h"
 #include "render.h"
 #include "sampling.h"
-#include "scatter.h"
+#include "scatter.h" /* the materials: diffuse, Phong, mirror, glass */
 
 /* ---- state and options ------------------------------------------------------------ */
 
