@@ -25,7 +25,7 @@ import math
 import os
 
 from lib import (ROOT, check_bad_input, check_probes_match_lambert, check_thread_independence, finite_image,
-                 probe, read_pfm)
+                 probe, radiosity_surfaces, read_pfm)
 
 CHAPTER = "04_pathtrace"
 ESTIMATORS = ("hemisphere", "cosine", "light", "mis")
@@ -368,14 +368,8 @@ def test_radiosity_and_path_tracing_agree_on_cornell_box(ctx):
     tracer's mean and require |L_pt - L_25| <= 2 |L_50 - L_25| + 4 se per surface
     and channel.  Patches are one-sided in radiosity; the path tracer reports the
     front side (normal as in the file) too."""
-    exe = os.path.join(ROOT, ctx.build, "03_radiosity")
-    assert os.path.exists(exe), "build/03_radiosity is missing (chapter 3 reports the same 'surfaces' key)"
     scene = "scenes/cornell.scene"
-    radiosity = {}
-    for h in (50, 25):
-        _, stats = ctx.render("03_radiosity", scene, "--size", "8x8", "--patch-size", h, "--tol", "1e-7",
-                              "--iterations", 10000, name=f"radiosity{h}")
-        radiosity[h] = {s["name"]: s for s in stats["surfaces"]}
+    radiosity = radiosity_surfaces(ctx, scene)
     _, stats = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 1, "--surface-samples", 1 << 16,
                           "--probe-samples", 32, name="pt")
     traced = {s["name"]: s for s in stats["surfaces"]}

@@ -24,7 +24,7 @@ value that is not the estimate's expectation, it says which bound it uses.
 import math
 import os
 
-from lib import ROOT, Image, check_bad_input, check_thread_independence, finite_image, \
+from lib import ROOT, Image, radiosity_surfaces, check_bad_input, check_thread_independence, finite_image, \
     lambert_polygon_irradiance, probe
 
 CHAPTER = "05_photonmap"
@@ -207,14 +207,8 @@ def test_radiosity_and_photon_mapping_agree_on_cornell_box(ctx):
     from build/03_radiosity at 50 and 25 mm patches.  The bound is grade_04's: radiosity's
     discretisation error at 25 mm is at most 2 |L_50 - L_25| (convergence of order >= 0.585),
     plus 4 standard errors of the photon estimate (32 batches), each below 2 %."""
-    exe = os.path.join(ROOT, ctx.build, "03_radiosity")
-    assert os.path.exists(exe), "build/03_radiosity is missing"
     scene = "scenes/cornell.scene"
-    radiosity = {}
-    for h in (50, 25):
-        _, stats = ctx.render("03_radiosity", scene, "--size", "8x8", "--patch-size", h, "--tol", "1e-7",
-                              "--iterations", 10000, name=f"radiosity{h}")
-        radiosity[h] = {s["name"]: s for s in stats["surfaces"]}
+    radiosity = radiosity_surfaces(ctx, scene)
     _, stats = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 8, "--photons", 200000,
                           "--probe-photons", 32, name="pm")
     mapped = {s["name"]: s for s in stats["surfaces"]}

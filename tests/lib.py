@@ -150,3 +150,18 @@ def check_probes_match_lambert(stats, polygon, radiance, probes, max_relative_se
             assert abs(got["irradiance"][c] - expected) <= 4 * se, \
                 f"{label} probe {name} channel {c}: {got['irradiance'][c]:.6f} vs Lambert {expected:.6f} " \
                 f"(4 standard errors = {4 * se:.2g})"
+
+
+def radiosity_surfaces(ctx, scene, patch_sizes=(50, 25)):
+    """{patch size: {surface name: its entry of build/03_radiosity's "surfaces"}},
+    converged (--tol 1e-7): the reference other chapters' surface means are
+    compared with, with its discretisation error from two patch sizes."""
+    import os as _os
+    assert _os.path.exists(_os.path.join(ROOT, ctx.build, "03_radiosity")), \
+        "build/03_radiosity is missing (chapter 3 reports the 'surfaces' key)"
+    found = {}
+    for h in patch_sizes:
+        _, stats = ctx.render("03_radiosity", scene, "--size", "8x8", "--patch-size", h, "--tol", "1e-7",
+                              "--iterations", 10000, name=f"radiosity{h}")
+        found[h] = {s["name"]: s for s in stats["surfaces"]}
+    return found
