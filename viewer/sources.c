@@ -103,11 +103,13 @@ static void json_bounces(const char *json, char *out, size_t out_size)
 }
 
 /* What variant of its chapter an image is: the estimator (path tracing),
- * the solver (radiosity), the local model (chapters 1, 2), the bounces. */
+ * the solver (radiosity), the photon maps, the local model (chapters 1, 2),
+ * the bounces. */
 static void stats_variant(const char *json, char *out, size_t out_size)
 {
-    char estimator[32] = "", solver[32] = "", model[32] = "", bounces[48];
+    char estimator[32] = "", solver[32] = "", maps[32] = "", model[32] = "", bounces[48];
     json_string_of(json, "estimator", estimator, sizeof estimator);
+    json_string_of(json, "maps", maps, sizeof maps);
     json_string_of(json, "solver_used", solver, sizeof solver);
     if (!solver[0])
         json_string_of(json, "solver", solver, sizeof solver);
@@ -119,6 +121,8 @@ static void stats_variant(const char *json, char *out, size_t out_size)
         used += (size_t)snprintf(out + used, out_size - used, "estimator %s  ", estimator);
     if (solver[0] && used < out_size)
         used += (size_t)snprintf(out + used, out_size - used, "solver %s  ", solver);
+    if (maps[0] && used < out_size)
+        used += (size_t)snprintf(out + used, out_size - used, "maps %s  ", maps);
     if (model[0] && used < out_size)
         used += (size_t)snprintf(out + used, out_size - used, "model %s%s%s  ", model,
                                  json_true(json, "normalised") ? " normalised" : "",
