@@ -89,10 +89,35 @@ static void add_link(refiner *r, int p, int q)
     r->receiver[r->count] = p, r->source[r->count++] = q;
 }
 
+/* Points for visibility rays: the corners moved half-way to the centroid, on the surface. */
+static int sample_points(const patch_mesh *m, const patch *e, vec3 *out)
+{
+    vec3 flat = v3_splat(0.0);
+    for (int k = 0; k < e->corner_count; k++)
+        flat = v3_add(flat, v3_scale(e->corner[k], 1.0 / e->corner_count));
+    for (int k = 0; k < e->corner_count; k++)
+        out[k] = patch_mesh_on_surface(m, e->surface, v3_scale(v3_add(e->corner[k], flat), 0.5));
+    return e->corner_count;
+}
+
+/* Does a shadow edge cross the pair?  Of four rays between them some are
+ * blocked and some not; only asked when F is at least --eps / 8, so that
+ * the refinement follows the shadows where they carry light. */
+static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq, double f)
+{
+    if (f < r->eps / 8.0)
+        return false;
+    vec3 a[4], b[4];
+    int na = sample_points(r->m, ep, a), nb = sample_points(r->m, eq, b), visible = 0;
+    for (int k = 0; k < 4; k++)
+        visible += !scene_occluded(r->s, a[k % na], b[(k + 1) % nb]);
+    return visible > 0 && visible < 4;
+}
+
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  The
  * form factors both ways are estimated from each element's centroid by
- * Lambert's formula (R10's inner integral, no visibility).  Both below --eps:
- * the pair is linked at this level.  Otherwise the element that looks larger
+ * Lambert's formula (R10's inner integral, no visibility).  Both below --eps
+ * and no shadow edge across the pair: linked at this level.  Otherwise the element that looks larger
  * from the other (q when F_pq > F_qp) is split and its children refined
  * against the other; an element at --levels is not split further. */
 static void refine(refiner *r, int p, int q)
@@ -106,7 +131,7 @@ static void refine(refiner *r, int p, int q)
     double fpq = r->point_to_polygon(ep.centroid, ep.normal, eq.corner, eq.corner_count);
     double fqp = r->point_to_polygon(eq.centroid, eq.normal, ep.corner, ep.corner_count);
     bool can_p = r->h->level[p] < r->levels, can_q = r->h->level[q] < r->levels;
-    if ((fpq < r->eps && fqp < r->eps) || (!can_p && !can_q)) {
+    if ((fpq < r->eps && fqp < r->eps && !shadow_edge(r, &ep, &eq, fmax(fpq, fqp))) || (!can_p && !can_q)) {
         add_link(r, p, q);
         return;
     }
@@ -118,17 +143,6 @@ static void refine(refiner *r, int p, int q)
     }
     for (int k = 0; k < 4; k++)
         split_source ? refine(r, p, first + k) : refine(r, first + k, q);
-}
-
-/* Points for visibility rays: the corners moved half-way to the centroid, on the surface. */
-static int sample_points(const patch_mesh *m, const patch *e, vec3 *out)
-{
-    vec3 flat = v3_splat(0.0);
-    for (int k = 0; k < e->corner_count; k++)
-        flat = v3_add(flat, v3_scale(e->corner[k], 1.0 / e->corner_count));
-    for (int k = 0; k < e->corner_count; k++)
-        out[k] = patch_mesh_on_surface(m, e->surface, v3_scale(v3_add(e->corner[k], flat), 0.5));
-    return e->corner_count;
 }
 
 /* A link's form factor F_pq (R10).  Far apart: Lambert's formula from p's
