@@ -100,18 +100,37 @@ static int sample_points(const patch_mesh *m, const patch *e, vec3 *out)
     return e->corner_count;
 }
 
-/* Does a shadow edge cross the pair?  Of four rays between them some are
+/* The fraction of up to four rays between the two elements that nothing
+ * blocks.  Only pairs of sample points in front of each other's element
+ * count: a ray to a point behind the receiver's plane would run into the
+ * receiver's own solid, which Lambert's clipped formula has already left
+ * out.  No such pair: 1 (the pair hardly exchanges light). */
+static double visible_fraction(const patch_mesh *m, const scene *s, const patch *ep, const patch *eq, uint64_t *rays)
+{
+    vec3 a[4], b[4];
+    int na = sample_points(m, ep, a), nb = sample_points(m, eq, b), tested = 0, visible = 0;
+    for (int k = 0; k < na * nb && tested < 4; k++) {
+        vec3 x = a[k % na], y = b[(k + k / na) % nb]; /* the diagonal pairs first, then shifted */
+        if (v3_dot(ep->normal, v3_sub(y, ep->centroid)) <= s->epsilon ||
+            v3_dot(eq->normal, v3_sub(x, eq->centroid)) <= s->epsilon)
+            continue;
+        tested++;
+        visible += !scene_occluded(s, x, y);
+    }
+    *rays += (uint64_t)tested;
+    return tested ? (double)visible / tested : 1.0;
+}
+
+/* Does a shadow edge cross the pair?  Of the rays between them some are
  * blocked and some not; only asked when F is at least --eps / 8, so that
  * the refinement follows the shadows where they carry light. */
 static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq, double f)
 {
     if (f < r->eps / 8.0)
         return false;
-    vec3 a[4], b[4];
-    int na = sample_points(r->m, ep, a), nb = sample_points(r->m, eq, b), visible = 0;
-    for (int k = 0; k < 4; k++)
-        visible += !scene_occluded(r->s, a[k % na], b[(k + 1) % nb]);
-    return visible > 0 && visible < 4;
+    uint64_t rays = 0;
+    double v = visible_fraction(r->m, r->s, ep, eq, &rays);
+    return v > 0.0 && v < 1.0;
 }
 
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  The
@@ -146,24 +165,19 @@ static void refine(refiner *r, int p, int q)
 }
 
 /* A link's form factor F_pq (R10).  Far apart: Lambert's formula from p's
- * centroid times the fraction of four rays between the two elements that
- * are not blocked.  Near: the outer integral over M x M sub-triangle
+ * centroid times the fraction of rays between them not blocked.  Near: the outer integral over M x M sub-triangle
  * centroids of each triangle of p, a ray from each to a point of q. */
 static double link_form_factor(const hierarchy *h, const patch_mesh *m, const scene *s, point_to_polygon_fn F, int M,
                                int p, int q, uint64_t *rays)
 {
     const patch *ep = &h->element[p], *eq = &h->element[q];
-    vec3 a[4], b[4];
-    int na = sample_points(m, ep, a), nb = sample_points(m, eq, b);
+    vec3 b[4];
+    int nb = sample_points(m, eq, b);
     if (v3_length(v3_sub(eq->centroid, ep->centroid)) > NEAR_FACTOR * (ep->radius + eq->radius)) {
         double f = F(ep->centroid, ep->normal, eq->corner, eq->corner_count);
         if (f <= 0.0)
             return 0.0;
-        int visible = 0;
-        for (int k = 0; k < 4; k++)
-            visible += !scene_occluded(s, a[k % na], b[(k + 1) % nb]);
-        *rays += 4;
-        return f * visible / 4.0;
+        return f * visible_fraction(m, s, ep, eq, rays);
     }
     double total = 0.0;
     int point = 0;
@@ -180,8 +194,12 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
                     double f = F(x, ep->normal, eq->corner, eq->corner_count);
                     if (f <= 0.0)
                         continue;
+                    int k = 0; /* a point of q in front of p (see visible_fraction) */
+                    while (k < nb && v3_dot(ep->normal, v3_sub(b[(point + k) % nb], ep->centroid)) <= s->epsilon)
+                        k++;
+                    vec3 y = k < nb ? b[(point++ + k) % nb] : eq->centroid;
                     ++*rays;
-                    if (!scene_occluded(s, x, b[point++ % nb]))
+                    if (!scene_occluded(s, x, y))
                         total += weight * f;
                 }
     }
