@@ -181,7 +181,7 @@ static vec3 sphere_point(vec3 center, double radius, double theta, double phi)
 static int mesh_sphere(patch_mesh *m, const surface *surf, int surface_index, double patch_size)
 {
     int nu = cells_along(2.0 * M_PI * surf->radius, patch_size), nv = cells_along(M_PI * surf->radius, patch_size);
-    nu = nu < 12 ? 12 : nu, nv = nv < 6 ? 6 : nv;
+    nu = nu < 8 ? 8 : nu, nv = nv < 4 ? 4 : nv;
     int top = add_vertex(m, sphere_point(surf->center, surf->radius, 0.0, 0.0)), first_ring = m->vertex_count;
     for (int b = 1; b < nv && top >= 0; b++)
         for (int a = 0; a < nu; a++)
@@ -243,6 +243,17 @@ int patch_mesh_build(patch_mesh *m, const scene *s, double patch_size, const boo
     return 0;
 }
 
+/* A point of a cell on its surface: itself on a flat one, lifted along the
+ * radius onto a sphere (the facet lies inside it, where rays would start
+ * inside the sphere). */
+vec3 patch_mesh_on_surface(const patch_mesh *m, int surface, vec3 p)
+{
+    const struct quad_grid *g = &m->quad_grids[surface];
+    if (!g->sphere)
+        return p;
+    return v3_add(g->center, v3_scale(v3_normalize(v3_sub(p, g->center)), g->radius));
+}
+
 /* ---- refinement ----------------------------------------------------------------------- */
 
 /* The midpoint vertex of edge (a, b), shared by the two cells on either side
@@ -296,15 +307,17 @@ static int split_cell(patch_mesh *m, int cell_index)
 {
     mesh_cell c = m->cells[cell_index];
     int mid[4];
-    for (int k = 0; k < c.vertex_count; k++)
+    for (int k = 0; k < c.vertex_count; k++) {
         if ((mid[k] = edge_midpoint(m, c.vertex[k], c.vertex[(k + 1) % c.vertex_count])) < 0)
             return -1;
+        m->vertices[mid[k]] = patch_mesh_on_surface(m, c.surface, m->vertices[mid[k]]); /* spheres: onto it */
+    }
     int first = m->cell_count;
     if (c.vertex_count == 4) {
         vec3 centre = v3_splat(0.0);
         for (int k = 0; k < 4; k++)
             centre = v3_add(centre, v3_scale(m->vertices[c.vertex[k]], 0.25));
-        int middle = add_vertex(m, centre);
+        int middle = add_vertex(m, patch_mesh_on_surface(m, c.surface, centre));
         if (middle < 0)
             return -1;
         int children[4][4] = {{c.vertex[0], mid[0], middle, mid[3]},
@@ -362,17 +375,6 @@ int patch_mesh_refine(patch_mesh *m, const vec3 *radiance, double relative_thres
 /* ---- patches ------------------------------------------------------------------------- */
 
 static double triangle_area_of(vec3 a, vec3 b, vec3 c) { return 0.5 * v3_length(v3_cross(v3_sub(b, a), v3_sub(c, a))); }
-
-/* A point of a cell on its surface: itself on a flat one, lifted along the
- * radius onto a sphere (the facet lies inside it, where rays would start
- * inside the sphere). */
-vec3 patch_mesh_on_surface(const patch_mesh *m, int surface, vec3 p)
-{
-    const struct quad_grid *g = &m->quad_grids[surface];
-    if (!g->sphere)
-        return p;
-    return v3_add(g->center, v3_scale(v3_normalize(v3_sub(p, g->center)), g->radius));
-}
 
 /* Quadrature points of a patch for the outer integral of a form factor:
  * each triangle of the patch (a quad is the fan (0,1,2), (0,2,3)) is cut

@@ -80,7 +80,9 @@ typedef struct patch_mesh {
 double patch_mesh_estimate(const scene *s, double patch_size, const bool *mesh_spheres);
 
 /* The top-level cells of every quad and triangle surface, and of the
- * spheres i with mesh_spheres[i] (NULL: none; at least 12 x 6 cells each).
+ * spheres i with mesh_spheres[i] (NULL: none; at least 8 x 4 cells each; the
+ * vertices that splitting adds are put on the sphere, so refined cells
+ * follow it).
  * All functions returning int give 0, or -1 when out of memory. */
 int patch_mesh_build(patch_mesh *m, const scene *s, double patch_size, const bool *mesh_spheres);
 

@@ -8,7 +8,10 @@
 
 #include "rng.h"
 
-enum { ELEMENT_LIMIT = 4000000, LINK_LIMIT = 40000000 }; /* 4 M cells as the uniform mesh; 40 M links: 320 MiB */
+/* Elements: at most 4 M (as the uniform mesh), and --levels is refused when
+ * its worst case (every root split to the last level) passes 16 M; links:
+ * 40 M (320 MiB). */
+enum { ELEMENT_LIMIT = 4000000, WORST_CASE_LIMIT = 16000000, LINK_LIMIT = 40000000 };
 
 /* Pairs closer than this many radii are integrated at quadrature points (as chapter 3's NEAR_FACTOR). */
 static const double NEAR_FACTOR = 6.0;
@@ -56,6 +59,10 @@ static int children(refiner *r, int e)
 {
     if (r->m->cells[e].first_child >= 0)
         return r->m->cells[e].first_child;
+    if (r->m->cell_count + 4 > ELEMENT_LIMIT) {
+        r->failed = 3;
+        return -1;
+    }
     int first = patch_mesh_split(r->m, e);
     if (first < 0 || track(r->h, r->m, r->s))
         return -1;
@@ -157,15 +164,15 @@ static void refine(refiner *r, int p, int q)
     bool split_source = can_q && (fpq > fqp || !can_p);
     int first = children(r, split_source ? q : p);
     if (first < 0) {
-        r->failed = 1;
+        r->failed = r->failed ? r->failed : 1;
         return;
     }
     for (int k = 0; k < 4; k++)
         split_source ? refine(r, p, first + k) : refine(r, first + k, q);
 }
 
-/* A link's form factor F_pq (R10).  Far apart: Lambert's formula from p's
- * centroid times the fraction of rays between them not blocked.  Near: the outer integral over M x M sub-triangle
+/* A link's form factor F_pq (R10).  Far apart: Lambert's formula at four
+ * points of p times the fraction of rays between them not blocked.  Near: the outer integral over M x M sub-triangle
  * centroids of each triangle of p, a ray from each to a point of q. */
 static double link_form_factor(const hierarchy *h, const patch_mesh *m, const scene *s, point_to_polygon_fn F, int M,
                                int p, int q, uint64_t *rays)
@@ -174,10 +181,20 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
     vec3 b[4];
     int nb = sample_points(m, eq, b);
     if (v3_length(v3_sub(eq->centroid, ep->centroid)) > NEAR_FACTOR * (ep->radius + eq->radius)) {
-        double f = F(ep->centroid, ep->normal, eq->corner, eq->corner_count);
+        /* The outer integral by the points 1/sqrt(3) of the way from the centroid
+         * to the corners (Gauss's 2 x 2 rule on a parallelogram): the centroid
+         * alone would miss the curvature of the 1/r^2 kernel, always low. */
+        vec3 flat = v3_splat(0.0);
+        for (int k = 0; k < ep->corner_count; k++)
+            flat = v3_add(flat, v3_scale(ep->corner[k], 1.0 / ep->corner_count));
+        double f = 0.0;
+        for (int k = 0; k < ep->corner_count; k++) {
+            vec3 x = v3_add(flat, v3_scale(v3_sub(ep->corner[k], flat), 1.0 / sqrt(3.0)));
+            f += F(patch_mesh_on_surface(m, ep->surface, x), ep->normal, eq->corner, eq->corner_count);
+        }
         if (f <= 0.0)
             return 0.0;
-        return f * visible_fraction(m, s, ep, eq, rays);
+        return f / ep->corner_count * visible_fraction(m, s, ep, eq, rays);
     }
     double total = 0.0;
     int point = 0;
@@ -237,15 +254,29 @@ static int store_links(hierarchy *h, refiner *r, const radiosity_options *o, rad
     return 0;
 }
 
+/* Each leaf's row sum: the form factors of its links and its ancestors'
+ * (1 in a closed scene, as the matrix solvers' row_sum_min/max). */
+static void row_sums(const hierarchy *h, const patch_mesh *m, int e, double above, radiosity_stats *stats)
+{
+    for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
+        above += h->link_F[k];
+    if (m->cells[e].first_child < 0) {
+        stats->row_sum_min = fmin(stats->row_sum_min, above), stats->row_sum_max = fmax(stats->row_sum_max, above);
+        return;
+    }
+    for (int k = 0; k < 4; k++)
+        row_sums(h, m, m->cells[e].first_child + k, above, stats);
+}
+
 int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *stats,
                     point_to_polygon_fn point_to_polygon, char *err, size_t err_size)
 {
     double roots = m->cell_count, bound = roots * (pow(4.0, o->levels + 1) - 1.0) / 3.0;
-    if (bound > ELEMENT_LIMIT) /* refused before the hierarchy is allocated */
+    if (bound > WORST_CASE_LIMIT) /* refused before the hierarchy is allocated */
         return snprintf(err, err_size,
-                        "argv:%d: --levels %d allows up to %.3g elements (%d roots), more than this chapter meshes "
-                        "(%d); lower --levels",
-                        o->levels_argv, o->levels, bound, m->cell_count, ELEMENT_LIMIT),
+                        "argv:%d: --levels %d allows up to %.3g elements (%d roots), more than the limit %d; "
+                        "lower --levels",
+                        o->levels_argv, o->levels, bound, m->cell_count, WORST_CASE_LIMIT),
                2;
     hierarchy_free(h);
     double start = omp_get_wtime();
@@ -261,6 +292,10 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
         r.failed = 1;
     free(r.receiver), free(r.source);
     stats->formfactor_s += omp_get_wtime() - start; /* refinement and the links' form factors */
+    if (r.failed == 3)
+        return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d elements (the limit); raise --eps",
+                        o->eps_argv, o->eps, ELEMENT_LIMIT),
+               2;
     if (r.failed == 2)
         return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d links (the limit); raise --eps",
                         o->eps_argv, o->eps, LINK_LIMIT),
@@ -269,6 +304,9 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
         return snprintf(err, err_size, "argv:0: out of memory for the hierarchy"), 2;
     h->term = h->gathered + h->element_count;
     stats->elements = h->element_count, stats->links = h->link_count, stats->levels = 0;
+    stats->have_matrix_checks = true, stats->row_sum_min = INFINITY, stats->row_sum_max = 0.0;
+    for (int root = 0; root < h->root_count; root++)
+        row_sums(h, m, root, 0.0, stats);
     for (int e = 0; e < h->element_count; e++)
         stats->levels = stats->levels > h->level[e] ? stats->levels : h->level[e];
     stats->hierarchy_bytes = (double)h->element_count * (sizeof(patch) + sizeof(mesh_cell) + 2 * sizeof(vec3) + 1 +

@@ -141,8 +141,9 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
     json_field_number(json, "solve_s", r->solve_s);
     fprintf(json, ",\n  \"visibility_rays\": %llu,\n  \"reciprocity\": \"%s\"", (unsigned long long)r->visibility_rays,
             o->enforce_reciprocity ? "enforce" : "check");
-    if (r->have_matrix_checks) {
-        json_field_number(json, "reciprocity_error", r->reciprocity_error);
+    if (r->have_matrix_checks) { /* hierarchical: each leaf's links and its ancestors' */
+        if (o->solver != SOLVER_HIERARCHICAL)
+            json_field_number(json, "reciprocity_error", r->reciprocity_error);
         json_field_number(json, "row_sum_min", r->row_sum_min);
         json_field_number(json, "row_sum_max", r->row_sum_max);
     }
