@@ -389,8 +389,8 @@ static int solve(radiosity_state *st, const scene *s, char *err, size_t err_size
         r->iterations = 0, r->converged = true;
         record_residual(r, 0.0);
     } else if (st->opt.solver == SOLVER_HIERARCHICAL) { /* any --bounces window: its Neumann terms */
-        failed = hierarchy_solve(&st->hierarchy, &st->mesh, st->first_shot, st->bounce_min, st->bounce_max, &st->opt,
-                                 r, st->source_norm, st->radiance);
+        failed = hierarchy_solve(&st->hierarchy, &st->mesh, st->first_shot, st->bounce_min, st->bounce_max, &st->opt, r,
+                                 st->source_norm, st->radiance);
     } else if (st->opt.solver == SOLVER_JACOBI || st->bounce_max < RENDER_BOUNCES_UNLIMITED) {
         /* A window with an upper end is a finite sum of Neumann terms: computed
          * as such whatever the solver (the other solvers do not separate bounces). */

@@ -190,8 +190,12 @@ static int mesh_sphere(patch_mesh *m, const surface *surf, int surface_index, do
     int bottom = add_vertex(m, sphere_point(surf->center, surf->radius, M_PI, 0.0));
     if (top < 0 || bottom < 0)
         return -1;
-    m->quad_grids[surface_index] = (struct quad_grid){
-        .first_cell = m->cell_count, .nu = nu, .nv = nv, .sphere = true, .center = surf->center, .radius = surf->radius};
+    m->quad_grids[surface_index] = (struct quad_grid){.first_cell = m->cell_count,
+                                                      .nu = nu,
+                                                      .nv = nv,
+                                                      .sphere = true,
+                                                      .center = surf->center,
+                                                      .radius = surf->radius};
     for (int b = 0; b < nv; b++)
         for (int a = 0; a < nu; a++) {
             int ring = first_ring + (b - 1) * nu, next = first_ring + b * nu, a1 = (a + 1) % nu;
@@ -395,7 +399,8 @@ static int add_quadrature_points(patch_mesh *m, patch *p, int M)
                     if (grow((void **)&m->points, &m->point_capacity, m->point_count + 1, sizeof *m->points) ||
                         grow((void **)&m->weights, &m->weight_capacity, m->point_count + 1, sizeof *m->weights))
                         return -1;
-                    m->points[m->point_count] = patch_mesh_on_surface(m, p->surface, v3_add(a, v3_add(v3_scale(e1, u), v3_scale(e2, v))));
+                    m->points[m->point_count] =
+                        patch_mesh_on_surface(m, p->surface, v3_add(a, v3_add(v3_scale(e1, u), v3_scale(e2, v))));
                     m->weights[m->point_count++] = weight;
                     p->point_count++;
                 }
@@ -495,6 +500,12 @@ static long edge_slot(const int64_t *set, long mask, int a, int b)
     return slot;
 }
 
+/* Is (a, b) half of an edge whole on one side: a the midpoint of (b, x) or (x, b)? */
+static bool half_of_whole(const int *midpoint_of, const unsigned char *whole, int a, int b)
+{
+    return midpoint_of[2 * a] >= 0 && whole[a] && (midpoint_of[2 * a] == b || midpoint_of[2 * a + 1] == b);
+}
+
 int patch_mesh_smooth_radiance(patch_mesh *m, const vec3 *radiance)
 {
     if (patch_mesh_vertex_radiance(m, radiance))
@@ -519,19 +530,32 @@ int patch_mesh_smooth_radiance(patch_mesh *m, const vec3 *radiance)
         }
     }
     /* A midpoint on a leaf's edge is a T-vertex: the leaf interpolates linearly
-     * along that edge, so the vertex takes the mean of the edge's ends (which
-     * were created first, so have lower numbers and are already settled). */
+     * along that edge, so the vertex takes the mean of the edge's ends.  So is
+     * a midpoint of half of such an edge (split again on the other side), and
+     * so on: an edge is "whole on one side" if a leaf has it or it is half of
+     * one that is.  A midpoint is made after its edge's ends, so in the order
+     * of the vertices every end is settled before the midpoints that use it. */
     for (int v = 0; v < m->vertex_count; v++)
         midpoint_of[2 * v] = midpoint_of[2 * v + 1] = -1;
-    for (int k = 0; k < m->midpoint_capacity; k++) {
-        const struct edge_entry *e = &m->midpoints[k];
-        if (e->a >= 0 && set[edge_slot(set, capacity - 1, e->a, e->b)] >= 0)
-            midpoint_of[2 * e->midpoint] = e->a, midpoint_of[2 * e->midpoint + 1] = e->b;
+    for (int k = 0; k < m->midpoint_capacity; k++)
+        if (m->midpoints[k].a >= 0)
+            midpoint_of[2 * m->midpoints[k].midpoint] = m->midpoints[k].a,
+                            midpoint_of[2 * m->midpoints[k].midpoint + 1] = m->midpoints[k].b;
+    unsigned char *whole = calloc((size_t)m->vertex_count + 1, 1); /* per midpoint: its edge is whole on one side */
+    if (!whole) {
+        free(set), free(midpoint_of);
+        return -1;
     }
-    for (int v = 0; v < m->vertex_count; v++)
-        if (midpoint_of[2 * v] >= 0)
-            m->vertex_radiance[v] =
-                v3_scale(v3_add(m->vertex_radiance[midpoint_of[2 * v]], m->vertex_radiance[midpoint_of[2 * v + 1]]), 0.5);
+    for (int v = 0; v < m->vertex_count; v++) {
+        int a = midpoint_of[2 * v], b = midpoint_of[2 * v + 1];
+        if (a < 0)
+            continue;
+        whole[v] = set[edge_slot(set, capacity - 1, a, b)] >= 0 || half_of_whole(midpoint_of, whole, a, b) ||
+                   half_of_whole(midpoint_of, whole, b, a);
+        if (whole[v])
+            m->vertex_radiance[v] = v3_scale(v3_add(m->vertex_radiance[a], m->vertex_radiance[b]), 0.5);
+    }
+    free(whole);
     free(set), free(midpoint_of);
     return 0;
 }
