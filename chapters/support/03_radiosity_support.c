@@ -97,7 +97,7 @@ const option RADIOSITY_OPTIONS[] = {
     {"--smooth", NULL, OPTION_FLAG, 0, .alias_of = "--shading smooth"},
     {"--formfactors", "FILE.csv", OPTION_STRING, OPTION_FIELD(formfactors_path),
      .help = "write the surface-to-surface form factors (from,to,F)"},
-    {"--eps", "E", OPTION_CUSTOM, 0, .parse = parse_eps, .default_text = "2e-3",
+    {"--eps", "E", OPTION_CUSTOM, 0, .parse = parse_eps, .default_text = "1e-2",
      .help = "hierarchical: link two elements when both form-factor estimates are below E, in (0, 1]"},
     {"--levels", "N", OPTION_CUSTOM, 0, .parse = parse_levels, .default_text = "8",
      .help = "hierarchical: split an element at most N times below its surface, 1..12"},
