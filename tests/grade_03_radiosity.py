@@ -579,6 +579,7 @@ quad right   wall  500 0 0    500 0 500  500 500 500  500 500 0
 quad back    wall  0 0 500    0 500 500  500 500 500  500 0 500
 quad front   wall  0 0 0      500 0 0    500 500 0    0 500 0
 sphere ball  wall  250 200 300  120
+probe under 250 0 300  0 1 0
 """
 
 
@@ -597,6 +598,10 @@ def test_spheres_meshed_carry_radiosity(ctx):
         assert 0.94 < ball["area"] / (4 * math.pi * 120 ** 2) <= 1.0, ball["area"]
         assert lo <= ball["radiance"][0] <= hi, f"{name}: ball {ball['radiance'][0]} not in [{lo}, {hi}]"
         assert lo <= img.at(12, 12)[0] <= hi and img.at(12, 12)[0] > 0.4, f"{name}: centre pixel {img.at(12, 12)}"
+        # The probe under the ball sees it in a cone of half-angle 37 degrees (36 % of E = pi L); the
+        # facets lie inside the sphere and cover some 4 % less of that cone than the ball hides.
+        E = probe(stats, "under")["irradiance"][0] / math.pi
+        assert 0.98 * lo <= E <= hi, f"{name}: probe under the ball E / pi = {E}, not in [{0.98 * lo}, {hi}]"
         vertices, faces = read_ply(ply)
         on_ball = [f for f in faces if all(abs(math.dist(vertices[k][:3], (250, 200, 300)) - 120) < 1e-3 for k in f)]
         assert len(on_ball) >= 32, f"{name}: {len(on_ball)} PLY faces on the sphere"
