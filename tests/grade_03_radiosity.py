@@ -566,6 +566,9 @@ def test_hierarchical_bad_eps_and_levels_exit_2(ctx):
     # 15 roots split 12 levels deep could make 2.5e8 elements: refused before allocating, naming the limit.
     line = check_exit_2(ctx, ["scenes/cornell.scene", "--solver", "hierarchical", "--levels", "12"])
     assert line.startswith("argv:5:") and "--levels 12" in line and "limit" in line, line
+    # The surface-to-surface table would need every patch-to-patch form factor: refused before any work.
+    line = check_exit_2(ctx, ["scenes/cornell.scene", "--solver", "hierarchical", "--formfactors", ctx.path("f.csv")])
+    assert "--formfactors" in line and not os.path.exists(ctx.path("f.csv")), line
 
 
 SPHERE_FURNACE = """\

@@ -218,6 +218,10 @@ int radiosity_mesh_scene(patch_mesh *m, const scene *s, const radiosity_options 
 {
     bool hierarchical = o->solver == SOLVER_HIERARCHICAL;
     double size = hierarchical && o->patch_size_argv == 0 ? INFINITY : o->patch_size; /* roots: whole surfaces */
+    if (hierarchical && o->formfactors_path) /* n^2 form factors between the leaves: what the hierarchy avoids */
+        return snprintf(err, err_size, "argv:0: --formfactors sums every patch-to-patch form factor; --solver "
+                                       "hierarchical keeps links instead: use another solver for the table"),
+               2;
     if (hierarchical && o->adaptive)
         warn_once(&warned_adaptive, "03_radiosity: --adaptive is ignored by --solver hierarchical, which refines "
                                     "by its own oracle (--eps, --levels)");
