@@ -8,8 +8,8 @@ Error against time: uniform Jacobi over patch sizes and --solver hierarchical ov
 RMSE against the main sweep's path-traced reference (OUT/tradeoff/cornell/reference.pfm),
 time = prepare_s + render_s from the chapter's --stats (median of REPEATS for runs < 2 s).
 And the hierarchy's link count against its element count: Hanrahan et al.'s claim is O(n)
-links for a fixed --eps; here --eps falls as the elements grow, so the slope of the fit
-says how links grow along the accuracy sweep.  Outputs (OUT/): tradeoff-hierarchical.csv,
+links for a fixed --eps: measured at --eps 0.02 with --levels 4..8 (the elements grow, the
+oracle stays), and along the accuracy sweep, where --eps falls as the elements grow.  Outputs (OUT/): tradeoff-hierarchical.csv,
 tradeoff-hierarchical-error.png/.svg, tradeoff-hierarchical-links.png/.svg and a summary
 printed on stdout.
 """
@@ -38,14 +38,18 @@ def main():
         sys.exit(f"hierarchical.py: {ref} is missing; run tradeoff/tradeoff.py first")
     points = [("uniform", "--patch-size", S) for S in ([200, 100] if quick else [200, 100, 71, 50, 35, 25])]
     points += [("hierarchical", "--eps", e) for e in ([0.1, 0.04] if quick else [0.1, 0.04, 0.02, 0.01, 0.005])]
+    # Links against elements at a fixed --eps: the elements grow with --levels (Hanrahan et al.'s O(n)).
+    points += [("fixed-eps", "--levels", n) for n in ([4, 5, 6] if quick else [4, 5, 6, 7, 8])]
     rows = []
     for method, option, value in points:
         name = f"hier-{method}-{value}"
         args = [os.path.join(ROOT, build, "03_radiosity"), "scenes/cornell.scene", "--quiet", "--size",
                 f"{size}x{size}", "--spp", str(aa_spp), "--ref", ref, "--out", os.path.join(work, name + ".pfm"),
                 "--stats", os.path.join(work, name + ".json"), option, str(value)]
-        if method == "hierarchical":
+        if method != "uniform":
             args += ["--solver", "hierarchical", "--quadrature", "2"]
+        if method == "fixed-eps":
+            args += ["--eps", "0.02"]
         times = []
         for k in range(repeats):
             subprocess.run(args, cwd=ROOT, check=True, stdout=subprocess.DEVNULL)
@@ -66,26 +70,30 @@ def main():
         w.writeheader()
         w.writerows(rows)
     data = {}
-    for method in ("uniform", "hierarchical"):
+    for method in ("uniform", "hierarchical", "fixed-eps"):
         path = os.path.join(work, f"hier-{method}.dat")
         with open(path, "w") as f:
             for r in rows:
                 if r["method"] == method:
                     f.write(f"{r['time_s']} {r['rmse']} {r['elements'] or r['patches']} {r['links'] or 0}\n")
         data[method] = path
-    hier = [r for r in rows if r["method"] == "hierarchical"]
-    xs, ys = [math.log(r["elements"]) for r in hier], [math.log(r["links"]) for r in hier]
-    mx, my = sum(xs) / len(xs), sum(ys) / len(ys)
-    slope = sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sum((x - mx) ** 2 for x in xs)
+    def slope_of(method):
+        pts = [r for r in rows if r["method"] == method]
+        xs, ys = [math.log(r["elements"]) for r in pts], [math.log(r["links"]) for r in pts]
+        mx, my = sum(xs) / len(xs), sum(ys) / len(ys)
+        return sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sum((x - mx) ** 2 for x in xs)
+
+    slope, sweep_slope = slope_of("fixed-eps"), slope_of("hierarchical")
     for term in ("png", "svg"):
         for kind in ("error", "links"):
             target = os.path.join(ROOT, out, f"tradeoff-hierarchical-{kind}.{term}")
             r = subprocess.run(["gnuplot", "-e", f"term='{term}'; out='{target}'; kind='{kind}'; "
                                 f"uniform='{data['uniform']}'; hierarchical='{data['hierarchical']}'; "
-                                f"slope={slope}", os.path.join(HERE, "hierarchical.gp")], capture_output=True, text=True)
+                                f"fixed='{data['fixed-eps']}'; slope={slope}; sweep_slope={sweep_slope}", os.path.join(HERE, "hierarchical.gp")], capture_output=True, text=True)
             if r.returncode:
                 sys.exit(f"gnuplot hierarchical.gp: {r.stderr.strip()}")
-    print(f"[hierarchical] links against elements: slope {slope:.2f} on log-log (1 = O(n)); wrote {csv_path} "
+    print(f"[hierarchical] links against elements: slope {slope:.2f} on log-log at --eps 0.02 over --levels "
+          f"(1 = O(n)), {sweep_slope:.2f} along the --eps sweep; wrote {csv_path} "
           f"and tradeoff-hierarchical-error/links.png/.svg", flush=True)
 
 
