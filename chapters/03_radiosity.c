@@ -485,7 +485,7 @@ int main(int argc, char **argv)
     const chapter radiosity = {
         .name = "03_radiosity",
         .description = "radiosity: patches, form factors (R10), L = E + KL solved by Jacobi (= Neumann series R6), "
-                       "Gauss-Seidel, shooting, or directly (R5); --out MESH.ply also writes the patch mesh",
+                       "Gauss-Seidel, shooting, directly (R5) or hierarchically; --out MESH.ply writes the patch mesh",
         .options = {{RADIOSITY_OPTIONS, &state.opt}},
         .default_spp = 1,
         .prepare = prepare,

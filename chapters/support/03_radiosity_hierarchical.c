@@ -6,7 +6,6 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "rng.h"
 
 /* Elements: at most 4 M (as the uniform mesh), and --levels is refused when
  * its worst case (every root split to the last level) passes 16 M; links:
@@ -51,7 +50,7 @@ typedef struct {
     int levels;
     int *receiver, *source; /* the links, in the order the oracle makes them */
     long count, capacity;
-    int failed; /* 1: out of memory, 2: over LINK_LIMIT */
+    int failed; /* 1: out of memory, 2: over LINK_LIMIT, 3: over ELEMENT_LIMIT */
 } refiner;
 
 /* The children of element e, splitting it first if it is a leaf; -1 when out of memory. */
