@@ -46,3 +46,66 @@ for size, solvers in ((50, ("jacobi", "gauss-seidel", "shooting")), (16, ("jacob
         print(f"{size:>10} {solver:>12} {s['patches']:>8} {s['formfactor_s']:>11.2f} s {s['solve_s']:>6.2f} s "
               f"{s['iterations']:>10} {s['residual']:>9.2g} {peak:>7.0f} MiB"
               f"{'   total %.1f s (target < 30 s)' % total if s['patches'] > 5000 else ''}")
+
+# ---- hierarchical radiosity (issue 17) ----------------------------------------------------------
+# Targets: the Cornell box with 1e5 leaf elements in under 60 s and 1 GiB on 2 cores; the error of
+# the uniform 9,063-patch solve (16 mm) reached in at most 1/5 of its time.  The error: each
+# surface's mean radiance against path tracing (--surface-samples), RMS of the relative error over
+# surfaces and channels (the light left out: its emission dominates).  Times are medians of
+# REPEATS runs (default 3); the machine's load average is printed with them.
+import math
+import statistics
+
+REPEATS = int(os.environ.get("REPEATS", "3"))
+
+
+def surface_error(stats, truth):
+    errors = [s["radiance"][c] / truth[s["name"]]["radiance"][c] - 1 for s in stats["surfaces"] if s["name"] != "light"
+              for c in range(3)]
+    return math.sqrt(sum(e * e for e in errors) / len(errors))
+
+
+def median_run(*args):
+    runs = [run(*args) for _ in range(REPEATS)]
+    times = [s["formfactor_s"] + s["solve_s"] for s, _ in runs]
+    return runs[0][0], statistics.median(times), max(peak for _, peak in runs), times
+
+
+def load():
+    return "load average %.1f %.1f %.1f" % os.getloadavg()
+
+
+with tempfile.TemporaryDirectory() as tmp:
+    stats_path = os.path.join(tmp, "pt.json")
+    result = subprocess.run([os.path.join(BUILD, "04_pathtrace"), "scenes/cornell.scene", "--quiet", "--size", "8x8",
+                             "--spp", "1", "--probe-samples", "32", "--surface-samples", str(1 << 19),
+                             "--out", os.path.join(tmp, "pt.pfm"), "--stats", stats_path], cwd=ROOT)
+    if result.returncode:
+        sys.exit("bench: 04_pathtrace failed")
+    with open(stats_path) as f:
+        truth = {s["name"]: s for s in json.load(f)["surfaces"]}
+
+print(f"\n== hierarchical against uniform, Cornell box, residual 1e-3, median of {REPEATS} ({load()}) ==")
+print(f"{'method':>28} {'patches':>8} {'elements':>9} {'links':>10} {'time':>8} {'peak RSS':>9} {'error':>7}")
+uniform, uniform_time, peak, _ = median_run("--patch-size", 16, "--tol", "1e-3")
+uniform_error = surface_error(uniform, truth)
+print(f"{'uniform 16 mm (jacobi)':>28} {uniform['patches']:>8} {'':>9} {'':>10} {uniform_time:>6.2f} s "
+      f"{peak:>5.0f} MiB {100 * uniform_error:>6.2f}%")
+reached = None
+for eps in (4e-2, 2e-2, 1e-2, 5e-3):
+    s, t, peak, times = median_run("--solver", "hierarchical", "--eps", eps, "--quadrature", 2, "--tol", "1e-3")
+    error = surface_error(s, truth)
+    note = ""
+    if s["patches"] >= 100000:
+        note = f"   1e5 leaves: {t:.1f} s (target < 60 s), {peak:.0f} MiB (target < 1024)"
+    if reached is None and error <= uniform_error:
+        reached = (eps, t)
+    print(f"{'hierarchical eps %g' % eps:>28} {s['patches']:>8} {s['elements']:>9} {s['links']:>10} {t:>6.2f} s "
+          f"{peak:>5.0f} MiB {100 * error:>6.2f}%{note}")
+if reached:
+    print(f"uniform 16 mm error {100 * uniform_error:.2f}% reached at eps {reached[0]:g} in {reached[1]:.1f} s = "
+          f"{reached[1] / uniform_time:.2f} of the uniform time (target <= 0.2)")
+else:
+    print(f"uniform 16 mm error {100 * uniform_error:.2f}% not reached by the hierarchical solves above "
+          f"(target: in <= 0.2 of {uniform_time:.1f} s): not met")
+print(load())

@@ -17,17 +17,17 @@
  * (progressive refinement) and the direct solve of (I - K) L = E (R5); then
  * prepare(), named steps like DoRad in Chen's rad.c (Graphics Gems II).
  *
+ * Hierarchical radiosity (--solver hierarchical: quadtrees, links by a
+ * refinement oracle, gather and push-pull) is lecture too, read next in
+ * chapters/support/03_radiosity_hierarchical.[ch] (this file is at its length limit).
  * Around the lecture, in helpers: the patch mesh, adaptive splitting, the
  * image lookup and the probes in common/patch_mesh.[ch]; the PLY mesh, the
  * form-factor table, per-surface stats in common/mesh_io.[ch]; Gaussian
- * elimination in common/dense_solve.[ch]; the options, the meshing steps
- * (limits, material model), the option table and the stats in
- * chapters/support/03_radiosity_support.[ch].
- *
- * Modelling choices (said once on stderr): one-sided patches (backs black);
- * spheres unmeshed (they block light, carry none); mirrors, glass and Phong
- * diffuse; background seen only by camera rays; point lights shoot once (R1).
- */
+ * elimination in common/dense_solve.[ch]; options, meshing steps, stats in
+ * chapters/support/03_radiosity_support.[ch].  Modelling choices (said once
+ * on stderr): one-sided patches (backs black); mirror and glass spheres
+ * unmeshed (they block light, carry none); mirrors, glass and Phong diffuse;
+ * background seen only by camera rays; point lights shoot once (R1). */
 #include <omp.h>
 #include <stdlib.h>
 #include <string.h>
@@ -35,6 +35,7 @@
 #include "dense_solve.h"
 #include "mesh_io.h"
 #include "patch_mesh.h"
+#include "support/03_radiosity_hierarchical.h"
 #include "support/03_radiosity_support.h"
 #include "render.h"
 
@@ -49,7 +50,8 @@ typedef struct {
     vec3 *first_shot;    /* light from point lights reflected once: part of term 1 of (R6) */
     vec3 *source;        /* Le + first_shot: the right-hand side E of (R4), and its size as power */
     double source_norm;
-    vec3 *radiance; /* L: the solution shown (the --bounces window) */
+    vec3 *radiance;      /* L: the solution shown (the --bounces window) */
+    hierarchy hierarchy; /* --solver hierarchical: elements and links (03_radiosity_hierarchical.h) */
     radiosity_stats stats;
 } radiosity_state;
 
@@ -94,15 +96,6 @@ static double point_to_polygon(vec3 x, vec3 n, const vec3 *polygon, int count)
     return fabs(sum) / (2.0 * M_PI);
 }
 
-/* Is a corner of p in front of the plane (origin, n)?  epsilon: rounding. */
-static bool any_corner_in_front(const patch *p, vec3 origin, vec3 n, double epsilon)
-{
-    for (int k = 0; k < p->corner_count; k++)
-        if (v3_dot(n, v3_sub(p->corner[k], origin)) > epsilon)
-            return true;
-    return false;
-}
-
 /* Pairs closer than this many radii get every quadrature point, others the centroid. */
 static const double NEAR_FACTOR = 6.0;
 
@@ -118,8 +111,8 @@ static double form_factor_estimate(const radiosity_state *st, const scene *s, in
     const patch_mesh *m = &st->mesh;
     const patch *pi = &m->patches[i], *pj = &m->patches[j];
     /* One-sided patches: j must be in front of i and i in front of j. */
-    if (!any_corner_in_front(pj, pi->centroid, pi->normal, s->epsilon) ||
-        !any_corner_in_front(pi, pj->centroid, pj->normal, s->epsilon))
+    if (!patch_in_front(pj, pi->centroid, pi->normal, s->epsilon) ||
+        !patch_in_front(pi, pj->centroid, pj->normal, s->epsilon))
         return 0.0;
     double distance = v3_length(v3_sub(pj->centroid, pi->centroid));
     if (distance > NEAR_FACTOR * (pi->radius + pj->radius)) {
@@ -350,6 +343,9 @@ static int solve_direct(radiosity_state *st, vec3 *L)
  * bounced once (part of K E).  Then F_ij (R10), unless the solver shoots. */
 static int compute_form_factors(radiosity_state *st, const scene *s, char *err, size_t err_size)
 {
+    if (st->opt.solver == SOLVER_HIERARCHICAL && /* hierarchical: links, not the matrix; the leaves are patches */
+        hierarchy_build(&st->hierarchy, &st->mesh, s, &st->opt, &st->stats, point_to_polygon, err, err_size))
+        return 2;
     int n = st->mesh.patch_count;
     if (radiosity_check_matrix_size(&st->opt, n, err, err_size))
         return 2;
@@ -362,7 +358,7 @@ static int compute_form_factors(radiosity_state *st, const scene *s, char *err, 
     st->stats.visibility_rays += patch_mesh_point_lights(&st->mesh, s, st->first_shot);
     for (int i = 0; i < n; i++)
         st->first_shot[i] = v3_mul(st->mesh.patches[i].albedo, v3_scale(st->first_shot[i], 1.0 / M_PI));
-    if (st->opt.solver != SOLVER_SHOOTING) { /* F_ij for every pair, row by row in parallel */
+    if (st->opt.solver < SOLVER_SHOOTING || st->opt.solver == SOLVER_DIRECT) { /* F_ij for every pair, in parallel */
         if (!(st->form_factors = malloc((size_t)n * (size_t)n * sizeof *st->form_factors + 1)))
             return snprintf(err, err_size, "argv:0: out of memory for the %d x %d form-factor matrix", n, n), 2;
         uint64_t rays = 0;
@@ -392,6 +388,9 @@ static int solve(radiosity_state *st, const scene *s, char *err, size_t err_size
     if (r->no_light) { /* nothing emits: L = 0 solves L = E + K L exactly */
         r->iterations = 0, r->converged = true;
         record_residual(r, 0.0);
+    } else if (st->opt.solver == SOLVER_HIERARCHICAL) { /* any --bounces window: its Neumann terms */
+        failed = hierarchy_solve(&st->hierarchy, &st->mesh, st->first_shot, st->bounce_min, st->bounce_max, &st->opt, r,
+                                 st->source_norm, st->radiance);
     } else if (st->opt.solver == SOLVER_JACOBI || st->bounce_max < RENDER_BOUNCES_UNLIMITED) {
         /* A window with an upper end is a finite sum of Neumann terms: computed
          * as such whatever the solver (the other solvers do not separate bounces). */
@@ -426,7 +425,7 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
         if (split < 0) /* --adaptive: patches split where the radiance jumps, back to 2 */
             return 2;
     }
-    if (patch_mesh_vertex_radiance(&st->mesh, st->radiance)) /* 4. the image lookup (smooth shading) */
+    if (patch_mesh_smooth_radiance(&st->mesh, st->radiance)) /* 4. the image lookup (smooth shading) */
         return snprintf(err, err_size, "argv:0: out of memory"), 2;
     if (write_surface_form_factors(st->opt.formfactors_path, s, &st->mesh, form_factor_at, st,
                                    &st->stats.visibility_rays, err, err_size)) /* --formfactors F.csv */
@@ -476,7 +475,7 @@ static void write_stats(const void *state_pointer, FILE *json)
 static void finish(void *state_pointer)
 {
     radiosity_state *st = state_pointer;
-    patch_mesh_free(&st->mesh);
+    patch_mesh_free(&st->mesh), hierarchy_free(&st->hierarchy);
     free(st->form_factors), free(st->first_shot), free(st->stats.history); /* first_shot holds source, radiance */
 }
 
@@ -486,7 +485,7 @@ int main(int argc, char **argv)
     const chapter radiosity = {
         .name = "03_radiosity",
         .description = "radiosity: patches, form factors (R10), L = E + KL solved by Jacobi (= Neumann series R6), "
-                       "Gauss-Seidel, shooting, or directly (R5); --out MESH.ply also writes the patch mesh",
+                       "Gauss-Seidel, shooting, directly (R5) or hierarchically; --out MESH.ply writes the patch mesh",
         .options = {{RADIOSITY_OPTIONS, &state.opt}},
         .default_spp = 1,
         .prepare = prepare,

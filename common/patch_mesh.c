@@ -11,7 +11,10 @@
 /* Point location on one surface: how the top-level grid of cells is laid out. */
 struct quad_grid {
     int first_cell; /* first top-level cell */
-    int nu, nv;     /* quads: nu x nv cells, cell (a, b) = first_cell + b * nu + a */
+    int nu, nv;     /* quads: nu x nv cells, cell (a, b) = first_cell + b * nu + a; spheres: longitude x latitude */
+    bool sphere;    /* a sphere cut along meridians and parallels: its cells' points are lifted onto it */
+    vec3 center;
+    double radius;
 };
 struct triangle_grid {
     int first_slot; /* into triangle_slots: 2 m^2 entries, (a, b, up/down) -> cell or -1 */
@@ -164,16 +167,63 @@ static int mesh_triangle(patch_mesh *mesh, int surface_index, int triangle_index
     return status;
 }
 
-double patch_mesh_estimate(const scene *s, double patch_size)
+/* The point of a sphere at polar angle theta (from +y) and azimuth phi. */
+static vec3 sphere_point(vec3 center, double radius, double theta, double phi)
+{
+    return v3_add(center, v3_scale(v3(sin(theta) * cos(phi), cos(theta), sin(theta) * sin(phi)), radius));
+}
+
+/* A sphere cut along nu meridians and nv parallels (latitude-longitude):
+ * band b, column a is the cell first_cell + b * nu + a, a quad between two
+ * parallels (an isosceles trapezoid, so planar) or a triangle at a pole.
+ * The cells are flat facets inside the sphere; their points are lifted onto
+ * it (patch_mesh_cell_geometry).  Counter-clockwise seen from outside. */
+static int mesh_sphere(patch_mesh *m, const surface *surf, int surface_index, double patch_size)
+{
+    int nu = cells_along(2.0 * M_PI * surf->radius, patch_size), nv = cells_along(M_PI * surf->radius, patch_size);
+    nu = nu < 8 ? 8 : nu, nv = nv < 4 ? 4 : nv;
+    int top = add_vertex(m, sphere_point(surf->center, surf->radius, 0.0, 0.0)), first_ring = m->vertex_count;
+    for (int b = 1; b < nv && top >= 0; b++)
+        for (int a = 0; a < nu; a++)
+            if (add_vertex(m, sphere_point(surf->center, surf->radius, M_PI * b / nv, 2.0 * M_PI * a / nu)) < 0)
+                return -1;
+    int bottom = add_vertex(m, sphere_point(surf->center, surf->radius, M_PI, 0.0));
+    if (top < 0 || bottom < 0)
+        return -1;
+    m->quad_grids[surface_index] = (struct quad_grid){.first_cell = m->cell_count,
+                                                      .nu = nu,
+                                                      .nv = nv,
+                                                      .sphere = true,
+                                                      .center = surf->center,
+                                                      .radius = surf->radius};
+    for (int b = 0; b < nv; b++)
+        for (int a = 0; a < nu; a++) {
+            int ring = first_ring + (b - 1) * nu, next = first_ring + b * nu, a1 = (a + 1) % nu;
+            int v[4], count = 0; /* seen from outside: east along the upper parallel, then south, west */
+            v[count++] = b == 0 ? top : ring + a;
+            if (b > 0)
+                v[count++] = ring + a1;
+            if (b < nv - 1)
+                v[count++] = next + a1;
+            v[count++] = b == nv - 1 ? bottom : next + a;
+            if (add_cell(m, surface_index, v, count) < 0)
+                return -1;
+        }
+    return 0;
+}
+
+double patch_mesh_estimate(const scene *s, double patch_size, const bool *mesh_spheres)
 {
     double estimate = 0.0;
     for (int i = 0; i < s->surface_count; i++)
         if (s->surfaces[i].kind != SURFACE_SPHERE)
             estimate += s->surfaces[i].area / (patch_size * patch_size) + s->surfaces[i].triangle_count;
+        else if (mesh_spheres && mesh_spheres[i])
+            estimate += s->surfaces[i].area / (patch_size * patch_size) + 72.0;
     return estimate;
 }
 
-int patch_mesh_build(patch_mesh *m, const scene *s, double patch_size)
+int patch_mesh_build(patch_mesh *m, const scene *s, double patch_size, const bool *mesh_spheres)
 {
     m->quad_grids = calloc((size_t)s->surface_count + 1, sizeof *m->quad_grids);
     m->triangle_grids = calloc((size_t)s->triangle_count + 1, sizeof *m->triangle_grids);
@@ -185,13 +235,27 @@ int patch_mesh_build(patch_mesh *m, const scene *s, double patch_size)
         if (surf->kind == SURFACE_QUAD) {
             if (mesh_quad(m, s, i, patch_size))
                 return -1;
-        } else if (surf->kind != SURFACE_SPHERE) {
+        } else if (surf->kind == SURFACE_SPHERE) {
+            if (mesh_spheres && mesh_spheres[i] && mesh_sphere(m, surf, i, patch_size))
+                return -1;
+        } else {
             for (int t = surf->first_triangle; t < surf->first_triangle + surf->triangle_count; t++)
                 if (mesh_triangle(m, i, t, &s->triangles[t], patch_size))
                     return -1;
         }
     }
     return 0;
+}
+
+/* A point of a cell on its surface: itself on a flat one, lifted along the
+ * radius onto a sphere (the facet lies inside it, where rays would start
+ * inside the sphere). */
+vec3 patch_mesh_on_surface(const patch_mesh *m, int surface, vec3 p)
+{
+    const struct quad_grid *g = &m->quad_grids[surface];
+    if (!g->sphere)
+        return p;
+    return v3_add(g->center, v3_scale(v3_normalize(v3_sub(p, g->center)), g->radius));
 }
 
 /* ---- refinement ----------------------------------------------------------------------- */
@@ -247,15 +311,17 @@ static int split_cell(patch_mesh *m, int cell_index)
 {
     mesh_cell c = m->cells[cell_index];
     int mid[4];
-    for (int k = 0; k < c.vertex_count; k++)
+    for (int k = 0; k < c.vertex_count; k++) {
         if ((mid[k] = edge_midpoint(m, c.vertex[k], c.vertex[(k + 1) % c.vertex_count])) < 0)
             return -1;
+        m->vertices[mid[k]] = patch_mesh_on_surface(m, c.surface, m->vertices[mid[k]]); /* spheres: onto it */
+    }
     int first = m->cell_count;
     if (c.vertex_count == 4) {
         vec3 centre = v3_splat(0.0);
         for (int k = 0; k < 4; k++)
             centre = v3_add(centre, v3_scale(m->vertices[c.vertex[k]], 0.25));
-        int middle = add_vertex(m, centre);
+        int middle = add_vertex(m, patch_mesh_on_surface(m, c.surface, centre));
         if (middle < 0)
             return -1;
         int children[4][4] = {{c.vertex[0], mid[0], middle, mid[3]},
@@ -276,6 +342,13 @@ static int split_cell(patch_mesh *m, int cell_index)
     }
     m->cells[cell_index].first_child = first;
     return 0;
+}
+
+int patch_mesh_split(patch_mesh *m, int cell)
+{
+    if (split_cell(m, cell))
+        return -1;
+    return m->cells[cell].first_child;
 }
 
 int patch_mesh_refine(patch_mesh *m, const vec3 *radiance, double relative_threshold)
@@ -326,12 +399,42 @@ static int add_quadrature_points(patch_mesh *m, patch *p, int M)
                     if (grow((void **)&m->points, &m->point_capacity, m->point_count + 1, sizeof *m->points) ||
                         grow((void **)&m->weights, &m->weight_capacity, m->point_count + 1, sizeof *m->weights))
                         return -1;
-                    m->points[m->point_count] = v3_add(a, v3_add(v3_scale(e1, u), v3_scale(e2, v)));
+                    m->points[m->point_count] =
+                        patch_mesh_on_surface(m, p->surface, v3_add(a, v3_add(v3_scale(e1, u), v3_scale(e2, v))));
                     m->weights[m->point_count++] = weight;
                     p->point_count++;
                 }
     }
     return 0;
+}
+
+bool patch_in_front(const patch *p, vec3 origin, vec3 n, double epsilon)
+{
+    for (int k = 0; k < p->corner_count; k++)
+        if (v3_dot(n, v3_sub(p->corner[k], origin)) > epsilon)
+            return true;
+    return false;
+}
+
+void patch_mesh_cell_geometry(const patch_mesh *m, int c, patch *p)
+{
+    const mesh_cell *cell = &m->cells[c];
+    *p = (patch){.cell = c, .surface = cell->surface, .corner_count = cell->vertex_count};
+    for (int k = 0; k < cell->vertex_count; k++)
+        p->corner[k] = m->vertices[cell->vertex[k]];
+    vec3 twice_area = v3_splat(0.0), centroid = v3_splat(0.0);
+    for (int t = 1; t + 1 < p->corner_count; t++) {
+        vec3 cross = v3_cross(v3_sub(p->corner[t], p->corner[0]), v3_sub(p->corner[t + 1], p->corner[0]));
+        double area = 0.5 * v3_length(cross);
+        twice_area = v3_add(twice_area, cross);
+        p->area += area;
+        centroid = v3_add(centroid, v3_scale(v3_add(p->corner[0], v3_add(p->corner[t], p->corner[t + 1])), area / 3.0));
+    }
+    p->normal = v3_normalize(twice_area);
+    p->centroid = v3_scale(centroid, 1.0 / p->area);
+    for (int k = 0; k < p->corner_count; k++)
+        p->radius = fmax(p->radius, v3_length(v3_sub(p->corner[k], p->centroid)));
+    p->centroid = patch_mesh_on_surface(m, p->surface, p->centroid);
 }
 
 int patch_mesh_collect(patch_mesh *m, int quadrature)
@@ -352,22 +455,7 @@ int patch_mesh_collect(patch_mesh *m, int quadrature)
         if (cell->first_child >= 0)
             continue;
         patch *p = &m->patches[m->patch_count];
-        *p = (patch){.cell = c, .surface = cell->surface, .corner_count = cell->vertex_count};
-        for (int k = 0; k < cell->vertex_count; k++)
-            p->corner[k] = m->vertices[cell->vertex[k]];
-        vec3 twice_area = v3_splat(0.0), centroid = v3_splat(0.0);
-        for (int t = 1; t + 1 < p->corner_count; t++) {
-            vec3 cross = v3_cross(v3_sub(p->corner[t], p->corner[0]), v3_sub(p->corner[t + 1], p->corner[0]));
-            double area = 0.5 * v3_length(cross);
-            twice_area = v3_add(twice_area, cross);
-            p->area += area;
-            centroid =
-                v3_add(centroid, v3_scale(v3_add(p->corner[0], v3_add(p->corner[t], p->corner[t + 1])), area / 3.0));
-        }
-        p->normal = v3_normalize(twice_area);
-        p->centroid = v3_scale(centroid, 1.0 / p->area);
-        for (int k = 0; k < p->corner_count; k++)
-            p->radius = fmax(p->radius, v3_length(v3_sub(p->corner[k], p->centroid)));
+        patch_mesh_cell_geometry(m, c, p);
         if (add_quadrature_points(m, p, quadrature))
             return -1;
         cell->patch = m->patch_count++;
@@ -401,6 +489,77 @@ int patch_mesh_vertex_radiance(patch_mesh *m, const vec3 *radiance)
     return 0;
 }
 
+/* Is edge (a, b) an edge of a leaf cell?  An open-addressing set of the
+ * leaves' edges, both ends in ascending order. */
+static long edge_slot(const int64_t *set, long mask, int a, int b)
+{
+    int64_t key = ((int64_t)(a < b ? a : b) << 32) | (int64_t)(a < b ? b : a);
+    long slot = (long)(hash64((uint64_t)key) & (uint64_t)mask);
+    while (set[slot] >= 0 && set[slot] != key)
+        slot = (slot + 1) & mask;
+    return slot;
+}
+
+/* Is (a, b) half of an edge whole on one side: a the midpoint of (b, x) or (x, b)? */
+static bool half_of_whole(const int *midpoint_of, const unsigned char *whole, int a, int b)
+{
+    return midpoint_of[2 * a] >= 0 && whole[a] && (midpoint_of[2 * a] == b || midpoint_of[2 * a + 1] == b);
+}
+
+int patch_mesh_smooth_radiance(patch_mesh *m, const vec3 *radiance)
+{
+    if (patch_mesh_vertex_radiance(m, radiance))
+        return -1;
+    if (m->midpoint_count == 0)
+        return 0; /* never split: no vertex lies inside an edge */
+    long capacity = 1;
+    while (capacity < 8L * m->patch_count + 16)
+        capacity *= 2;
+    int64_t *set = malloc((size_t)capacity * sizeof *set);
+    int *midpoint_of = malloc((size_t)m->vertex_count * 2 * sizeof *midpoint_of + 1);
+    if (!set || !midpoint_of) {
+        free(set), free(midpoint_of);
+        return -1;
+    }
+    memset(set, 0xff, (size_t)capacity * sizeof *set);
+    for (int p = 0; p < m->patch_count; p++) {
+        const mesh_cell *c = &m->cells[m->patches[p].cell];
+        for (int k = 0; k < c->vertex_count; k++) {
+            int a = c->vertex[k], b = c->vertex[(k + 1) % c->vertex_count];
+            set[edge_slot(set, capacity - 1, a, b)] = ((int64_t)(a < b ? a : b) << 32) | (int64_t)(a < b ? b : a);
+        }
+    }
+    /* A midpoint on a leaf's edge is a T-vertex: the leaf interpolates linearly
+     * along that edge, so the vertex takes the mean of the edge's ends.  So is
+     * a midpoint of half of such an edge (split again on the other side), and
+     * so on: an edge is "whole on one side" if a leaf has it or it is half of
+     * one that is.  A midpoint is made after its edge's ends, so in the order
+     * of the vertices every end is settled before the midpoints that use it. */
+    for (int v = 0; v < m->vertex_count; v++)
+        midpoint_of[2 * v] = midpoint_of[2 * v + 1] = -1;
+    for (int k = 0; k < m->midpoint_capacity; k++)
+        if (m->midpoints[k].a >= 0)
+            midpoint_of[2 * m->midpoints[k].midpoint] = m->midpoints[k].a,
+                            midpoint_of[2 * m->midpoints[k].midpoint + 1] = m->midpoints[k].b;
+    unsigned char *whole = calloc((size_t)m->vertex_count + 1, 1); /* per midpoint: its edge is whole on one side */
+    if (!whole) {
+        free(set), free(midpoint_of);
+        return -1;
+    }
+    for (int v = 0; v < m->vertex_count; v++) {
+        int a = midpoint_of[2 * v], b = midpoint_of[2 * v + 1];
+        if (a < 0)
+            continue;
+        whole[v] = set[edge_slot(set, capacity - 1, a, b)] >= 0 || half_of_whole(midpoint_of, whole, a, b) ||
+                   half_of_whole(midpoint_of, whole, b, a);
+        if (whole[v])
+            m->vertex_radiance[v] = v3_scale(v3_add(m->vertex_radiance[a], m->vertex_radiance[b]), 0.5);
+    }
+    free(whole);
+    free(set), free(midpoint_of);
+    return 0;
+}
+
 /* Is p inside the convex cell (in its plane)?  The signed areas of p with
  * every edge must agree with the normal. */
 static bool cell_contains(const patch_mesh *m, const mesh_cell *c, vec3 normal, vec3 p)
@@ -423,6 +582,13 @@ int patch_mesh_locate(const patch_mesh *m, const scene *s, const hit *h)
         double u, v;
         inverse_bilinear(surf->vertex, s->triangles[surf->first_triangle].normal, h->point, &u, &v);
         int a = (int)fmin(g->nu - 1, u * g->nu), b = (int)fmin(g->nv - 1, v * g->nv);
+        cell = g->first_cell + b * g->nu + a;
+    } else if (surf->kind == SURFACE_SPHERE) { /* latitude and longitude of the hit */
+        const struct quad_grid *g = &m->quad_grids[h->surface];
+        vec3 d = v3_normalize(v3_sub(h->point, g->center));
+        double theta = acos(fmin(1.0, fmax(-1.0, d.y))), phi = atan2(d.z, d.x);
+        phi = phi < 0.0 ? phi + 2.0 * M_PI : phi;
+        int a = (int)fmin(g->nu - 1, phi / (2.0 * M_PI) * g->nu), b = (int)fmin(g->nv - 1, theta / M_PI * g->nv);
         cell = g->first_cell + b * g->nu + a;
     } else {
         const triangle *t = &s->triangles[h->primitive];
@@ -474,8 +640,8 @@ vec3 patch_mesh_seen(const patch_mesh *m, const scene *s, ray r, const vec3 *rad
     hit h;
     if (!scene_intersect(s, r, INFINITY, &h))
         return s->background;
-    if (s->surfaces[h.surface].kind == SURFACE_SPHERE || !radiance)
-        return v3_splat(0.0);
+    if ((s->surfaces[h.surface].kind == SURFACE_SPHERE && m->quad_grids[h.surface].first_cell < 0) || !radiance)
+        return v3_splat(0.0); /* an unmeshed sphere */
     if (v3_dot(h.normal, r.direction) >= 0.0) {
         *back = true;
         return v3_splat(0.0);

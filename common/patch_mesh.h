@@ -7,15 +7,18 @@
  *
  *   - meshing: each quad of the scene becomes a grid of cells (the bilinear
  *     map of the quad cut into u, v squares), each triangle m^2 similar
- *     triangles, every cell at most about patch_size across; spheres are not
- *     meshed;
+ *     triangles, every cell at most about patch_size across; the spheres the
+ *     caller asks for cut along meridians and parallels (flat facets whose
+ *     points are lifted onto the sphere), the others not meshed;
  *   - refinement: a leaf cell splits into four at its edge midpoints (an
  *     edge hash shares each midpoint with the neighbour across the edge);
  *   - patches: the leaves, numbered, with their geometry and quadrature
  *     points (M^2 sub-triangle centroids per triangle of the patch);
  *   - lookup: the leaf cell under a hit point (inverse bilinear map by
  *     Newton's method, then down the refinement tree), and smooth shading:
- *     per-vertex radiance interpolated over the cell.
+ *     per-vertex radiance interpolated over the cell, with the vertices that
+ *     lie inside a neighbour's edge (T-vertices) anchored to that edge so the
+ *     shading has no step there.
  */
 #ifndef COMMON_PATCH_MESH_H
 #define COMMON_PATCH_MESH_H
@@ -74,11 +77,30 @@ typedef struct patch_mesh {
 
 /* About how many top-level cells patch_mesh_build() would make (to refuse
  * a tiny patch size before running out of memory). */
-double patch_mesh_estimate(const scene *s, double patch_size);
+double patch_mesh_estimate(const scene *s, double patch_size, const bool *mesh_spheres);
 
-/* The top-level cells of every quad and triangle surface (spheres are
- * skipped).  All functions returning int give 0, or -1 when out of memory. */
-int patch_mesh_build(patch_mesh *m, const scene *s, double patch_size);
+/* The top-level cells of every quad and triangle surface, and of the
+ * spheres i with mesh_spheres[i] (NULL: none; at least 8 x 4 cells each; the
+ * vertices that splitting adds are put on the sphere, so refined cells
+ * follow it).
+ * All functions returning int give 0, or -1 when out of memory. */
+int patch_mesh_build(patch_mesh *m, const scene *s, double patch_size, const bool *mesh_spheres);
+
+/* Split a leaf cell into four (the children share the edge midpoints with
+ * the neighbours).  Returns the index of its first child, or -1.  The cells
+ * array may move: hold indices, not pointers, across calls. */
+int patch_mesh_split(patch_mesh *m, int cell);
+
+/* A point of one of the mesh's cells put on its surface: itself on a flat
+ * surface, lifted along the radius onto a sphere. */
+vec3 patch_mesh_on_surface(const patch_mesh *m, int surface, vec3 p);
+
+/* Is a corner of p in front of the plane (origin, n)?  epsilon: rounding. */
+bool patch_in_front(const patch *p, vec3 origin, vec3 n, double epsilon);
+
+/* A cell's geometry as a patch (corners, normal, area, centroid, radius;
+ * no quadrature points): on a sphere the centroid is lifted onto it. */
+void patch_mesh_cell_geometry(const patch_mesh *m, int cell, patch *p);
 
 /* Number the leaves as patches and fill in their geometry and their
  * quadrature points (M x M sub-triangles per triangle of the patch). */
@@ -98,6 +120,12 @@ int patch_mesh_refine(patch_mesh *m, const vec3 *radiance, double threshold);
  * patches around each vertex, on the same surface only. */
 int patch_mesh_vertex_radiance(patch_mesh *m, const vec3 *radiance);
 
+/* The same, then every T-vertex (the midpoint of an edge that a leaf still
+ * has whole, split only on the other side) set to the mean of that edge's
+ * ends: the leaf interpolates linearly along the edge, so do the smaller
+ * cells across it, and the smooth shading is continuous (no crack). */
+int patch_mesh_smooth_radiance(patch_mesh *m, const vec3 *radiance);
+
 /* The leaf cell under a hit on a meshed surface. */
 int patch_mesh_locate(const patch_mesh *m, const scene *s, const hit *h);
 
@@ -105,8 +133,8 @@ int patch_mesh_locate(const patch_mesh *m, const scene *s, const hit *h);
  * (bilinear on quads, barycentric on triangles). */
 vec3 patch_mesh_interpolate(const patch_mesh *m, int cell, vec3 normal, vec3 p);
 
-/* What a camera ray sees: the background when it escapes, black on a
- * sphere, on the back of a surface (*back set) or before a solution, else
+/* What a camera ray sees: the background when it escapes, black on an
+ * unmeshed sphere, on the back of a surface (*back set) or before a solution, else
  * radiance[patch] under the hit, or with smooth the interpolated vertex
  * radiance. */
 vec3 patch_mesh_seen(const patch_mesh *m, const scene *s, ray r, const vec3 *radiance, bool smooth, bool *back);

@@ -17,3 +17,4 @@ QUICK ?=
 tradeoff: deps-tradeoff
 	$(MAKE) --no-print-directory all
 	QUICK=$(QUICK) BUILD=$(BUILD) $(PYTHON) tradeoff/tradeoff.py
+	QUICK=$(QUICK) BUILD=$(BUILD) $(PYTHON) tradeoff/hierarchical.py  # radiosity: hierarchical against uniform

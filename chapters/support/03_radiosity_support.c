@@ -9,7 +9,7 @@
 #include "mesh_io.h"
 #include "render.h"
 
-const char *const solver_names[4] = {"jacobi", "gauss-seidel", "shooting", "direct"};
+const char *const solver_names[5] = {"jacobi", "gauss-seidel", "shooting", "direct", "hierarchical"};
 
 /* --patch-size: a positive length; where it was given is kept for the
  * message when it makes too many patches. */
@@ -43,6 +43,33 @@ static int parse_adaptive_levels(void *state, const char *value, int argv_index,
     return 0;
 }
 
+/* --eps: a form factor in (0, 1]; --levels: 1..12; where each was given is kept for messages. */
+static int parse_eps(void *state, const char *value, int argv_index, char *why, size_t why_size)
+{
+    radiosity_options *o = state;
+    char *end;
+    double eps = strtod(value, &end);
+    if (end == value || *end || !isfinite(eps) || !(eps > 0.0) || eps > 1.0) {
+        snprintf(why, why_size, "wants a form factor in (0, 1], not '%s'", value);
+        return 2;
+    }
+    o->eps = eps, o->eps_argv = argv_index > 0 ? argv_index : 0;
+    return 0;
+}
+
+static int parse_levels(void *state, const char *value, int argv_index, char *why, size_t why_size)
+{
+    radiosity_options *o = state;
+    char *end;
+    long levels = strtol(value, &end, 10);
+    if (end == value || *end || levels < 1 || levels > 12) {
+        snprintf(why, why_size, "wants a whole number in [1, 12], not '%s'", value);
+        return 2;
+    }
+    o->levels = (int)levels, o->levels_argv = argv_index > 0 ? argv_index : 0;
+    return 0;
+}
+
 #define OPTION_FIELD(field) offsetof(radiosity_options, field)
 const option RADIOSITY_OPTIONS[] = {
     {"--patch-size", "S", OPTION_CUSTOM, 0, .parse = parse_patch_size, .default_text = "50",
@@ -53,7 +80,7 @@ const option RADIOSITY_OPTIONS[] = {
      .help = "refinement rounds, 1..8, each splitting patches in four; implies --adaptive"},
     {"--adaptive-threshold", "T", OPTION_DOUBLE, OPTION_FIELD(adaptive_threshold), .min = 1e-6, .max = 1e6,
      .default_text = "0.1", .help = "split where a patch and the mean of its corners differ by T x the mean radiance"},
-    {"--solver", NULL, OPTION_CHOICE, OPTION_FIELD(solver), .choices = "jacobi|gauss-seidel|shooting|direct",
+    {"--solver", NULL, OPTION_CHOICE, OPTION_FIELD(solver), .choices = "jacobi|gauss-seidel|shooting|direct|hierarchical",
      .default_text = "jacobi", .help = "how L = E + KL is solved"},
     {"--tol", "T", OPTION_DOUBLE, OPTION_FIELD(tolerance), .min = 0.0, .max = 1.0, .default_text = "1e-4",
      .help = "stop when the residual falls below T (a fraction of the source power)"},
@@ -70,6 +97,10 @@ const option RADIOSITY_OPTIONS[] = {
     {"--smooth", NULL, OPTION_FLAG, 0, .alias_of = "--shading smooth"},
     {"--formfactors", "FILE.csv", OPTION_STRING, OPTION_FIELD(formfactors_path),
      .help = "write the surface-to-surface form factors (from,to,F)"},
+    {"--eps", "E", OPTION_CUSTOM, 0, .parse = parse_eps, .default_text = "1e-2",
+     .help = "hierarchical: link two elements when both form-factor estimates are below E, in (0, 1]"},
+    {"--levels", "N", OPTION_CUSTOM, 0, .parse = parse_levels, .default_text = "8",
+     .help = "hierarchical: split an element at most N times below its surface, 1..12"},
     {0},
 };
 #undef OPTION_FIELD
@@ -110,12 +141,18 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
     json_field_number(json, "solve_s", r->solve_s);
     fprintf(json, ",\n  \"visibility_rays\": %llu,\n  \"reciprocity\": \"%s\"", (unsigned long long)r->visibility_rays,
             o->enforce_reciprocity ? "enforce" : "check");
-    if (r->have_matrix_checks) {
-        json_field_number(json, "reciprocity_error", r->reciprocity_error);
+    if (r->have_matrix_checks) { /* hierarchical: each leaf's links and its ancestors' */
+        if (o->solver != SOLVER_HIERARCHICAL)
+            json_field_number(json, "reciprocity_error", r->reciprocity_error);
         json_field_number(json, "row_sum_min", r->row_sum_min);
         json_field_number(json, "row_sum_max", r->row_sum_max);
     }
     fprintf(json, ",\n  \"matrix_bytes\": %.0f", have_matrix ? (double)patches * patches * 4.0 : 0.0);
+    if (o->solver == SOLVER_HIERARCHICAL) {
+        fprintf(json, ",\n  \"elements\": %ld,\n  \"links\": %ld,\n  \"levels\": %d", r->elements, r->links, r->levels);
+        json_field_number(json, "eps", o->eps);
+        json_field_number(json, "hierarchy_bytes", r->hierarchy_bytes);
+    }
     json_surface_radiance(json, s, m, radiance);
 }
 
@@ -129,6 +166,9 @@ void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int 
                 "warning: 03_radiosity: %s stopped at the iteration cap (%d iterations) with residual %.3g "
                 "above --tol %.3g; raise --iterations\n",
                 r->solver_used, r->iterations, r->residual, o->tolerance);
+    if (!quiet && o->solver == SOLVER_HIERARCHICAL)
+        fprintf(stderr, "03_radiosity: hierarchy of %ld elements, %ld links, %d levels, %.1f MiB\n", r->elements,
+                r->links, r->levels, r->hierarchy_bytes / 1048576.0);
     if (!quiet)
         fprintf(stderr, "03_radiosity: %d patches, form factors %.2f s, %s %d iterations %.2f s, residual %.3g\n",
                 patches, r->formfactor_s, r->solver_used, r->iterations, r->solve_s, r->residual);
@@ -147,7 +187,7 @@ static int check_mesh_size(const radiosity_options *o, double cells, char *err, 
 
 int radiosity_check_matrix_size(const radiosity_options *o, int n, char *err, size_t err_size)
 {
-    if (o->solver == SOLVER_SHOOTING || n <= o->max_patches)
+    if (o->solver == SOLVER_SHOOTING || o->solver == SOLVER_HIERARCHICAL || n <= o->max_patches)
         return 0;
     snprintf(err, err_size,
              "argv:0: %d patches need a %d x %d matrix (%.2f GiB as doubles), over the limit "
@@ -156,21 +196,54 @@ int radiosity_check_matrix_size(const radiosity_options *o, int n, char *err, si
     return 2;
 }
 
-static int warned_specular, warned_phong, warned_spheres;
+static int warned_specular, warned_phong, warned_spheres, warned_adaptive;
+
+/* Spheres are meshed unless mirror or glass (radiosity cannot carry their light: they only block it). */
+static bool *spheres_to_mesh(const scene *s)
+{
+    bool *mesh = calloc((size_t)s->surface_count + 1, sizeof *mesh);
+    for (int i = 0; mesh && i < s->surface_count; i++) {
+        const material *m = &s->materials[s->surfaces[i].material];
+        if (s->surfaces[i].kind != SURFACE_SPHERE)
+            continue;
+        mesh[i] = m->kind != MATERIAL_MIRROR && m->kind != MATERIAL_GLASS;
+        if (!mesh[i])
+            warn_once(&warned_spheres, "03_radiosity: mirror and glass spheres are not meshed into patches; they "
+                                       "block light but carry no radiance (black in the image)");
+    }
+    return mesh;
+}
 
 int radiosity_mesh_scene(patch_mesh *m, const scene *s, const radiosity_options *o, char *err, size_t err_size)
 {
-    if (check_mesh_size(o, patch_mesh_estimate(s, o->patch_size), err, err_size))
-        return 2;
-    for (int i = 0; i < s->surface_count; i++)
-        if (s->surfaces[i].kind == SURFACE_SPHERE)
-            warn_once(&warned_spheres, "03_radiosity: spheres are not meshed into patches; they block light "
-                                       "but carry no radiance (black in the image)");
-    if (patch_mesh_build(m, s, o->patch_size)) {
+    bool hierarchical = o->solver == SOLVER_HIERARCHICAL;
+    double size = hierarchical && o->patch_size_argv == 0 ? INFINITY : o->patch_size; /* roots: whole surfaces */
+    if (hierarchical && o->formfactors_path) /* n^2 form factors between the leaves: what the hierarchy avoids */
+        return snprintf(err, err_size, "argv:0: --formfactors sums every patch-to-patch form factor; --solver "
+                                       "hierarchical keeps links instead: use another solver for the table"),
+               2;
+    if (hierarchical && o->adaptive)
+        warn_once(&warned_adaptive, "03_radiosity: --adaptive is ignored by --solver hierarchical, which refines "
+                                    "by its own oracle (--eps, --levels)");
+    bool *spheres = spheres_to_mesh(s);
+    if (!spheres || check_mesh_size(o, patch_mesh_estimate(s, size, spheres), err, err_size)) {
+        free(spheres);
+        return spheres ? 2 : (snprintf(err, err_size, "argv:0: out of memory while meshing"), 2);
+    }
+    int failed = patch_mesh_build(m, s, size, spheres);
+    free(spheres);
+    if (failed) {
         snprintf(err, err_size, "argv:0: out of memory while meshing");
         return 2;
     }
-    return radiosity_collect_patches(m, s, o, err, err_size);
+    return hierarchical ? 0 : radiosity_collect_patches(m, s, o, err, err_size);
+}
+
+void radiosity_material(const scene *s, int surface, vec3 *albedo, vec3 *emission)
+{
+    const material *m = &s->materials[s->surfaces[surface].material];
+    *albedo = m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS ? m->specular : m->albedo;
+    *emission = m->kind == MATERIAL_EMITTER ? m->emission : v3_splat(0.0);
 }
 
 int radiosity_collect_patches(patch_mesh *mesh, const scene *s, const radiosity_options *o, char *err, size_t err_size)
@@ -182,15 +255,12 @@ int radiosity_collect_patches(patch_mesh *mesh, const scene *s, const radiosity_
     for (int i = 0; i < mesh->patch_count; i++) {
         patch *p = &mesh->patches[i];
         const material *m = &s->materials[s->surfaces[p->surface].material];
-        p->albedo = m->albedo;
-        p->emission = m->kind == MATERIAL_EMITTER ? m->emission : v3_splat(0.0);
-        if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS) {
+        radiosity_material(s, p->surface, &p->albedo, &p->emission);
+        if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS)
             warn_once(&warned_specular, "03_radiosity: radiosity models diffuse reflection only; mirrors and glass "
                                         "are treated as diffuse surfaces with their colour as albedo");
-            p->albedo = m->specular;
-        } else if (m->kind == MATERIAL_PHONG) {
+        else if (m->kind == MATERIAL_PHONG)
             warn_once(&warned_phong, "03_radiosity: Phong surfaces are treated as diffuse with albedo kd (ks dropped)");
-        }
     }
     return 0;
 }
@@ -198,7 +268,7 @@ int radiosity_collect_patches(patch_mesh *mesh, const scene *s, const radiosity_
 int radiosity_refine(patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *r,
                      const vec3 *radiance, bool quiet, char *err, size_t err_size)
 {
-    if (!o->adaptive || r->refinements == o->adaptive_levels || r->no_light)
+    if (!o->adaptive || o->solver == SOLVER_HIERARCHICAL || r->refinements == o->adaptive_levels || r->no_light)
         return 0;
     int split = patch_mesh_refine(m, radiance, o->adaptive_threshold);
     if (split < 0)

@@ -17,8 +17,8 @@
 #include "scene.h"
 
 /* The order of --solver's choices. */
-typedef enum { SOLVER_JACOBI, SOLVER_GAUSS_SEIDEL, SOLVER_SHOOTING, SOLVER_DIRECT } solver_kind;
-extern const char *const solver_names[4]; /* "jacobi", "gauss-seidel", "shooting", "direct" */
+typedef enum { SOLVER_JACOBI, SOLVER_GAUSS_SEIDEL, SOLVER_SHOOTING, SOLVER_DIRECT, SOLVER_HIERARCHICAL } solver_kind;
+extern const char *const solver_names[5]; /* "jacobi", "gauss-seidel", "shooting", "direct", "hierarchical" */
 
 typedef struct {
     double patch_size;
@@ -34,6 +34,9 @@ typedef struct {
     int enforce_reciprocity; /* --reciprocity check|enforce: 1 averages A_i F_ij and A_j F_ji */
     const char *formfactors_path;
     int patch_size_argv; /* where --patch-size was given, for error messages */
+    double eps;          /* --solver hierarchical: link when both form-factor estimates are below eps */
+    int levels;          /* --solver hierarchical: deepest split below a root */
+    int eps_argv, levels_argv;
 } radiosity_options;
 
 /* What a solve reports. */
@@ -48,6 +51,9 @@ typedef struct {
     uint64_t visibility_rays;
     bool have_matrix_checks;
     double reciprocity_error, row_sum_min, row_sum_max;
+    long elements, links; /* --solver hierarchical: quadtree cells (all levels), links */
+    int levels;           /* the deepest level reached */
+    double hierarchy_bytes;
 } radiosity_stats;
 
 /* The chapter's options, their ranges, defaults and help (options.h):
@@ -63,9 +69,16 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
                            const patch_mesh *m, const vec3 *radiance, bool have_matrix);
 
 /* Mesh the scene into patches of about --patch-size (refusing over
- * 4,000,000; spheres are not meshed, said once on stderr) and collect them
- * (radiosity_collect_patches).  Returns 0, or 2 with a message. */
+ * 4,000,000; diffuse spheres meshed by latitude and longitude, mirror and
+ * glass spheres not, said once on stderr) and collect them
+ * (radiosity_collect_patches).  --solver hierarchical: the roots, one cell
+ * per surface (per triangle, 12 x 6 per sphere) unless --patch-size is given.  Returns 0, or 2 with a message. */
 int radiosity_mesh_scene(patch_mesh *m, const scene *s, const radiosity_options *o, char *err, size_t err_size);
+
+/* A surface's albedo rho and emission Le as radiosity models its material:
+ * diffuse only, so mirrors and glass become diffuse with their colour as
+ * albedo, Phong surfaces keep kd. */
+void radiosity_material(const scene *s, int surface, vec3 *albedo, vec3 *emission);
 
 /* Number the patches (patch_mesh_collect) and give each the albedo rho_i
  * and emission Le_i of its material as radiosity models it: diffuse only,

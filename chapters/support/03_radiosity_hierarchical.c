@@ -1,0 +1,388 @@
+/* 03_radiosity_hierarchical.c — hierarchical radiosity (see 03_radiosity_hierarchical.h). */
+#include "03_radiosity_hierarchical.h"
+
+#include <math.h>
+#include <omp.h>
+#include <stdlib.h>
+#include <string.h>
+
+
+/* Elements: at most 4 M (as the uniform mesh), and --levels is refused when
+ * its worst case (every root split to the last level) passes 16 M; links:
+ * 40 M (320 MiB). */
+enum { ELEMENT_LIMIT = 4000000, WORST_CASE_LIMIT = 16000000, LINK_LIMIT = 40000000 };
+
+/* Pairs closer than this many radii are integrated at quadrature points (as chapter 3's NEAR_FACTOR). */
+static const double NEAR_FACTOR = 6.0;
+
+/* Geometry, albedo and emission of the cells the mesh gained since the last call. */
+static int track(hierarchy *h, const patch_mesh *m, const scene *s)
+{
+    if (m->cell_count > h->capacity) {
+        int capacity = h->capacity ? h->capacity : 256;
+        while (capacity < m->cell_count)
+            capacity *= 2;
+        patch *element = realloc(h->element, (size_t)capacity * sizeof *element);
+        if (element)
+            h->element = element;
+        unsigned char *level = realloc(h->level, (size_t)capacity);
+        if (level)
+            h->level = level;
+        if (!element || !level)
+            return -1;
+        h->capacity = capacity;
+    }
+    for (; h->element_count < m->cell_count; h->element_count++) {
+        patch *e = &h->element[h->element_count];
+        patch_mesh_cell_geometry(m, h->element_count, e);
+        radiosity_material(s, e->surface, &e->albedo, &e->emission);
+        h->level[h->element_count] = 0;
+    }
+    return 0;
+}
+
+typedef struct {
+    hierarchy *h;
+    patch_mesh *m;
+    const scene *s;
+    point_to_polygon_fn point_to_polygon;
+    double eps;
+    int levels;
+    int *receiver, *source; /* the links, in the order the oracle makes them */
+    long count, capacity;
+    int failed; /* 1: out of memory, 2: over LINK_LIMIT, 3: over ELEMENT_LIMIT */
+} refiner;
+
+/* The children of element e, splitting it first if it is a leaf; -1 when out of memory. */
+static int children(refiner *r, int e)
+{
+    if (r->m->cells[e].first_child >= 0)
+        return r->m->cells[e].first_child;
+    if (r->m->cell_count + 4 > ELEMENT_LIMIT) {
+        r->failed = 3;
+        return -1;
+    }
+    int first = patch_mesh_split(r->m, e);
+    if (first < 0 || track(r->h, r->m, r->s))
+        return -1;
+    for (int k = 0; k < 4; k++)
+        r->h->level[first + k] = (unsigned char)(r->h->level[e] + 1);
+    return first;
+}
+
+static void add_link(refiner *r, int p, int q)
+{
+    if (r->count == r->capacity) {
+        long capacity = r->capacity ? 2 * r->capacity : 4096;
+        if (capacity > LINK_LIMIT)
+            capacity = LINK_LIMIT;
+        if (r->count == capacity) {
+            r->failed = 2;
+            return;
+        }
+        int *receiver = realloc(r->receiver, (size_t)capacity * sizeof *receiver);
+        if (receiver)
+            r->receiver = receiver;
+        int *source = realloc(r->source, (size_t)capacity * sizeof *source);
+        if (source)
+            r->source = source;
+        if (!receiver || !source) {
+            r->failed = 1;
+            return;
+        }
+        r->capacity = capacity;
+    }
+    r->receiver[r->count] = p, r->source[r->count++] = q;
+}
+
+/* Points for visibility rays: the corners moved half-way to the centroid, on the surface. */
+static int sample_points(const patch_mesh *m, const patch *e, vec3 *out)
+{
+    vec3 flat = v3_splat(0.0);
+    for (int k = 0; k < e->corner_count; k++)
+        flat = v3_add(flat, v3_scale(e->corner[k], 1.0 / e->corner_count));
+    for (int k = 0; k < e->corner_count; k++)
+        out[k] = patch_mesh_on_surface(m, e->surface, v3_scale(v3_add(e->corner[k], flat), 0.5));
+    return e->corner_count;
+}
+
+/* The fraction of up to four rays between the two elements that nothing
+ * blocks.  Only pairs of sample points in front of each other's element
+ * count: a ray to a point behind the receiver's plane would run into the
+ * receiver's own solid, which Lambert's clipped formula has already left
+ * out.  No such pair: 1 (the pair hardly exchanges light). */
+static double visible_fraction(const patch_mesh *m, const scene *s, const patch *ep, const patch *eq, uint64_t *rays)
+{
+    vec3 a[4], b[4];
+    int na = sample_points(m, ep, a), nb = sample_points(m, eq, b), tested = 0, visible = 0;
+    for (int k = 0; k < na * nb && tested < 4; k++) {
+        vec3 x = a[k % na], y = b[(k + k / na) % nb]; /* the diagonal pairs first, then shifted */
+        if (v3_dot(ep->normal, v3_sub(y, ep->centroid)) <= s->epsilon ||
+            v3_dot(eq->normal, v3_sub(x, eq->centroid)) <= s->epsilon)
+            continue;
+        tested++;
+        visible += !scene_occluded(s, x, y);
+    }
+    *rays += (uint64_t)tested;
+    return tested ? (double)visible / tested : 1.0;
+}
+
+/* Does a shadow edge cross the pair?  Of the rays between them some are
+ * blocked and some not; only asked when F is at least --eps / 8, so that
+ * the refinement follows the shadows where they carry light. */
+static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq, double f)
+{
+    if (f < r->eps / 8.0)
+        return false;
+    uint64_t rays = 0;
+    double v = visible_fraction(r->m, r->s, ep, eq, &rays);
+    return v > 0.0 && v < 1.0;
+}
+
+/* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  The
+ * form factors both ways are estimated from each element's centroid by
+ * Lambert's formula (R10's inner integral, no visibility).  Both below --eps
+ * and no shadow edge across the pair: linked at this level.  Otherwise the element that looks larger
+ * from the other (q when F_pq > F_qp) is split and its children refined
+ * against the other; an element at --levels is not split further. */
+static void refine(refiner *r, int p, int q)
+{
+    if (r->failed)
+        return;
+    const patch ep = r->h->element[p], eq = r->h->element[q]; /* copies: splitting moves the array */
+    double epsilon = r->s->epsilon;
+    if (!patch_in_front(&eq, ep.centroid, ep.normal, epsilon) || !patch_in_front(&ep, eq.centroid, eq.normal, epsilon))
+        return; /* one-sided: they cannot exchange light */
+    double fpq = r->point_to_polygon(ep.centroid, ep.normal, eq.corner, eq.corner_count);
+    double fqp = r->point_to_polygon(eq.centroid, eq.normal, ep.corner, ep.corner_count);
+    bool can_p = r->h->level[p] < r->levels, can_q = r->h->level[q] < r->levels;
+    if ((fpq < r->eps && fqp < r->eps && !shadow_edge(r, &ep, &eq, fmax(fpq, fqp))) || (!can_p && !can_q)) {
+        add_link(r, p, q);
+        return;
+    }
+    bool split_source = can_q && (fpq > fqp || !can_p);
+    int first = children(r, split_source ? q : p);
+    if (first < 0) {
+        r->failed = r->failed ? r->failed : 1;
+        return;
+    }
+    for (int k = 0; k < 4; k++)
+        split_source ? refine(r, p, first + k) : refine(r, first + k, q);
+}
+
+/* A link's form factor F_pq (R10).  Far apart: Lambert's formula at four
+ * points of p times the fraction of rays between them not blocked.  Near: the outer integral over M x M sub-triangle
+ * centroids of each triangle of p, a ray from each to a point of q. */
+static double link_form_factor(const hierarchy *h, const patch_mesh *m, const scene *s, point_to_polygon_fn F, int M,
+                               int p, int q, uint64_t *rays)
+{
+    const patch *ep = &h->element[p], *eq = &h->element[q];
+    vec3 b[4];
+    int nb = sample_points(m, eq, b);
+    if (v3_length(v3_sub(eq->centroid, ep->centroid)) > NEAR_FACTOR * (ep->radius + eq->radius)) {
+        /* The outer integral by the points 1/sqrt(3) of the way from the centroid
+         * to the corners (Gauss's 2 x 2 rule on a parallelogram): the centroid
+         * alone would miss the curvature of the 1/r^2 kernel, always low. */
+        vec3 flat = v3_splat(0.0);
+        for (int k = 0; k < ep->corner_count; k++)
+            flat = v3_add(flat, v3_scale(ep->corner[k], 1.0 / ep->corner_count));
+        double f = 0.0;
+        for (int k = 0; k < ep->corner_count; k++) {
+            vec3 x = v3_add(flat, v3_scale(v3_sub(ep->corner[k], flat), 1.0 / sqrt(3.0)));
+            f += F(patch_mesh_on_surface(m, ep->surface, x), ep->normal, eq->corner, eq->corner_count);
+        }
+        if (f <= 0.0)
+            return 0.0;
+        return f / ep->corner_count * visible_fraction(m, s, ep, eq, rays);
+    }
+    double total = 0.0;
+    int point = 0;
+    for (int t = 1; t + 1 < ep->corner_count; t++) {
+        vec3 o = ep->corner[0], e1 = v3_sub(ep->corner[t], o), e2 = v3_sub(ep->corner[t + 1], o);
+        double weight = 0.5 * v3_length(v3_cross(e1, e2)) / ep->area / (M * M);
+        for (int i = 0; i < M; i++)
+            for (int j = 0; i + j < M; j++)
+                for (int down = 0; down < 2 && !(down && i + j > M - 2); down++) {
+                    double u = (3.0 * i + 1.0 + down) / (3.0 * M), v = (3.0 * j + 1.0 + down) / (3.0 * M);
+                    vec3 x = patch_mesh_on_surface(m, ep->surface, v3_add(o, v3_add(v3_scale(e1, u), v3_scale(e2, v))));
+                    if (v3_dot(eq->normal, v3_sub(x, eq->centroid)) <= s->epsilon)
+                        continue;
+                    double f = F(x, ep->normal, eq->corner, eq->corner_count);
+                    if (f <= 0.0)
+                        continue;
+                    int k = 0; /* a point of q in front of p (see visible_fraction) */
+                    while (k < nb && v3_dot(ep->normal, v3_sub(b[(point + k) % nb], ep->centroid)) <= s->epsilon)
+                        k++;
+                    vec3 y = k < nb ? b[(point++ + k) % nb] : eq->centroid;
+                    ++*rays;
+                    if (!scene_occluded(s, x, y))
+                        total += weight * f;
+                }
+    }
+    return total;
+}
+
+/* The links grouped by receiver (a counting sort, stable) with their form factors. */
+static int store_links(hierarchy *h, refiner *r, const radiosity_options *o, radiosity_stats *stats)
+{
+    long n = r->count;
+    h->link_start = calloc((size_t)h->element_count + 1, sizeof *h->link_start);
+    h->link_source = malloc((size_t)n * sizeof *h->link_source + 1);
+    h->link_F = malloc((size_t)n * sizeof *h->link_F + 1);
+    if (!h->link_start || !h->link_source || !h->link_F)
+        return -1;
+    for (long k = 0; k < n; k++)
+        h->link_start[r->receiver[k] + 1]++;
+    for (int e = 0; e < h->element_count; e++)
+        h->link_start[e + 1] += h->link_start[e];
+    long *next = malloc((size_t)h->element_count * sizeof *next + 1);
+    if (!next)
+        return -1;
+    memcpy(next, h->link_start, (size_t)h->element_count * sizeof *next);
+    for (long k = 0; k < n; k++)
+        h->link_source[next[r->receiver[k]]++] = r->source[k];
+    free(next);
+    h->link_count = n;
+    uint64_t rays = 0;
+#pragma omp parallel for schedule(dynamic, 64) reduction(+ : rays)
+    for (int e = 0; e < h->element_count; e++)
+        for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
+            h->link_F[k] = (float)link_form_factor(h, r->m, r->s, r->point_to_polygon, o->quadrature, e,
+                                                   h->link_source[k], &rays);
+    stats->visibility_rays += rays;
+    return 0;
+}
+
+/* Each leaf's row sum: the form factors of its links and its ancestors'
+ * (1 in a closed scene, as the matrix solvers' row_sum_min/max). */
+static void row_sums(const hierarchy *h, const patch_mesh *m, int e, double above, radiosity_stats *stats)
+{
+    for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
+        above += h->link_F[k];
+    if (m->cells[e].first_child < 0) {
+        stats->row_sum_min = fmin(stats->row_sum_min, above), stats->row_sum_max = fmax(stats->row_sum_max, above);
+        return;
+    }
+    for (int k = 0; k < 4; k++)
+        row_sums(h, m, m->cells[e].first_child + k, above, stats);
+}
+
+int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *stats,
+                    point_to_polygon_fn point_to_polygon, char *err, size_t err_size)
+{
+    double roots = m->cell_count, bound = roots * (pow(4.0, o->levels + 1) - 1.0) / 3.0;
+    if (bound > WORST_CASE_LIMIT) /* refused before the hierarchy is allocated */
+        return snprintf(err, err_size,
+                        "argv:%d: --levels %d allows up to %.3g elements (%d roots), more than the limit %d; "
+                        "lower --levels",
+                        o->levels_argv, o->levels, bound, m->cell_count, WORST_CASE_LIMIT),
+               2;
+    hierarchy_free(h);
+    double start = omp_get_wtime();
+    h->root_count = m->cell_count;
+    refiner r = {.h = h, .m = m, .s = s, .point_to_polygon = point_to_polygon, .eps = o->eps, .levels = o->levels};
+    if (track(h, m, s))
+        r.failed = 1;
+    for (int p = 0; p < h->root_count; p++)
+        for (int q = 0; q < h->root_count; q++)
+            if (p != q)
+                refine(&r, p, q);
+    if (!r.failed && store_links(h, &r, o, stats))
+        r.failed = 1;
+    free(r.receiver), free(r.source);
+    stats->formfactor_s += omp_get_wtime() - start; /* refinement and the links' form factors */
+    if (r.failed == 3)
+        return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d elements (the limit); raise --eps",
+                        o->eps_argv, o->eps, ELEMENT_LIMIT),
+               2;
+    if (r.failed == 2)
+        return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d links (the limit); raise --eps",
+                        o->eps_argv, o->eps, LINK_LIMIT),
+               2;
+    if (r.failed || !(h->gathered = calloc(2 * (size_t)h->element_count + 1, sizeof *h->gathered)))
+        return snprintf(err, err_size, "argv:0: out of memory for the hierarchy"), 2;
+    h->term = h->gathered + h->element_count;
+    stats->elements = h->element_count, stats->links = h->link_count, stats->levels = 0;
+    stats->have_matrix_checks = true, stats->row_sum_min = INFINITY, stats->row_sum_max = 0.0;
+    for (int root = 0; root < h->root_count; root++)
+        row_sums(h, m, root, 0.0, stats);
+    for (int e = 0; e < h->element_count; e++)
+        stats->levels = stats->levels > h->level[e] ? stats->levels : h->level[e];
+    stats->hierarchy_bytes = (double)h->element_count * (sizeof(patch) + sizeof(mesh_cell) + 2 * sizeof(vec3) + 1 +
+                                                         sizeof(long)) +
+                             (double)m->vertex_count * sizeof(vec3) + (double)h->link_count * (sizeof(int) + sizeof(float));
+    return radiosity_collect_patches(m, s, o, err, err_size); /* the leaves become the patches */
+}
+
+/* Push-pull: what e and its ancestors gathered (down) is pushed to its
+ * leaves, which add their source; e's term is the area-weighted mean of
+ * its children's, pulled up.  source: 0 emission, 1 first_shot, 2 none. */
+static vec3 push_pull(hierarchy *h, const patch_mesh *m, int e, vec3 down, int source, const vec3 *first_shot)
+{
+    down = v3_add(down, h->gathered[e]);
+    const mesh_cell *c = &m->cells[e];
+    vec3 up = v3_splat(0.0);
+    if (c->first_child < 0) {
+        up = source == 0 ? v3_add(down, h->element[e].emission)
+             : source == 1 ? v3_add(down, first_shot[c->patch])
+                           : down;
+    } else {
+        double area = 0.0;
+        for (int k = c->first_child; k < c->first_child + 4; k++) {
+            up = v3_madd(up, push_pull(h, m, k, down, source, first_shot), h->element[k].area);
+            area += h->element[k].area;
+        }
+        up = v3_scale(up, 1.0 / area);
+    }
+    h->term[e] = up;
+    return up;
+}
+
+/* Gather: every element receives rho Sum_links F_pq term_q (one more bounce, R6). */
+static void gather(hierarchy *h)
+{
+#pragma omp parallel for schedule(dynamic, 256)
+    for (int e = 0; e < h->element_count; e++) {
+        vec3 sum = v3_splat(0.0);
+        for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
+            sum = v3_madd(sum, h->term[h->link_source[k]], h->link_F[k]);
+        h->gathered[e] = v3_mul(h->element[e].albedo, sum);
+    }
+}
+
+static void push_pull_all(hierarchy *h, const patch_mesh *m, int source, const vec3 *first_shot)
+{
+#pragma omp parallel for schedule(dynamic, 1)
+    for (int root = 0; root < h->root_count; root++)
+        push_pull(h, m, root, v3_splat(0.0), source, first_shot);
+}
+
+int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, int first, int last,
+                    const radiosity_options *o, radiosity_stats *r, double source_norm, vec3 *L)
+{
+    memset(h->gathered, 0, (size_t)h->element_count * sizeof *h->gathered);
+    push_pull_all(h, m, 0, first_shot); /* term 0: E at the leaves, pulled up */
+    for (int k = 0;; k++) {
+        if (k >= first)
+            for (int i = 0; i < m->patch_count; i++)
+                L[i] = v3_add(L[i], h->term[m->patches[i].cell]);
+        gather(h);
+        push_pull_all(h, m, k == 0 ? 1 : 2, first_shot); /* term k + 1 */
+        double power = 0.0;
+        for (int i = 0; i < m->patch_count; i++) {
+            vec3 t = h->term[m->patches[i].cell];
+            power += m->patches[i].area * (fabs(t.x) + fabs(t.y) + fabs(t.z));
+        }
+        r->iterations = k + 1;
+        record_residual(r, power / source_norm);
+        r->converged = k >= last || r->residual <= o->tolerance;
+        if (r->converged || r->iterations >= o->max_iterations)
+            return 0;
+    }
+}
+
+void hierarchy_free(hierarchy *h)
+{
+    free(h->element), free(h->level), free(h->gathered), free(h->link_start), free(h->link_source), free(h->link_F);
+    *h = (hierarchy){0};
+}
