@@ -219,7 +219,8 @@ def surfaces_of(root, build, c):
     if not os.path.exists(exe):
         raise CriterionFailed(f"{build}/{c['chapter']} is missing (did not compile)")
     out = tempfile.mkdtemp(prefix="gi-kit-")
-    cmd = [exe, c["scene"], "--quiet", "--size", "8x8", "--spp", "1", "--patch-size", "50", "--tol", "1e-6",
+    cmd = [exe, c["scene"], "--quiet", "--size", "8x8", "--spp", "1", "--patch-size", str(c.get("patch_size", 50)),
+           "--tol", str(c.get("tol", 1e-6)),
            "--iterations", "100000", "--out", os.path.join(out, "s.pfm"), "--stats", os.path.join(out, "s.json"),
            *c.get("args", [])]
     try:
