@@ -153,17 +153,19 @@ format:
 # make handout OUT=DIR [CHAPTERS="03_radiosity ..."]   a student tree, marked functions stubbed
 # make grade [SUBMISSION=DIR] [REPORT=DIR] [CHAPTERS=...] [SEED=N]   grade one tree (default: this one)
 # make grade SUBMISSIONS="dir1 dir2 ..."|@list.txt [REPORT=DIR] [JOBS=N] [SSHLOGINFILE=FILE]   a class
+# (CHAPTERS here is the one given on the command line, not the list of executables above)
+KIT_CHAPTERS = $(if $(filter command environment,$(firstword $(origin CHAPTERS))),$(CHAPTERS))
 .PHONY: handout grade
 handout:
 	@test -n "$(OUT)" || { echo "make handout: OUT=DIR is required" >&2; exit 2; }
-	$(PYTHON) kit/handout.py $(OUT) $(CHAPTERS)
+	$(PYTHON) kit/handout.py $(OUT) $(KIT_CHAPTERS)
 grade:
 ifneq ($(strip $(SUBMISSIONS)),)
 	$(PYTHON) kit/grade_class.py $(if $(REPORT),--report $(REPORT)) $(if $(JOBS),--jobs $(JOBS)) \
-	  $(if $(SSHLOGINFILE),--sshloginfile $(SSHLOGINFILE)) $(if $(CHAPTERS),--chapters "$(CHAPTERS)") $(SUBMISSIONS)
+	  $(if $(SSHLOGINFILE),--sshloginfile $(SSHLOGINFILE)) $(if $(KIT_CHAPTERS),--chapters "$(KIT_CHAPTERS)") $(SUBMISSIONS)
 else
 	$(PYTHON) kit/grade.py $(or $(SUBMISSION),.) $(if $(REPORT),--report $(REPORT)) \
-	  $(if $(CHAPTERS),--chapters "$(CHAPTERS)") $(if $(SEED),--seed $(SEED))
+	  $(if $(KIT_CHAPTERS),--chapters "$(KIT_CHAPTERS)") $(if $(SEED),--seed $(SEED))
 endif
 
 clean:
