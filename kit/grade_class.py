@@ -94,7 +94,7 @@ def main(argv):
     try:
         with open(os.path.join(report, "joblog.tsv")) as f:
             for row in list(csv.reader(f, delimiter="\t"))[1:]:
-                status[row[-1].split(" --report ")[-1].split(" ")[0]] = (row[6], row[3])
+                status[row[-1].split(" --report ")[-1].split(" ")[0]] = (row[6].strip(), row[3].strip())
     except OSError:
         pass
     rows = []
