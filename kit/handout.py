@@ -26,8 +26,8 @@ import markers  # noqa: E402
 import rubric as rubric_module  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-INSTRUCTOR_ONLY = ("tests/mutants/", "tests/grade_kit.py", "kit/handout.py", "kit/calibrate.py", "kit/README.md", "slides/",
-                   ".ci/")
+INSTRUCTOR_ONLY = ("tests/mutants/", "tests/grade_kit.py", "kit/handout.py", "kit/calibrate.py", "kit/README.md",
+                   "slides/", ".ci/")
 
 
 def fail(message):

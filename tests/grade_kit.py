@@ -140,7 +140,7 @@ def test_broken_submissions_are_reported_not_fatal(ctx):
     for c in report["criteria"]:
         by.setdefault(c["chapter"], []).append(c)
     assert all(not c["passed"] and "does not compile" in c["message"] for c in by["04_pathtrace"])
-    assert "this is not C" in report["build_errors"]["04_pathtrace"] or "error" in report["build_errors"]["04_pathtrace"]
+    assert "error" in report["build_errors"]["04_pathtrace"], report["build_errors"]
     assert all(not c["passed"] and "not in the submission" in c["message"] for c in by["02_whitted"])
     area = [c for c in by["01_local"] if c["name"] == "cornell area light vs reference"][0]
     assert not area["passed"] and ("SIGSEGV" in area["message"] or "exit status" in area["message"]), area
