@@ -71,7 +71,7 @@ def mutants(names, jobs):
         patches = [p for p in patches if any(n in os.path.basename(p) for n in names)]
     os.makedirs(OUT, exist_ok=True)
     files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
-    opts = {"seed": 1, "jobs": jobs, "timeout": 300.0, "memory": 4096}
+    opts = {"seed": 1, "jobs": jobs, "timeout": 120.0, "memory": 4096}  # 300 s in kit/grade.py
     killed = 0
     with open(os.path.join(OUT, "mutants.csv"), "w", newline="") as f:
         w = csv.writer(f)

@@ -221,7 +221,7 @@ def surfaces_of(root, build, c):
     out = tempfile.mkdtemp(prefix="gi-kit-")
     cmd = [exe, c["scene"], "--quiet", "--size", "8x8", "--spp", "1", "--patch-size", str(c.get("patch_size", 50)),
            "--tol", str(c.get("tol", 1e-6)),
-           "--iterations", "100000", "--out", os.path.join(out, "s.pfm"), "--stats", os.path.join(out, "s.json"),
+           "--iterations", str(c.get("iterations", 500)), "--out", os.path.join(out, "s.pfm"), "--stats", os.path.join(out, "s.json"),
            *c.get("args", [])]
     try:
         r = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=RENDER_TIMEOUT,
@@ -233,9 +233,14 @@ def surfaces_of(root, build, c):
     try:
         with open(os.path.join(out, "s.json")) as f:
             data = json.load(f)
-        return {s["name"]: s["radiance"] for s in data["surfaces"]}
+        surfaces = {s["name"]: s["radiance"] for s in data["surfaces"]}
+        converged, residual = data.get("converged"), data.get("residual")
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise CriterionFailed(f"no readable 'surfaces' in the stats: {e}")
+    if converged is False:
+        raise CriterionFailed(f"the solver did not converge in {c.get('iterations', 500)} iterations "
+                              f"(residual {residual}, --tol {c.get('tol', 1e-6)})")
+    return surfaces
 
 
 def make_surfaces_reference(root, build, c):
