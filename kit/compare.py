@@ -221,7 +221,8 @@ def surfaces_of(root, build, c):
     out = tempfile.mkdtemp(prefix="gi-kit-")
     cmd = [exe, c["scene"], "--quiet", "--size", "8x8", "--spp", "1", "--patch-size", str(c.get("patch_size", 50)),
            "--tol", str(c.get("tol", 1e-6)),
-           "--iterations", str(c.get("iterations", 500)), "--out", os.path.join(out, "s.pfm"), "--stats", os.path.join(out, "s.json"),
+           "--iterations", str(c.get("iterations", 500)), "--out", os.path.join(out, "s.pfm"),
+           "--stats", os.path.join(out, "s.json"),
            *c.get("args", [])]
     try:
         r = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=RENDER_TIMEOUT,
