@@ -88,7 +88,7 @@ BUILD_PACKAGES := build-essential libpng-dev python3
 # make test: valgrind (tests/grade_extremes.py), Xvfb and xdotool (the viewer's
 # window tests), clang and its OpenMP (make fuzz, CC=clang), clang-format (the
 # style check), and what the slide and sweep tests need.
-TEST_PACKAGES := valgrind clang libomp-dev clang-format xvfb xauth xdotool
+TEST_PACKAGES := valgrind clang libomp-dev clang-format xvfb xauth xdotool parallel
 DEBIAN_PACKAGES := $(sort $(BUILD_PACKAGES) $(VIEWER_PACKAGES) $(SLIDES_PACKAGES) $(TRADEOFF_PACKAGES) \
                           $(TEST_PACKAGES))
 print-deps:
@@ -148,6 +148,25 @@ fuzz: deps
 format:
 	clang-format -i --style=file $$(/usr/bin/python3 -c 'import sys; sys.path.insert(0, "tests"); \
 	  import grade_style; print(" ".join(grade_style.c_files()))')
+
+# --- instructor kit (kit/) ----------------------------------------------------
+# make handout OUT=DIR [CHAPTERS="03_radiosity ..."]   a student tree, marked functions stubbed
+# make grade [SUBMISSION=DIR] [REPORT=DIR] [CHAPTERS=...] [SEED=N]   grade one tree (default: this one)
+# make grade SUBMISSIONS="dir1 dir2 ..."|@list.txt [REPORT=DIR] [JOBS=N] [SSHLOGINFILE=FILE]   a class
+# (CHAPTERS here is the one given on the command line, not the list of executables above)
+KIT_CHAPTERS = $(if $(filter command environment,$(firstword $(origin CHAPTERS))),$(CHAPTERS))
+.PHONY: handout grade
+handout:
+	@test -n "$(OUT)" || { echo "make handout: OUT=DIR is required" >&2; exit 2; }
+	$(PYTHON) kit/handout.py $(OUT) $(KIT_CHAPTERS)
+grade:
+ifneq ($(strip $(SUBMISSIONS)),)
+	$(PYTHON) kit/grade_class.py $(if $(REPORT),--report $(REPORT)) $(if $(JOBS),--jobs $(JOBS)) \
+	  $(if $(SSHLOGINFILE),--sshloginfile $(SSHLOGINFILE)) $(if $(KIT_CHAPTERS),--chapters "$(KIT_CHAPTERS)") $(SUBMISSIONS)
+else
+	$(PYTHON) kit/grade.py $(or $(SUBMISSION),.) $(if $(REPORT),--report $(REPORT)) \
+	  $(if $(KIT_CHAPTERS),--chapters "$(KIT_CHAPTERS)") $(if $(SEED),--seed $(SEED))
+endif
 
 clean:
 	rm -rf build out

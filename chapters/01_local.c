@@ -44,7 +44,7 @@
  * The classic forms are what OpenGL's fixed pipeline computed: their
  * highlight does not fade with cos(theta_i) and they can reflect more
  * light than arrives.  The normalised forms conserve energy (for ks <= 1),
- * which is what a physically based renderer needs. */
+ * which is what a physically based renderer needs. [exercise 1.1] */
 vec3 reflected_fraction(const local_model *lm, const material *m, vec3 n, vec3 w_i, vec3 w_o)
 {
     double cos_i = v3_dot(n, w_i);
@@ -84,7 +84,7 @@ static vec3 visibility(const local_model *lm, const scene *s, vec3 x, vec3 y, re
     return v3_splat(scene_occluded(s, x, y) ? 0.0 : 1.0);
 }
 
-/* (R1) for every point light: f cos(theta_i) I / r^2, where the light is visible. */
+/* (R1) for every point light: f cos(theta_i) I / r^2, where the light is visible. [exercise 1.2] */
 static vec3 point_lights(const local_model *lm, const scene *s, vec3 x, vec3 n, vec3 w_o, const material *m,
                          render_counters *counters)
 {
@@ -108,7 +108,7 @@ static vec3 point_lights(const local_model *lm, const scene *s, vec3 x, vec3 n, 
 }
 
 /* The area form for one emitter: the mean over `samples` points y, uniform
- * on its area A (pdf 1/A), of L_e f cos(theta_i) cos(theta_y) / r^2 V. */
+ * on its area A (pdf 1/A), of L_e f cos(theta_i) cos(theta_y) / r^2 V. [exercise 1.3] */
 static vec3 area_light(const local_model *lm, const scene *s, int emitter_surface, vec3 x, vec3 n, vec3 w_o,
                        const material *m, int samples, rng *g, render_counters *counters)
 {

@@ -202,7 +202,7 @@ static vec3 trace(ray_tree *tree, ray r, int depth, vec3 weight);
  * product of the coefficients from the eye down to it.  A branch is not
  * traced when it would be deeper than --max-depth, or when its weight falls
  * below --min-weight (Hall & Greenberg's adaptive tree depth: a branch that
- * can change the pixel by at most weight * L is not worth a ray). */
+ * can change the pixel by at most weight * L is not worth a ray). [exercise 2.3] */
 static vec3 branch(ray_tree *tree, ray child, int depth, vec3 weight, vec3 coefficient, int ray_kind)
 {
     if (v3_max_component(coefficient) <= 0.0)
@@ -222,7 +222,7 @@ static vec3 branch(ray_tree *tree, ray child, int depth, vec3 weight, vec3 coeff
 
 /* Glass: a reflected ray weighted R and a refracted ray weighted 1 - R
  * (times the tint), or only the reflected ray with weight 1 beyond the
- * critical angle. */
+ * critical angle. [exercise 2.4] */
 static vec3 dielectric(ray_tree *tree, ray r, const hit *h, const material *m, int depth, vec3 weight)
 {
     const whitted_state *state = tree->state;
@@ -260,7 +260,7 @@ static vec3 dielectric(ray_tree *tree, ray r, const hit *h, const material *m, i
 }
 
 /* The radiance arriving along r, a ray at `depth` in the tree (the camera
- * ray is depth 0; each reflection or refraction adds one). */
+ * ray is depth 0; each reflection or refraction adds one). [exercise 2.5] */
 static vec3 trace(ray_tree *tree, ray r, int depth, vec3 weight)
 {
     const whitted_state *state = tree->state;

@@ -70,7 +70,7 @@ static int warned_back;
  * is first clipped to the half-space n . (y - x) > 0.  Exact, however close
  * the polygon: the 1/r^2 of the kernel is integrated analytically, which is
  * what keeps patches that share an edge accurate (a centre-to-centre
- * cos cos A / (pi r^2) would be far off there). */
+ * cos cos A / (pi r^2) would be far off there). [exercise 3.1] */
 static double point_to_polygon(vec3 x, vec3 n, const vec3 *polygon, int count)
 {
     vec3 clipped[8];
@@ -103,7 +103,7 @@ static const double NEAR_FACTOR = 6.0;
  * the inner one by point_to_polygon, and visibility V by one ray from each
  * x_k to a quadrature point of j (the pairing shifted by a hash of (i, j) so
  * that neighbouring pairs do not all test the same line).  Deterministic:
- * the matrix, the per-shot columns and the probes all agree. */
+ * the matrix, the per-shot columns and the probes all agree. [exercise 3.2] */
 static double form_factor_estimate(const radiosity_state *st, const scene *s, int i, int j, uint64_t *rays)
 {
     if (i == j)
@@ -182,7 +182,7 @@ static void apply_transport(radiosity_state *st, const vec3 *x, vec3 *out)
  * term k = K term k-1.  As Jacobi (jacobi = true) it records the size of the
  * next term, exactly the residual E + K L - L, as power (patch_mesh_power;
  * ||K|| <= max rho < 1 in that norm, so residuals fall monotonically), and
- * stops when it is below --tol or after --iterations terms.  0, or -1: OOM. */
+ * stops when it is below --tol or after --iterations terms.  0, or -1: OOM. [exercise 3.3] */
 static int neumann_terms(radiosity_state *st, int first, int last, double sign, bool jacobi, vec3 *L)
 {
     int n = st->mesh.patch_count;
@@ -240,7 +240,7 @@ static double full_residual(radiosity_state *st, const vec3 *L)
 
 /* Gauss-Seidel: the Jacobi update, but each L_i uses the values already
  * updated in this sweep.  Each update zeroes r_i and moves at most rho of it
- * to the others, so the residual falls every sweep. */
+ * to the others, so the residual falls every sweep. [exercise 3.4] */
 static int solve_gauss_seidel(radiosity_state *st, vec3 *L)
 {
     int n = st->mesh.patch_count;
@@ -262,7 +262,7 @@ static int solve_gauss_seidel(radiosity_state *st, vec3 *L)
  * the residual r = E + K L - L, exactly the light received but not yet shot.
  * Start with L = 0, r = source.  A shot from patch j moves r_j into L_j and
  * sends it on: r_i += rho_i F_ij r_j for every i, with the column F_.j
- * computed for the shot and thrown away (memory O(n), not O(n^2)). */
+ * computed for the shot and thrown away (memory O(n), not O(n^2)). [exercise 3.5] */
 static int solve_shooting(radiosity_state *st, const scene *s, vec3 *L)
 {
     int n = st->mesh.patch_count;

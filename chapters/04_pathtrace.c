@@ -129,7 +129,7 @@ static bool may_scatter(const pathtrace_state *st, int k)
 
 /* Russian roulette (from --rr-depth bounces on): go on with probability p,
  * weighted by 1/p, so the expectation is unchanged.  p follows the throughput:
- * a dim walk ends early, a bright one (a furnace, rho = 0.99) goes on. */
+ * a dim walk ends early, a bright one (a furnace, rho = 0.99) goes on. [exercise 4.3] */
 static bool survives_roulette(const pathtrace_state *st, int k, rng *g, vec3 *throughput)
 {
     if (k < st->rr_depth)
@@ -160,7 +160,7 @@ static double sample_uniform(const vertex *v, rng *g, vec3 *w_i)
 }
 
 /* Scatter: choose the next direction w_i at v (its pdf in *pdf, 0 for a
- * delta) and return the factor of the walk's throughput, f cos(theta_i) / p. */
+ * delta) and return the factor of the walk's throughput, f cos(theta_i) / p. [exercise 4.2] */
 static vec3 scatter(const vertex *v, direction_sampler *sample, rng *g, vec3 *w_i, double *pdf)
 {
     *pdf = 0.0;
@@ -173,7 +173,7 @@ static vec3 scatter(const vertex *v, direction_sampler *sample, rng *g, vec3 *w_
 
 /* The radiance reflected (not emitted) at v toward w_o, the integral of (R2),
  * by one random walk whose k-th scattering is at v: scatter, follow w_i to
- * the next surface, add the light it emits toward us, and go on from there. */
+ * the next surface, add the light it emits toward us, and go on from there. [exercise 4.1] */
 static vec3 walk(const pathtrace_state *st, const scene *s, vertex v, int k, direction_sampler *sample, rng *g,
                  render_counters *counters)
 {
@@ -208,6 +208,7 @@ static double glossy_share(const material *m)
     return m->kind == MATERIAL_PHONG && d + s > 0.0 ? s / (d + s) : 0.0;
 }
 
+/* The density per steradian of sample_bsdf: the mixture of cosine and lobe. [exercise 4.4] */
 static double bsdf_pdf(const vertex *v, vec3 w_i)
 {
     double share = glossy_share(v->m), pdf = (1.0 - share) * cosine_hemisphere_pdf(v3_dot(v->n, w_i));
@@ -217,6 +218,7 @@ static double bsdf_pdf(const vertex *v, vec3 w_i)
     return pdf;
 }
 
+/* Draws w_i like f cos: the lobe with probability share, else cosine; returns its pdf. [exercise 4.5] */
 static double sample_bsdf(const vertex *v, rng *g, vec3 *w_i)
 {
     double u1 = rng_uniform(g), u2 = rng_uniform(g), share = glossy_share(v->m);
@@ -268,6 +270,7 @@ typedef struct {
     double pdf;      /* per steradian, including the pick; 0 for a point light (a delta) */
 } light_sample;
 
+/* Picks a light by power and a point y on it (R9); false when nothing shines toward x. [exercise 4.6] */
 static bool sample_light(const pathtrace_state *st, const scene *s, vec3 x, rng *g, light_sample *out)
 {
     if (!(st->total_power > 0.0)) /* no light shines */
@@ -307,7 +310,7 @@ static double light_sample_only(double pdf_light, double pdf_bsdf)
 }
 
 /* One light sample's contribution to the radiance reflected at v toward w_o:
- * f L_e cos(theta_i) V / p (R9), times the light sample's share. */
+ * f L_e cos(theta_i) V / p (R9), times the light sample's share. [exercise 4.7] */
 static vec3 next_event(const pathtrace_state *st, const scene *s, const vertex *v, light_share *share, rng *g,
                        render_counters *counters)
 {
@@ -328,7 +331,7 @@ static vec3 next_event(const pathtrace_state *st, const scene *s, const vertex *
 
 /* Rung 1's walk with rung 2's directions and a light sample at every vertex
  * but specular ones (a delta reflects no sampled point); light the walk then
- * finds by itself counts 1 - share: fully after a specular vertex. */
+ * finds by itself counts 1 - share: fully after a specular vertex. [exercise 4.8] */
 static vec3 walk_with_light_samples(const pathtrace_state *st, const scene *s, vertex v, int k, light_share *share,
                                     rng *g, render_counters *counters)
 {
@@ -363,7 +366,7 @@ static vec3 walk_with_light_samples(const pathtrace_state *st, const scene *s, v
 /* Light samples find small lights, directions drawn like f cos a big light in
  * a sharp glossy lobe.  MIS (Veach 1997) counts a path found either way with a
  * share each, adding up to one (unbiased); the power heuristic gives the light
- * sample p_light^2 / (p_light^2 + p_bsdf^2).  Rung 3's walk with it is MIS. */
+ * sample p_light^2 / (p_light^2 + p_bsdf^2).  Rung 3's walk with it is MIS. [exercise 4.9] */
 static double power_heuristic(double pdf_light, double pdf_bsdf)
 {
     double a = pdf_light * pdf_light, b = pdf_bsdf * pdf_bsdf;

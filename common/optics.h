@@ -14,7 +14,7 @@
 
 /* Snell's law, n_i sin(theta_i) = n_t sin(theta_t), solved for the
  * refracted direction.  Returns false on total internal reflection
- * (sin(theta_t) > 1), when there is no transmitted ray. */
+ * (sin(theta_t) > 1), when there is no transmitted ray. [exercise 2.1] */
 static inline bool refract_direction(vec3 d, vec3 n, double eta, vec3 *refracted)
 {
     double cos_i = -v3_dot(d, n);
@@ -33,7 +33,7 @@ static inline bool refract_direction(vec3 d, vec3 n, double eta, vec3 *refracted
  *   r_p = (n_t cos_i - n_i cos_t) / (n_t cos_i + n_i cos_t)
  *   R   = (r_s^2 + r_p^2) / 2,     T = 1 - R  (energy is conserved)
  * Returns 1 beyond the critical angle (total internal reflection).
- * The polarised parts are returned too when rs2 / rp2 are not NULL. */
+ * The polarised parts are returned too when rs2 / rp2 are not NULL. [exercise 2.2] */
 static inline double fresnel_dielectric(double cos_i, double n_i, double n_t, double *rs2, double *rp2)
 {
     cos_i = fmin(fmax(cos_i, 0.0), 1.0);

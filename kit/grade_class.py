@@ -1,0 +1,143 @@
+#!/usr/bin/python3
+"""Grade a class: many submissions in parallel with GNU parallel, then a summary (CSV and HTML).
+
+usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE] [--chapters "A B"] [--seed N]
+                          SUBMISSION... | @LIST.txt
+
+  SUBMISSION   a student's directory; @LIST.txt: one directory per line (# comments)
+  --report DIR class reports (default out/class): DIR/<student>/report.{json,html}, DIR/summary.{csv,html},
+               DIR/joblog.tsv (GNU parallel's log: exit status and time of every grading)
+  --jobs N     gradings at once (default: the number of cores); each grading uses one core
+  --sshloginfile FILE   spread the gradings over the machines in FILE (GNU parallel's format, e.g.
+               "4/user@host"); every machine must see this project and the submissions at the same
+               paths (a shared file system) and have the build packages installed
+
+A grading that fails (crash of the grader, a killed machine) leaves a row
+"not graded" with its exit status; the other students' reports are kept.
+"""
+import csv
+import html
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+KIT = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(KIT)
+
+
+def fail(message):
+    print(f"kit/grade_class.py: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def main(argv):
+    report, jobs, login, extra, dirs = os.path.join(ROOT, "out", "class"), os.cpu_count() or 1, None, [], []
+    i = 0
+    while i < len(argv):
+        a = argv[i]
+        if a in ("-h", "--help"):
+            print(__doc__.strip())
+            return
+        if a in ("--report", "--jobs", "--sshloginfile", "--chapters", "--seed"):
+            if i + 1 >= len(argv):
+                fail(f"{a} needs a value")
+            v = argv[i + 1]
+            if a == "--report":
+                report = os.path.abspath(v)
+            elif a == "--jobs":
+                if not v.isdigit() or int(v) < 1:
+                    fail(f"--jobs {v}: not a positive integer")
+                jobs = int(v)
+            elif a == "--sshloginfile":
+                login = v
+            else:
+                extra += [a, v]
+            i += 2
+            continue
+        if a.startswith("-"):
+            fail(f"unknown option {a}")
+        if a.startswith("@"):
+            try:
+                with open(a[1:]) as f:
+                    dirs += [ln.strip() for ln in f if ln.strip() and not ln.lstrip().startswith("#")]
+            except OSError as e:
+                fail(f"{a}: {e.strerror}")
+        else:
+            dirs.append(a)
+        i += 1
+    if not dirs:
+        fail("no submissions given")
+    if not shutil.which("parallel"):
+        fail("GNU parallel is missing: sudo apt-get install -y parallel")
+    # One report directory per student, named after the directory (numbered when two share a name).
+    names, seen = [], {}
+    for d in dirs:
+        base = os.path.basename(os.path.normpath(d)) or "submission"
+        seen[base] = seen.get(base, 0) + 1
+        names.append(base if seen[base] == 1 else f"{base}-{seen[base]}")
+    os.makedirs(report, exist_ok=True)
+    table = os.path.join(report, "submissions.tsv")
+    with open(table, "w") as f:
+        for d, n in zip(dirs, names):
+            f.write(f"{os.path.abspath(d)}\t{n}\n")
+    cmd = ["parallel", "--colsep", "\t", "--jobs", str(jobs), "--joblog", os.path.join(report, "joblog.tsv"),
+           "--halt", "never", "--tag"]
+    if login:
+        cmd += ["--sshloginfile", login]
+    cmd += [sys.executable, os.path.join(KIT, "grade.py"), "{1}", "--report", os.path.join(report, "{2}"),
+            "--name", "{2}", "--jobs", "1", *extra, ">", os.path.join(report, "{2}.log"), "2>&1",
+            "::::", table]
+    subprocess.run(cmd)
+    status = {}
+    try:
+        with open(os.path.join(report, "joblog.tsv")) as f:
+            for row in list(csv.reader(f, delimiter="\t"))[1:]:
+                status[row[-1].split(" --report ")[-1].split(" ")[0]] = (row[6].strip(), row[3].strip())
+    except OSError:
+        pass
+    rows = []
+    for d, n in zip(dirs, names):
+        path = os.path.join(report, n, "report.json")
+        try:
+            with open(path) as f:
+                r = json.load(f)
+            chapters = {}
+            for c in r["criteria"]:
+                got, top = chapters.get(c["chapter"], (0, 0))
+                chapters[c["chapter"]] = (got + c["points"], top + c["max"])
+            rows.append({"student": n, "directory": os.path.abspath(d), "total": r["total"], "max": r["max"],
+                         "chapters": chapters, "seconds": r.get("seconds"), "status": "graded"})
+        except (OSError, ValueError, KeyError):
+            code, seconds = status.get(os.path.join(report, n), ("?", "?"))
+            rows.append({"student": n, "directory": os.path.abspath(d), "total": "", "max": "", "chapters": {},
+                         "seconds": seconds, "status": f"not graded (exit status {code}; see {n}.log)"})
+    chapter_names = sorted({c for r in rows for c in r["chapters"]})
+    with open(os.path.join(report, "summary.csv"), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["student", "directory", "total", "max", *chapter_names, "seconds", "status"])
+        for r in rows:
+            w.writerow([r["student"], r["directory"], r["total"], r["max"],
+                        *[r["chapters"].get(c, ("", ""))[0] for c in chapter_names], r["seconds"], r["status"]])
+    h = html.escape
+    out = ["<!doctype html><meta charset=utf-8><title>class summary</title><style>body{font-family:sans-serif}"
+           "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:4px 8px}</style>",
+           f"<h1>Class summary ({len(rows)} submissions)</h1><table><tr><th>student</th><th>total</th>" +
+           "".join(f"<th>{h(c)}</th>" for c in chapter_names) + "<th>seconds</th><th>status</th></tr>"]
+    for r in rows:
+        link = f"<a href='{h(r['student'])}/report.html'>{h(r['student'])}</a>" if r["status"] == "graded" \
+            else h(r["student"])
+        cells = "".join(f"<td>{r['chapters'][c][0]} / {r['chapters'][c][1]}</td>" if c in r["chapters"]
+                        else "<td></td>" for c in chapter_names)
+        out.append(f"<tr><td>{link}</td><td>{r['total']} / {r['max']}</td>{cells}<td>{r['seconds']}</td>"
+                   f"<td>{h(r['status'])}</td></tr>")
+    out.append("</table>")
+    with open(os.path.join(report, "summary.html"), "w") as f:
+        f.write("\n".join(out) + "\n")
+    graded = sum(1 for r in rows if r["status"] == "graded")
+    print(f"{graded} of {len(rows)} submissions graded; summary: {os.path.join(report, 'summary.html')}")
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])

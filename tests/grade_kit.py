@@ -1,0 +1,156 @@
+"""Tests of the instructor kit (kit/): markers, handouts, the grader and its statistics.
+
+They build and grade copies of this tree in scratch directories (about a
+minute on 2 cores), once: under the sanitizer build they pass without
+running (the kit builds its own binaries, whatever BUILD is).
+"""
+import json
+import os
+import shutil
+import subprocess
+import sys
+
+from lib import ROOT
+
+sys.path.insert(0, os.path.join(ROOT, "kit"))
+import markers  # noqa: E402
+import rubric  # noqa: E402
+import stats  # noqa: E402
+
+PY = "/usr/bin/python3"
+
+
+def kit(*args, cwd=ROOT, timeout=900):
+    return subprocess.run([PY, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout,
+                          stdin=subprocess.DEVNULL)
+
+
+def copy_tree(dst):
+    files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
+    for rel in files:
+        if rel.startswith(("slides/", "docs/", "tests/mutants/")):
+            continue
+        os.makedirs(os.path.dirname(os.path.join(dst, rel)) or dst, exist_ok=True)
+        shutil.copy2(os.path.join(ROOT, rel), os.path.join(dst, rel))
+    return dst
+
+
+def test_markers_and_rubric_agree(ctx):
+    """Every [exercise N.M] is checked by some criterion of its chapter, every exercise a criterion
+    names is marked, and the markers parse into functions whose stubs have a neutral return."""
+    exercises = markers.all_exercises(ROOT)
+    names = markers.chapter_names(ROOT)
+    rub = rubric.load(ROOT)
+    marked = {e.id: e for e in exercises}
+    checked = {x for c in rub["criteria"] for x in c["exercises"]}
+    assert set(marked) <= checked, f"exercises no criterion checks: {sorted(set(marked) - checked)}"
+    assert checked <= set(marked), f"criteria name unmarked exercises: {sorted(checked - set(marked))}"
+    for c in rub["criteria"]:
+        for x in c["exercises"]:
+            assert names[int(x.split(".")[0])] == c["chapter"], f"{c['name']}: exercise {x} is not {c['chapter']}'s"
+    assert markers.neutral_value("static vec3") == "(vec3){0}" and markers.neutral_value("static bool") == "false"
+    assert markers.neutral_value("static void") is None and markers.neutral_value("static inline double") == "0.0"
+    for c in rub["criteria"]:
+        if c["kind"] in ("compare", "surfaces"):
+            import compare
+            assert os.path.exists(compare.reference_path(c)), f"no reference for {c['name']}: --make-reference"
+
+
+def test_statistics(ctx):
+    """Welch's t and Holm's correction against tabled values and a computation by hand."""
+    assert abs(stats.t_two_sided(2.228138852, 10) - 0.05) < 1e-8  # Student's table, 95 %, 10 df
+    assert abs(stats.t_two_sided(12.7062047, 1) - 0.05) < 1e-7
+    assert abs(stats.f_upper(4.9646027, 1, 10) - 0.05) < 1e-6  # F table = t^2: 2.228138852^2
+    # a = 1..4, b = 2, 4, .., 10: means 2.5 and 6, variances of the means 5/12 and 2
+    t, df, p, d, se = stats.welch([1, 2, 3, 4], [2, 4, 6, 8, 10])
+    assert abs(se - (5 / 12 + 2) ** 0.5) < 1e-12 and abs(t + 3.5 / se) < 1e-12
+    assert abs(df - (5 / 12 + 2) ** 2 / ((5 / 12) ** 2 / 3 + 4 / 4)) < 1e-9
+    assert stats.holm([0.01, 0.04, 0.03]) == [0.03, 0.06, 0.06]
+
+
+def test_handout_builds_runs_and_grades(ctx):
+    """make handout for chapter 1: the tree compiles without a warning, a stubbed chapter runs
+    (exit 0, one TODO line per stub reached, black direct light), and make grade in it grades it."""
+    if "asan" in ctx.build:
+        return
+    out = ctx.path("handout")
+    r = subprocess.run(["make", "--no-print-directory", "handout", f"OUT={out}", "CHAPTERS=01_local"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert os.path.exists(os.path.join(out, "assignments", "01_local", "ASSIGNMENT.md"))
+    assert not os.path.exists(os.path.join(out, "tests", "mutants")) and not os.path.exists(
+        os.path.join(out, "kit", "handout.py"))
+    with open(os.path.join(out, "chapters", "01_local.c")) as f:
+        assert 'TODO_ONCE("area_light")' in f.read()
+    r = subprocess.run(["make", "-j2", "build/01_local", "build/02_whitted"], cwd=out, capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr[-3000:]
+    pfm = ctx.path("stub.pfm")
+    r = subprocess.run([os.path.join(out, "build", "01_local"), "scenes/cornell.scene", "--quiet", "--size", "8x8",
+                        "--bounces", "1:1", "--out", pfm], cwd=out, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    todo = [ln for ln in r.stderr.splitlines() if "TODO" in ln]
+    assert todo and all(ln.startswith("chapters/01_local.c:") and ln.endswith("is not implemented") for ln in todo), \
+        r.stderr
+    import lib
+    assert all(p == (0.0, 0.0, 0.0) for p in lib.read_pfm(pfm).pixels), "the stubbed direct light is not black"
+    r = subprocess.run(["make", "--no-print-directory", "grade"], cwd=out, capture_output=True, text=True,
+                       timeout=900)
+    assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
+    report = lib.read_json(os.path.join(out, "out", "grade", "report.json"))
+    assert report["chapters"] == ["01_local"] and report["max"] == 100 and report["total"] < 50, report["total"]
+    assert os.path.exists(os.path.join(out, "out", "grade", "report.html"))
+
+
+def test_solution_scores_full_marks_on_chapter_1(ctx):
+    if "asan" in ctx.build:
+        return
+    r = kit("kit/grade.py", ".", "--chapters", "01_local", "--report", ctx.path("report"))
+    assert r.returncode == 0, r.stderr
+    report = json.load(open(ctx.path("report/report.json")))
+    failed = [c["name"] + ": " + c["message"] for c in report["criteria"] if not c["passed"]]
+    assert report["total"] == report["max"] == 100 and not failed, failed
+    assert any(c["p_value"] is not None for c in report["criteria"]), "no statistical criterion reported a p-value"
+    for c in report["criteria"]:
+        for name in c.get("images", {}).values():
+            with open(ctx.path("report/" + name), "rb") as f:
+                assert f.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_broken_submissions_are_reported_not_fatal(ctx):
+    """Chapter 1 segfaults in area_light, chapter 4 does not compile, chapter 2 is missing:
+    grading still ends with exit 0 and a report that says why each criterion failed."""
+    if "asan" in ctx.build:
+        return
+    sub = copy_tree(ctx.path("broken"))
+    path = os.path.join(sub, "chapters", "01_local.c")
+    text = open(path).read()
+    text = text.replace("const surface *emitter = &s->surfaces[emitter_surface];",
+                        "const surface *emitter = &s->surfaces[emitter_surface];\n"
+                        "    if (samples > 0) *(volatile int *)0 = 0;", 1)
+    open(path, "w").write(text)
+    with open(os.path.join(sub, "chapters", "04_pathtrace.c"), "a") as f:
+        f.write("\nthis is not C;\n")
+    os.remove(os.path.join(sub, "chapters", "02_whitted.c"))
+    r = kit("kit/grade.py", sub, "--chapters", "01_local 02_whitted 04_pathtrace", "--report", ctx.path("r"),
+            "--timeout", "120")
+    assert r.returncode == 0, r.stderr
+    report = json.load(open(ctx.path("r/report.json")))
+    by = {}
+    for c in report["criteria"]:
+        by.setdefault(c["chapter"], []).append(c)
+    assert all(not c["passed"] and "does not compile" in c["message"] for c in by["04_pathtrace"])
+    assert "error" in report["build_errors"]["04_pathtrace"], report["build_errors"]
+    assert all(not c["passed"] and "not in the submission" in c["message"] for c in by["02_whitted"])
+    area = [c for c in by["01_local"] if c["name"] == "cornell area light vs reference"][0]
+    assert not area["passed"] and ("SIGSEGV" in area["message"] or "exit status" in area["message"]), area
+    assert any(c["passed"] for c in by["01_local"]), "criteria without area lights should still pass"
+
+
+def test_bad_arguments_exit_2(ctx):
+    for args in (["kit/grade.py", ctx.path("no-such-dir")], ["kit/grade.py", os.path.join(ROOT, "README.md")],
+                 ["kit/grade.py", ".", "--chapters", "99_nothing"], ["kit/grade.py", ".", "--seed", "x"],
+                 ["kit/grade.py"], ["kit/handout.py", ctx.path("h"), "99_nothing"],
+                 ["kit/grade_class.py"]):
+        r = kit(*args, timeout=60)
+        assert r.returncode == 2 and r.stderr.strip() and "Traceback" not in r.stderr, (args, r.returncode, r.stderr)
