@@ -25,7 +25,9 @@ import sys
 from common import BUILD, ROOT, chapter_stats
 
 sys.path.insert(0, os.path.join(ROOT, "tradeoff"))
+sys.path.insert(0, os.path.join(ROOT, "tests"))
 from caustic_region import caustic_region  # noqa: E402
+import pfm  # noqa: E402  (tests/pfm.py: the one PFM reader of the Python tools)
 
 SCENE = "scenes/cornell-spheres.scene"
 SIZE = 256
@@ -34,15 +36,7 @@ TIMES = [float(t) for t in os.environ.get("BENCH5_TIMES", "5 20").split()]
 
 
 def read_pfm(path):
-    with open(path, "rb") as f:
-        data = f.read()
-    parts = data.split(b"\n", 3)
-    width, height = map(int, parts[1].split())
-    pixels = array.array("f")
-    pixels.frombytes(parts[3][:12 * width * height])
-    if (float(parts[2]) < 0) != (sys.byteorder == "little"):
-        pixels.byteswap()
-    return width, height, pixels
+    return pfm.read_pfm(path)  # tests/pfm.py
 
 
 def region_indices(width, height):

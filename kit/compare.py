@@ -23,6 +23,9 @@ import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import png  # noqa: E402
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
+import pfm  # noqa: E402  (tests/pfm.py)
 import stats  # noqa: E402
 
 KIT = os.path.dirname(os.path.abspath(__file__))
@@ -43,23 +46,11 @@ def reference_path(c):
 
 
 def read_pfm(path):
-    import struct
-    with open(path, "rb") as f:
-        data = f.read()
-    parts = data.split(b"\n", 3)
-    if parts[0] != b"PF":
-        raise CriterionFailed(f"{os.path.basename(path)}: not a colour PFM")
-    width, height = map(int, parts[1].split())
-    endian = "<" if float(parts[2]) < 0 else ">"
-    count = 3 * width * height
-    if len(parts[3]) < 4 * count:
-        raise CriterionFailed(f"{os.path.basename(path)}: truncated PFM")
-    floats = struct.unpack(endian + "%df" % count, parts[3][:4 * count])
-    pixels = []
-    for y in range(height - 1, -1, -1):
-        base = 3 * width * y
-        pixels.extend(tuple(floats[base + 3 * x:base + 3 * x + 3]) for x in range(width))
-    return width, height, pixels
+    try:
+        width, height, floats = pfm.read_pfm(path)
+    except ValueError as e:
+        raise CriterionFailed(f"{os.path.basename(path)}: {str(e).split(': ', 1)[-1]}")
+    return width, height, pfm.pixels_top_first(width, height, floats)
 
 
 def describe_exit(code, stderr):

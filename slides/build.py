@@ -44,10 +44,12 @@ import os
 import re
 import shlex
 import shutil
-import struct
 import subprocess
 import sys
 import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
+import pfm  # noqa: E402  (tests/pfm.py: the one PFM reader of the Python tools)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SLIDES = os.path.join(ROOT, "slides")
@@ -261,15 +263,10 @@ def code_block(where, spec, narrow=False):
 # ---- images -------------------------------------------------------------------------------------
 
 def read_pfm(path):
-    with open(path, "rb") as f:
-        data = f.read()
-    parts = data.split(b"\n", 3)
-    if parts[0] != b"PF":
+    try:
+        return pfm.read_pfm(path)
+    except ValueError:
         raise BuildError(f"{rel(path)}: not a colour PFM")
-    width, height = map(int, parts[1].split())
-    endian = "<" if float(parts[2]) < 0 else ">"
-    floats = struct.unpack(endian + "%df" % (3 * width * height), parts[3][:12 * width * height])
-    return width, height, floats
 
 
 def mean_luminance(path):

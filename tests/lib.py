@@ -6,9 +6,13 @@ Python packages.
 import json
 import math
 import os
-import struct
 import subprocess
 import tempfile
+
+import sys
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
+import pfm  # noqa: E402  (tests/pfm.py: the one PFM reader of the Python tools)
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
@@ -53,19 +57,8 @@ class Image:
 
 
 def read_pfm(path):
-    with open(path, "rb") as f:
-        data = f.read()
-    parts = data.split(b"\n", 3)
-    assert parts[0] == b"PF", f"{path}: not a colour PFM"
-    width, height = map(int, parts[1].split())
-    scale = float(parts[2])
-    endian = "<" if scale < 0 else ">"
-    floats = struct.unpack(endian + "%df" % (3 * width * height), parts[3][:12 * width * height])
-    rows = []
-    for y in range(height - 1, -1, -1):  # PFM stores the bottom row first
-        base = 3 * width * y
-        rows.extend(tuple(floats[base + 3 * x:base + 3 * x + 3]) for x in range(width))
-    return Image(width, height, rows)
+    width, height, floats = pfm.read_pfm(path)
+    return Image(width, height, pfm.pixels_top_first(width, height, floats))
 
 
 def read_json(path):

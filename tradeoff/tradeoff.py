@@ -56,6 +56,9 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 from caustic_region import caustic_region  # noqa: E402
 
+sys.path.insert(0, os.path.join(os.path.dirname(HERE), "tests"))
+import pfm  # noqa: E402  (tests/pfm.py: the one PFM reader of the Python tools)
+
 CAUSTIC_SCENE = "cornell-spheres"
 
 SCENES = ["cornell", "cornell-spheres"]
@@ -122,18 +125,7 @@ def config():
 
 def read_pfm(path):
     """(width, height, array('f') of RGB, bottom row first: the order does not matter here)."""
-    with open(path, "rb") as f:
-        data = f.read()
-    parts = data.split(b"\n", 3)
-    if parts[0] != b"PF":
-        raise ValueError(f"{path}: not a colour PFM")
-    width, height = map(int, parts[1].split())
-    scale = float(parts[2])
-    pixels = array.array("f")
-    pixels.frombytes(parts[3][:12 * width * height])
-    if (scale < 0) != (sys.byteorder == "little"):
-        pixels.byteswap()
-    return width, height, pixels
+    return pfm.read_pfm(path)
 
 
 def write_pfm(path, width, height, pixels):
