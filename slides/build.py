@@ -814,10 +814,11 @@ class Deck:
         cols = int(options.get("cols", min(len(cells), 4)))
         rows = -(-len(cells) // cols)
         # As large as the slide allows (1280 x 800 with a title and a line of
-        # text: about 1200 x 440 for the grid), at most twice the render's size.
+        # text: about 1200 x 440 for the grid), at most 1.5 times the render's
+        # size (more is blur); the slide test catches a slide that overflows.
         fit = min((1200 - 16 * (cols - 1)) // cols, 440 // rows - 36)
         rendered = int(size.split("x")[0]) if re.fullmatch(r"\d+x\d+", size) else 260
-        shown = max(120, min(fit, 2 * rendered))
+        shown = max(120, min(fit, int(1.5 * rendered)))
         return (f'<div class="grid" style="grid-template-columns: repeat({cols}, 1fr); --img-max: {shown}px">'
                 f'{"".join(cells)}</div>')
 
