@@ -350,17 +350,22 @@ def test_cornell_colour_bleeding(ctx):
     assert max(px[0] for px in top) >= 17.0
 
 
+# A point light over a square occluder: a shadow whose edge is known.
+SHADOW_SCENE = """\
+camera eye 0 4 0.01  look 0 0 0  up 0 1 0  fov 40
+material floor diffuse 0.7 0.7 0.7
+quad floor floor  -1.5 0 -1.5  -1.5 0 1.5  1.5 0 1.5  1.5 0 -1.5
+quad blocker floor  -0.25 1 -0.25  0.25 1 -0.25  0.25 1 0.25  -0.25 1 0.25
+light lamp point 0 2 0  10 10 10
+"""
+
+
 def test_adaptive_refinement_goes_to_the_shadow_edge(ctx):
     """A point light over a square occluder casts a shadow with a known edge
     (the occluder's outline projected from the light: |x| = 0.5 or |z| = 0.5
     at the floor).  --adaptive must split patches there and nowhere far
     from it."""
-    scene = ctx.write("shadow.scene",
-                      "camera eye 0 4 0.01  look 0 0 0  up 0 1 0  fov 40\n"
-                      "material floor diffuse 0.7 0.7 0.7\n"
-                      "quad floor floor  -1.5 0 -1.5  -1.5 0 1.5  1.5 0 1.5  1.5 0 -1.5\n"
-                      "quad blocker floor  -0.25 1 -0.25  0.25 1 -0.25  0.25 1 0.25  -0.25 1 0.25\n"
-                      "light lamp point 0 2 0  10 10 10\n")
+    scene = ctx.write("shadow.scene", SHADOW_SCENE)
     ply = ctx.path("mesh.ply")
     _, plain = ctx.render(CHAPTER, scene, "--patch-size", 0.3, name="plain")
     _, stats = ctx.render(CHAPTER, scene, "--patch-size", 0.3, "--adaptive", "--out", ply, name="adaptive")
@@ -648,12 +653,7 @@ def test_smooth_shading_has_no_step_at_t_vertices(ctx):
     the edge takes the mean of its ends.  Before the fix it took the mean of the
     patches around it: a step of 99 % of the interpolated value here.  Hierarchical
     leaves have the same T-vertices."""
-    scene = ctx.write("shadow.scene",
-                      "camera eye 0 4 0.01  look 0 0 0  up 0 1 0  fov 40\n"
-                      "material floor diffuse 0.7 0.7 0.7\n"
-                      "quad floor floor  -1.5 0 -1.5  -1.5 0 1.5  1.5 0 1.5  1.5 0 -1.5\n"
-                      "quad blocker floor  -0.25 1 -0.25  0.25 1 -0.25  0.25 1 0.25  -0.25 1 0.25\n"
-                      "light lamp point 0 2 0  10 10 10\n")
+    scene = ctx.write("shadow.scene", SHADOW_SCENE)
     for name, args in (("adaptive", ["--patch-size", 0.3, "--adaptive", "--adaptive-levels", 3]),
                        ("hier", [*HIER, "--eps", 2e-2, "--levels", 6])):
         ply = ctx.path(name + ".ply")
