@@ -6,6 +6,8 @@
 #   make fuzz       libFuzzer on the scene parser (FUZZ_SECONDS=60)
 #   make tradeoff   error against time for every method (QUICK=1: under a minute)
 #   make slides     lecture decks (HTML + PDF) into out/slides/
+#   make handout    a student tree with the solutions stubbed (OUT=DIR; see kit/README.md)
+#   make grade      grade a student's tree or a class (SUBMISSION=DIR | SUBMISSIONS=...)
 #   make format     rewrite the C sources in the style of .clang-format (make test checks it)
 #   make deps       install the Debian packages the project needs
 #   make clean
@@ -32,14 +34,14 @@ LDFLAGS += -fopenmp $(LDFLAGS_SAN)
 
 COMMON_SRC := $(wildcard common/*.c)
 COMMON_OBJ := $(COMMON_SRC:%.c=$(BUILD)/%.o)
-CHAPTERS   := $(patsubst chapters/%.c,$(BUILD)/%,$(wildcard chapters/*.c))
+CHAPTER_PROGRAMS := $(patsubst chapters/%.c,$(BUILD)/%,$(wildcard chapters/*.c))
 TESTS      := $(patsubst tests/%.c,$(BUILD)/tests/%,$(wildcard tests/test_*.c))
 
 .PHONY: all tests demo test test-plain bench deps print-deps fuzz format clean
 .DEFAULT_GOAL := all
 .SECONDARY:
 
-all: $(CHAPTERS) $(BUILD)/bench/bench_rays
+all: $(CHAPTER_PROGRAMS) $(BUILD)/bench/bench_rays
 tests: $(TESTS)
 
 $(BUILD)/common/%.o: common/%.c
@@ -55,7 +57,7 @@ $(BUILD)/%: chapters/%.c $(COMMON_OBJ)
 $(BUILD)/chapters/support/%.o: chapters/support/%.c
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) -Icommon -c $< -o $@
-$(foreach c,$(CHAPTERS),$(eval $(c): $(patsubst chapters/support/%.c,$(BUILD)/chapters/support/%.o,\
+$(foreach c,$(CHAPTER_PROGRAMS),$(eval $(c): $(patsubst chapters/support/%.c,$(BUILD)/chapters/support/%.o,\
   $(wildcard chapters/support/$(notdir $(c))_*.c))))
 
 # Chapter 2 shades with chapter 1's local model (chapters/local_model.h):
@@ -153,8 +155,7 @@ format:
 # make handout OUT=DIR [CHAPTERS="03_radiosity ..."]   a student tree, marked functions stubbed
 # make grade [SUBMISSION=DIR] [REPORT=DIR] [CHAPTERS=...] [SEED=N]   grade one tree (default: this one)
 # make grade SUBMISSIONS="dir1 dir2 ..."|@list.txt [REPORT=DIR] [JOBS=N] [SSHLOGINFILE=FILE]   a class
-# (CHAPTERS here is the one given on the command line, not the list of executables above)
-KIT_CHAPTERS = $(if $(filter command environment,$(firstword $(origin CHAPTERS))),$(CHAPTERS))
+KIT_CHAPTERS = $(CHAPTERS)
 .PHONY: handout grade
 handout:
 	@test -n "$(OUT)" || { echo "make handout: OUT=DIR is required" >&2; exit 2; }
