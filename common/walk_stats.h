@@ -60,7 +60,7 @@ static inline uint64_t walk_batch_mean(const walk_source *w, const probe *p, int
                                        vec3 *standard_error)
 {
     uint64_t index = p ? (uint64_t)(p - w->scene->probes) : (uint64_t)i, rays = 0;
-    vec3 batch[WALK_BATCHES], sum = v3_splat(0.0), sum_squares = v3_splat(0.0);
+    vec3 batch[WALK_BATCHES];
     render_counters counters[WALK_BATCHES] = {{{0}}};
 #pragma omp parallel for schedule(dynamic, 1)
     for (int b = 0; b < WALK_BATCHES; b++) {
@@ -73,17 +73,11 @@ static inline uint64_t walk_batch_mean(const walk_source *w, const probe *p, int
         }
         batch[b] = v3_scale(batch_sum, 1.0 / n);
     }
-    for (int b = 0; b < WALK_BATCHES; b++) {
-        sum = v3_add(sum, batch[b]);
-        sum_squares = v3_add(sum_squares, v3_mul(batch[b], batch[b]));
+    for (int b = 0; b < WALK_BATCHES; b++)
         for (int c = 0; c < RENDER_MAX_COUNTERS; c++)
             rays += counters[b].value[c];
-    }
-    *mean = v3_scale(sum, 1.0 / WALK_BATCHES);
-    vec3 variance = v3_sub(v3_scale(sum_squares, 1.0 / WALK_BATCHES), v3_mul(*mean, *mean));
-    double scale = 1.0 / (WALK_BATCHES - 1);
-    *standard_error = v3(sqrt(fmax(0.0, variance.x) * scale), sqrt(fmax(0.0, variance.y) * scale),
-                         sqrt(fmax(0.0, variance.z) * scale));
+    probe_result r = batch_mean_and_error(batch, WALK_BATCHES);
+    *mean = r.irradiance, *standard_error = r.standard_error;
     return rays;
 }
 
