@@ -19,6 +19,7 @@ import csv
 import html
 import json
 import os
+import shlex
 import shutil
 import subprocess
 import sys
@@ -74,7 +75,7 @@ def main(argv):
     # One report directory per student, named after the directory (numbered when two share a name).
     names, seen = [], {}
     for d in dirs:
-        base = os.path.basename(os.path.normpath(d)) or "submission"
+        base = os.path.basename(os.path.abspath(d)) or "submission"  # "." is named after the directory
         seen[base] = seen.get(base, 0) + 1
         names.append(base if seen[base] == 1 else f"{base}-{seen[base]}")
     os.makedirs(report, exist_ok=True)
@@ -86,15 +87,22 @@ def main(argv):
            "--halt", "never", "--tag"]
     if login:
         cmd += ["--sshloginfile", login]
-    cmd += [sys.executable, os.path.join(KIT, "grade.py"), "{1}", "--report", os.path.join(report, "{2}"),
-            "--name", "{2}", "--jobs", "1", *extra, ">", os.path.join(report, "{2}.log"), "2>&1",
-            "::::", table]
+    # GNU parallel joins the command's words with spaces for the shell (here or on the remote machine
+    # over ssh), so every word we give is quoted; {1} and {2} are quoted by parallel itself.  The
+    # interpreter is Debian's, which every machine of the class has (this one may run another).
+    python = "/usr/bin/python3" if os.path.exists("/usr/bin/python3") else sys.executable
+    words = [python, os.path.join(KIT, "grade.py")]
+    words = [shlex.quote(w) for w in words] + ["{1}", "--report", shlex.quote(report) + "/{2}", "--name", "{2}",
+                                               "--jobs", "1", *map(shlex.quote, extra)]
+    cmd += words + [">", shlex.quote(report) + "/{2}.log", "2>&1", "::::", table]
     subprocess.run(cmd)
     status = {}
     try:
         with open(os.path.join(report, "joblog.tsv")) as f:
             for row in list(csv.reader(f, delimiter="\t"))[1:]:
-                status[row[-1].split(" --report ")[-1].split(" ")[0]] = (row[6].strip(), row[3].strip())
+                words = shlex.split(row[-1])
+                if "--name" in words:
+                    status[words[words.index("--name") + 1]] = (row[6].strip(), row[3].strip())
     except OSError:
         pass
     rows = []
@@ -110,7 +118,7 @@ def main(argv):
             rows.append({"student": n, "directory": os.path.abspath(d), "total": r["total"], "max": r["max"],
                          "chapters": chapters, "seconds": r.get("seconds"), "status": "graded"})
         except (OSError, ValueError, KeyError):
-            code, seconds = status.get(os.path.join(report, n), ("?", "?"))
+            code, seconds = status.get(n, ("?", "?"))
             rows.append({"student": n, "directory": os.path.abspath(d), "total": "", "max": "", "chapters": {},
                          "seconds": seconds, "status": f"not graded (exit status {code}; see {n}.log)"})
     chapter_names = sorted({c for r in rows for c in r["chapters"]})

@@ -4,6 +4,7 @@ They build and grade copies of this tree in scratch directories (about a
 minute on 2 cores), once: under the sanitizer build they pass without
 running (the kit builds its own binaries, whatever BUILD is).
 """
+import csv
 import json
 import os
 import shutil
@@ -154,3 +155,23 @@ def test_bad_arguments_exit_2(ctx):
                  ["kit/grade_class.py"]):
         r = kit(*args, timeout=60)
         assert r.returncode == 2 and r.stderr.strip() and "Traceback" not in r.stderr, (args, r.returncode, r.stderr)
+
+
+def test_class_grading_quotes_chapters_paths_and_uses_sshlogins(ctx):
+    """kit/grade_class.py through GNU parallel: two chapters in one --chapters word, a student
+    directory with a space, one that does not exist (a row "not graded", the others stand), and
+    an --sshloginfile (":" is GNU parallel's name for this machine, so no ssh server is needed)."""
+    if "asan" in ctx.build:
+        return
+    empty = ctx.path("a student")
+    os.makedirs(empty)
+    logins = ctx.write("logins", "2/:\n")
+    r = kit("kit/grade_class.py", ".", empty, ctx.path("gone"), "--report", ctx.path("class"),
+            "--sshloginfile", logins, "--chapters", "01_local 02_whitted")
+    assert r.returncode == 0, r.stderr
+    with open(ctx.path("class/summary.csv")) as f:
+        rows = {row["student"]: row for row in csv.DictReader(f)}
+    solution, student, gone = rows[os.path.basename(ROOT)], rows["a student"], rows["gone"]
+    assert solution["status"] == "graded" and solution["01_local"] == "100" and solution["02_whitted"] == "100", rows
+    assert student["status"] == "graded" and student["total"] == "0", student
+    assert gone["status"].startswith("not graded (exit status 2"), gone
