@@ -15,6 +15,7 @@ and ends with the line "N passed, N failed".  Exit status 1 if anything failed.
 import glob
 import importlib.util
 import os
+import shutil
 import subprocess
 import sys
 import time
@@ -69,9 +70,10 @@ def run_grading_tests(build, report, only):
             try:
                 getattr(module, name)(ctx)
                 report(full, True, f"{time.time() - start:.1f} s")
+                shutil.rmtree(ctx.scratch, ignore_errors=True)  # a failed test's files are kept to look at
             except Exception as e:  # an AssertionError is a failed grade; anything else too
                 detail = str(e) if isinstance(e, AssertionError) else traceback.format_exc()
-                report(full, False, detail)
+                report(full, False, f"{detail}\n     (its files: {ctx.scratch})")
 
 
 def main():
