@@ -133,11 +133,11 @@ static ray emit_photon(const photonmap_state *st, const scene *s, rng *g, int ph
 
 /* ---- the photon pass -------------------------------------------------------------------------- */
 
-/* Follow one photon from a light until Russian roulette absorbs it or it leaves the
- * scene, storing it (into `out`) at every non-specular surface it lands on, caustic
- * while it met only mirrors and glass (L S+ D).  A probe's estimate passes a `sensor`
- * instead: the flux crossing its disc of radius r from the front (after a --bounces
- * number of bounces) is added to *crossed.  The rays traced, or -1 if out of memory. [exercise 5.2] */
+/* Follow one photon from a light until Russian roulette absorbs it or it leaves the scene, storing
+ * it (into `out`) at every non-specular surface it lands on, caustic while it met only mirrors and
+ * glass (L S+ D); each bounce multiplies its power by f cos / p (R2).  A probe's estimate passes a
+ * `sensor` instead: the flux crossing its disc of radius r from the front (after a --bounces number
+ * of bounces) is added to *crossed.  Returns the rays traced, or -1 if out of memory. [exercise 5.2] */
 static int trace_photon(const photonmap_state *st, const scene *s, int photons, uint32_t path, rng *g, photon_map *out,
                         const probe *sensor, vec3 *crossed)
 {
@@ -169,7 +169,7 @@ static int trace_photon(const photonmap_state *st, const scene *s, int photons, 
         }
         if (!survives_roulette(&weight, g))
             break;
-        power = v3_mul(power, weight); /* f cos / p (R2), over the chance to survive */
+        power = v3_mul(power, weight);
         r = (ray){scene_offset_origin(s, h.point, h.normal, w_i), w_i};
     }
     return bounces + 1;
@@ -334,7 +334,7 @@ static vec3 indirect_walk(const photonmap_state *st, const scene *s, hit at, vec
 }
 
 /* The light reflected at the non-specular point x toward w_o.  --maps global:
- * (R11) on the global map, nothing else.  Otherwise direct light (R9) and
+ * (R11) on the global map, nothing else.  Otherwise direct light and
  * caustics, and for the rest the global map's photons that were reflected
  * diffusely on their way (--gather 0, --maps both), or --gather N walks. [exercise 5.4] */
 static vec3 reflected_radiance(const photonmap_state *st, const scene *s, hit x, vec3 w_o, int before, rng *g,
