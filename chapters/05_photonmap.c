@@ -117,7 +117,7 @@ static const light_source *pick_light(const photonmap_state *st, rng *g)
 /* A photon leaving a light: a point and a direction drawn in proportion to
  * the emitted power (uniform over the sphere for a point light; uniform over
  * the area and cosine-weighted for a Lambertian emitter), so every photon
- * carries the same share Phi_light / (probability * photons). */
+ * carries the same share Phi_p = Phi_light / (probability * photons) of (R11). [exercise 5.1] */
 static ray emit_photon(const photonmap_state *st, const scene *s, rng *g, int photons, vec3 *power)
 {
     const light_source *light = pick_light(st, g);
@@ -133,11 +133,11 @@ static ray emit_photon(const photonmap_state *st, const scene *s, rng *g, int ph
 
 /* ---- the photon pass -------------------------------------------------------------------------- */
 
-/* Follow one photon from a light until it is absorbed or leaves the scene,
- * storing it (into `out`) at every non-specular surface it lands on.  A
- * probe's estimate passes a `sensor` instead: the flux crossing its disc
- * of radius r from the front (after a --bounces number of bounces) is added
- * to *crossed.  Returns the rays traced, or -1 when out of memory. */
+/* Follow one photon from a light until Russian roulette absorbs it or it leaves the scene, storing
+ * it (into `out`) at every non-specular surface it lands on, caustic while it met only mirrors and
+ * glass (L S+ D); each bounce multiplies its power by f cos / p (R2).  A probe's estimate passes a
+ * `sensor` instead: the flux crossing its disc of radius r from the front (after a --bounces number
+ * of bounces) is added to *crossed.  Returns the rays traced, or -1 if out of memory. [exercise 5.2] */
 static int trace_photon(const photonmap_state *st, const scene *s, int photons, uint32_t path, rng *g, photon_map *out,
                         const probe *sensor, vec3 *crossed)
 {
@@ -202,11 +202,10 @@ static int photon_pass(photonmap_state *st, const scene *s, int pass)
 
 typedef enum { ALL_PHOTONS, INDIRECT_PHOTONS } photon_filter;
 
-/* Does photon p count at x (unit normal n on the side of w_o)?  It must have
- * landed on a surface facing the same way (not the wall round the corner,
- * not the back of a thin panel), and its light must be a term of (R6) the
- * --bounces window keeps: it scattered p->bounces times, then once more at x
- * after `before` scatterings on the way to the eye. */
+/* Does photon p count at x (unit normal n on the side of w_o)?  It must have landed on a surface
+ * facing the same way (not the wall round the corner, not the back of a thin panel), and its light
+ * must be a term of (R6) the --bounces window keeps: it scattered p->bounces times, then once more
+ * at x after `before` scatterings on the way to the eye. */
 static bool photon_counts(const photonmap_state *st, const photon *p, vec3 n, int before, photon_filter filter)
 {
     bool counted_elsewhere = filter == INDIRECT_PHOTONS && (p->bounces == 0 || p->caustic); /* direct, caustic */
@@ -215,7 +214,7 @@ static bool photon_counts(const photonmap_state *st, const photon *p, vec3 n, in
 
 /* (R11): the sum of f Phi_p over the photons in a disc of radius r around x,
  * divided by the disc's area pi r^2.  With --nearest K the disc is the
- * smallest that holds the K nearest photons (at most the pass's radius). */
+ * smallest that holds the K nearest photons (at most the pass's radius). [exercise 5.3] */
 static vec3 photon_estimate(const photonmap_state *st, const photon_map *map, vec3 x, vec3 n, vec3 w_o,
                             const material *m, int before, photon_filter filter, render_counters *counters)
 {
@@ -303,10 +302,9 @@ static vec3 direct_and_caustic(const photonmap_state *st, const scene *s, hit x,
     return keeps(st, before + 1) ? v3_add(L, direct_light(st, s, x.point, n, w_o, m, g, counters)) : L;
 }
 
-/* The rest of the light at x by one walk (weight 1/walks): --maps both reads
- * the global map where the walk lands next (final gathering), --maps caustic
- * goes on as a path tracer.  Light a walk finds on an emitter is direct or
- * caustic light at the vertex before, counted there already: not again. */
+/* The rest of the light at x by one walk (weight 1/walks): --maps both reads the global map where
+ * the walk lands next (final gathering), --maps caustic goes on as a path tracer.  Light a walk
+ * finds on an emitter is direct or caustic light at the vertex before, counted there: not again. [exercise 5.5] */
 static vec3 indirect_walk(const photonmap_state *st, const scene *s, hit at, vec3 normal, vec3 out, int k, vec3 weight,
                           rng *g, render_counters *counters)
 {
@@ -338,7 +336,7 @@ static vec3 indirect_walk(const photonmap_state *st, const scene *s, hit at, vec
 /* The light reflected at the non-specular point x toward w_o.  --maps global:
  * (R11) on the global map, nothing else.  Otherwise direct light and
  * caustics, and for the rest the global map's photons that were reflected
- * diffusely on their way (--gather 0, --maps both), or --gather N walks. */
+ * diffusely on their way (--gather 0, --maps both), or --gather N walks. [exercise 5.4] */
 static vec3 reflected_radiance(const photonmap_state *st, const scene *s, hit x, vec3 w_o, int before, rng *g,
                                render_counters *counters)
 {
@@ -368,9 +366,8 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
     if (!next_diffuse_hit(s, &r, &weight, &k, g, counters, &x, &escaped))
         return escaped && keeps(st, k) ? v3_mul(weight, s->background) : v3_splat(0.0);
     const material *m = &s->materials[s->surfaces[x.surface].material];
-    vec3 w_o = v3_neg(r.direction), L = v3_splat(0.0);
-    if (m->kind == MATERIAL_EMITTER && v3_dot(x.normal, w_o) > 0.0 && keeps(st, k))
-        L = m->emission;
+    vec3 w_o = v3_neg(r.direction);
+    vec3 L = m->kind == MATERIAL_EMITTER && v3_dot(x.normal, w_o) > 0.0 && keeps(st, k) ? m->emission : v3_splat(0.0);
     return v3_mul(weight, v3_add(L, reflected_radiance(st, s, x, w_o, k, g, counters)));
 }
 
@@ -436,6 +433,9 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
     return 0;
 }
 
+/* (R12) after pass i: r_{i+1}^2 = r_i^2 (i + alpha) / (i + 1). [exercise 5.6] */
+static void shrink_radius(photonmap_state *st, int i) { st->current_radius *= sqrt((i + st->alpha) / (i + 1)); }
+
 /* Before pass i (from 1): the radius of (R12), and a new photon map. */
 static int begin_pass(void *state_pointer, const scene *s, const render_options *o, int pass, char *err,
                       size_t err_size)
@@ -443,7 +443,7 @@ static int begin_pass(void *state_pointer, const scene *s, const render_options 
     photonmap_state *st = state_pointer;
     (void)o;
     if (pass > 1)
-        st->current_radius *= sqrt((pass - 1 + st->alpha) / pass); /* (R12) with i = pass - 1 */
+        shrink_radius(st, pass - 1);
     double *radii = realloc(st->radius_per_pass, (size_t)pass * sizeof *radii);
     if (radii)
         st->radius_per_pass = radii, radii[pass - 1] = st->current_radius;

@@ -1,13 +1,14 @@
 #!/usr/bin/python3
 """Measure the grader: false failures of the solution over many seeds, and power on mutants.
 
-usage: kit/calibrate.py false-failures [--seeds A-B] [--jobs N]   (default seeds 1-100)
+usage: kit/calibrate.py false-failures [--seeds A-B] [--jobs N] [--chapters "A B"]   (default seeds 1-100)
        kit/calibrate.py mutants [--jobs N] [NAME ...]             (default every tests/mutants/*.patch)
 
 false-failures: the solution (this tree's build/, `make` first) graded by
   every statistical (compare) criterion with seeds A..B; writes
   out/calibration/false_failures.csv (seed, criterion, passed, p) and prints
-  per criterion and overall how many gradings failed.
+  per criterion and overall how many gradings failed (--chapters: only
+  those chapters' criteria, still at the rubric's alpha per criterion).
 mutants: each tests/mutants/NAME.patch applied alone to a copy of this tree
   (its build/ copied, so only what the patch touches is recompiled); the
   criteria of the chapters the patch names ("# chapters: ...") are run as
@@ -34,9 +35,9 @@ import rubric as rubric_module  # noqa: E402
 OUT = os.path.join(ROOT, "out", "calibration")
 
 
-def false_failures(seeds, jobs):
+def false_failures(seeds, jobs, chapters=None):
     rub = rubric_module.load(ROOT)
-    crit = [c for c in rub["criteria"] if c["kind"] == "compare"]
+    crit = [c for c in rub["criteria"] if c["kind"] == "compare" and (not chapters or c["chapter"] in chapters)]
     os.makedirs(OUT, exist_ok=True)
     failed_by = {c["name"]: 0 for c in crit}
     any_failed = 0
@@ -134,7 +135,7 @@ def main(argv):
         print(__doc__.strip())
         sys.exit(0 if argv else 2)
     mode, rest = argv[0], argv[1:]
-    jobs, seeds, names = 2, list(range(1, 101)), []
+    jobs, seeds, names, chapters = 2, list(range(1, 101)), [], None
     i = 0
     while i < len(rest):
         if rest[i] == "--jobs" and i + 1 < len(rest) and rest[i + 1].isdigit():
@@ -146,6 +147,9 @@ def main(argv):
                 break
             seeds = list(range(int(a), int(b) + 1))
             i += 2
+        elif rest[i] == "--chapters" and i + 1 < len(rest):
+            chapters = rest[i + 1].split()
+            i += 2
         elif rest[i].startswith("-"):
             print(f"kit/calibrate.py: bad option {rest[i]} (see --help)", file=sys.stderr)
             sys.exit(2)
@@ -153,7 +157,7 @@ def main(argv):
             names.append(rest[i])
             i += 1
     if mode == "false-failures":
-        false_failures(seeds, jobs)
+        false_failures(seeds, jobs, chapters)
     elif mode == "mutants":
         mutants(names, jobs)
     else:

@@ -103,6 +103,46 @@ def test_handout_builds_runs_and_grades(ctx):
     assert os.path.exists(os.path.join(out, "out", "grade", "report.html"))
 
 
+def test_handout_of_chapter_5_stubs_run_and_say_so(ctx):
+    """make handout for chapter 5: ASSIGNMENT.md lists its marked functions with their equations and
+    the chapter's criteria with their points; the stubbed chapter compiles without a warning and runs
+    with every --maps choice and final gathering (exit 0, finite pixels), each stub it reaches saying
+    TODO once."""
+    if "asan" in ctx.build:
+        return
+    out = ctx.path("handout5")
+    r = subprocess.run(["make", "--no-print-directory", "handout", f"OUT={out}", "CHAPTERS=05_photonmap"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    with open(os.path.join(out, "assignments", "05_photonmap", "ASSIGNMENT.md")) as f:
+        text = f.read()
+    marked = [e for e in markers.all_exercises(ROOT) if e.lecture == 5]
+    assert len(marked) >= 5, [e.id for e in marked]
+    for e in marked:
+        assert f"| {e.id} | `{e.name}` |" in text, f"exercise {e.id} {e.name} not in ASSIGNMENT.md"
+    assert "(R11)" in text and "(R12)" in text, "the assignment cites no equation of the lecture"
+    criteria = [c for c in rubric.load(ROOT)["criteria"] if c["chapter"] == "05_photonmap"]
+    assert criteria and all(f"| {c['name']} | {c['points']} |" in text for c in criteria)
+    with open(os.path.join(out, "chapters", "05_photonmap.c")) as f:
+        source = f.read()
+    assert all(f'TODO_ONCE("{e.name}")' in source for e in marked)
+    r = subprocess.run(["make", "-j2", "build/05_photonmap"], cwd=out, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr[-3000:]
+    import lib
+    for maps in ("global", "caustic", "both"):
+        pfm = ctx.path(f"stub5-{maps}.pfm")
+        r = subprocess.run([os.path.join(out, "build", "05_photonmap"), "scenes/cornell-spheres.scene", "--quiet",
+                            "--size", "8x8", "--spp", "3", "--photons", "2000", "--maps", maps, "--gather", "2",
+                            "--probe-photons", "32", "--out", pfm], cwd=out, capture_output=True, text=True,
+                           timeout=60)
+        assert r.returncode == 0, r.stderr
+        todo = [ln for ln in r.stderr.splitlines() if "TODO" in ln]
+        assert todo and all(ln.startswith("chapters/05_photonmap.c:") and ln.endswith("is not implemented")
+                            for ln in todo), r.stderr
+        assert len(todo) == len(set(todo)), f"a stub spoke more than once: {todo}"
+        assert lib.finite_image(lib.read_pfm(pfm)), f"--maps {maps}: NaN or infinite pixels from the stubs"
+
+
 def test_solution_scores_full_marks_on_chapter_1(ctx):
     if "asan" in ctx.build:
         return
