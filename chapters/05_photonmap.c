@@ -141,7 +141,7 @@ static ray emit_photon(const photonmap_state *st, const scene *s, rng *g, int ph
 static int trace_photon(const photonmap_state *st, const scene *s, int photons, uint32_t path, rng *g, photon_map *out,
                         const probe *sensor, vec3 *crossed)
 {
-    vec3 power;
+    vec3 power = v3_splat(0.0); /* emit_photon sets it; zero while emit_photon is a handout stub */
     ray r = emit_photon(st, s, g, photons, &power);
     bool caustic = true;
     int bounces;
