@@ -17,12 +17,48 @@ import pfm  # noqa: E402  (tests/pfm.py: the one PFM reader of the Python tools)
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
-class Context:
-    """What a test needs: the build directory under test and a scratch dir."""
+SEED_LIMIT = 2 ** 31  # the chapters take --seed N with 0 <= N <= INT_MAX (common/render.c)
+SEED_STRIDE = 0x2545F491  # odd: grading seed s moves every chapter seed by (s - 1) * SEED_STRIDE
 
-    def __init__(self, build):
+
+def shifted_seed(chapter_seed, grading_seed):
+    """The chapter seed a test's `--seed chapter_seed` becomes under grading seed `grading_seed`:
+    chapter_seed + (grading_seed - 1) * SEED_STRIDE modulo 2^31.  Grading seed 1 (and None) is
+    the identity; for any other it is a bijection of [0, 2^31), so two runs that share a seed in
+    a test still share one, and two that differ still differ."""
+    if grading_seed is None:
+        return chapter_seed
+    return (chapter_seed + (grading_seed - 1) * SEED_STRIDE) % SEED_LIMIT
+
+
+class Context:
+    """What a test needs: the build directory under test and a scratch dir.
+
+    seed: the grading seed (kit/grade.py --seed, via kit/criterion.py).  None or 1 runs every
+    chapter exactly as the test says (the fixed seeds of `make test`); any other value shifts
+    the seed of every chapter run by shifted_seed: an explicit `--seed X` becomes
+    shifted_seed(X, seed), and a run without --seed, which the chapter would give its default
+    seed 1, gets `--seed shifted_seed(1, seed)` appended.  So each grading seed reruns every
+    Monte Carlo test with fresh random numbers, and kit/calibrate.py can measure how often a
+    correct solution fails.  Runs with --help, and values of --seed that are not a seed the
+    chapters accept (bad-input tests), are left alone."""
+
+    def __init__(self, build, seed=None):
         self.build = build
+        self.seed = seed
         self.scratch = tempfile.mkdtemp(prefix="gi-test-")
+
+    def seeded(self, args):
+        """The argument list `args` (strings) with the context's seed applied (see the class)."""
+        if self.seed is None or self.seed == 1 or "--help" in args or "-h" in args:
+            return list(args)
+        out = list(args)
+        for i in range(len(out) - 1):
+            if out[i] == "--seed" and out[i + 1].isdigit() and int(out[i + 1]) < SEED_LIMIT:
+                out[i + 1] = str(shifted_seed(int(out[i + 1]), self.seed))
+        if "--seed" not in out:
+            out += ["--seed", str(shifted_seed(1, self.seed))]
+        return out
 
     def path(self, name):
         return os.path.join(self.scratch, name)
@@ -36,7 +72,7 @@ class Context:
     def run(self, chapter, *args, timeout=600):
         """Run build/<chapter> with args from the repo root; return the CompletedProcess."""
         exe = os.path.join(ROOT, self.build, chapter)
-        return subprocess.run([exe, *map(str, args)], cwd=ROOT, capture_output=True, text=True,
+        return subprocess.run([exe, *self.seeded([str(a) for a in args])], cwd=ROOT, capture_output=True, text=True,
                               timeout=timeout, stdin=subprocess.DEVNULL)
 
     def render(self, chapter, scene, *args, name="render", timeout=600):
