@@ -66,6 +66,8 @@ def test_statistics(ctx):
     assert abs(se - (5 / 12 + 2) ** 0.5) < 1e-12 and abs(t + 3.5 / se) < 1e-12
     assert abs(df - (5 / 12 + 2) ** 2 / ((5 / 12) ** 2 / 3 + 4 / 4)) < 1e-9
     assert stats.holm([0.01, 0.04, 0.03]) == [0.03, 0.06, 0.06]
+    assert abs(stats.t_quantile(0.05, 10) - 2.228138852) < 1e-8 and abs(stats.t_quantile(0.05, 1) - 12.7062047) < 1e-6
+    assert abs(stats.f_quantile(0.05, 1, 10) - 4.9646027) < 1e-6
 
 
 def test_grading_seed_shifts_every_chapter_seed(ctx):
