@@ -30,7 +30,7 @@ import math
 import os
 
 from lib import (BATCH_DF, ROOT, check_bad_input, check_probes_match_lambert, check_thread_independence,
-                 finite_image, probe, radiosity_surfaces, read_pfm, t_bound)
+                 finite_image, kit_stats, probe, radiosity_surfaces, read_pfm, t_bound)
 
 CHAPTER = "04_pathtrace"
 ESTIMATORS = ("hemisphere", "cosine", "light", "mis")
@@ -230,6 +230,50 @@ def test_estimators_agree_with_phong_mirror_and_glass(ctx):
     scene = ctx.write("glossy.scene", GLOSSY_GLASS_SCENE)
     check_estimators_agree(ctx, scene, "24x24", {"hemisphere": 1024, "cosine": 1024, "light": 256, "mis": 256},
                            "glossy", relative_power={"hemisphere": 0.08, "cosine": 0.05})
+
+
+GLOSSY_FLOOR_SCENE = """\
+camera eye 0 1.2 -3  look 0 0 0.5  up 0 1 0  fov 40
+background 0 0 0
+material lamp emitter 5 5 5
+material gloss phong kd 0 0 0 ks 0.8 0.8 0.8 exp 20
+quad floor gloss  -3 0 -3  -3 0 4  3 0 4  3 0 -3
+quad light lamp  -1.5 1.5 1  1.5 1.5 1  1.5 1.5 3  -1.5 1.5 3
+"""
+
+
+def test_lobe_sampling_agrees_with_light_sampling(ctx):
+    """Direct light (--bounces 1:1) reflected by a purely glossy floor (normalised Phong, kd 0, so
+    every direction the cosine estimator draws comes from the lobe, exponent 20) under a large
+    white light, by two methods: the cosine estimator, whose weight f cos / p divides by the lobe's
+    pdf (exercises 4.4, 4.5), and the light estimator, whose f L_e cos / p_light of K E does not
+    use that pdf at all (points on the light; what its walk then finds counts 0): the truth here.
+    16 renders (batches) of each, with seeds of their own (--threads 1: tiny renders); Welch's t
+    on the 16 + 16 image means (over pixels and the three channels, which are equal here: grey ks,
+    white light), both variances counted, Welch-Satterthwaite degrees of freedom, tolerance
+    t_bound(df) standard errors.  The tolerance must be below 2 % of the image mean, so the
+    standard error is below 0.5 %: a pdf off by a constant factor shows as the image off by its
+    inverse, and a lobe pdf normalised by (n + 2) instead of (n + 1) (22/21, 4.5 %) lands more
+    than 5 standard errors beyond the tolerance."""
+    scene = ctx.write("glossy-floor.scene", GLOSSY_FLOOR_SCENE)
+    batches = {}
+    for estimator, first_seed in (("cosine", 1), ("light", 101)):
+        batches[estimator] = []
+        for b in range(16):
+            img, stats = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", 512, "--bounces", "1:1",
+                                    "--estimator", estimator, "--seed", first_seed + b, "--probe-samples", 32,
+                                    "--threads", 1, name=f"{estimator}{b}")
+            assert stats["nonfinite_samples"] == 0 and finite_image(img)
+            batches[estimator].append(sum(image_mean(img, c) for c in range(3)) / 3)
+    lobe, light = batches["cosine"], batches["light"]
+    t, df, _, d, se = kit_stats.welch(lobe, light)
+    bound = t_bound(df)
+    mean = sum(light) / len(light)
+    assert mean > 0 and bound * se < 0.02 * mean, \
+        f"tolerance {bound:.2f} x {se:.3g} is not below 2 % of the image mean {mean:.4f}"
+    assert abs(d) <= bound * se, \
+        f"directions from the lobe give the image mean {sum(lobe) / len(lobe):.5f}, points on the light " \
+        f"{mean:.5f} ({100 * d / mean:+.2f} %, t = {t:.2f}, df = {df:.0f}, bound {bound:.2f})"
 
 
 def test_caustic_under_glass_ball(ctx):
