@@ -4,6 +4,10 @@
 usage (by kit/grade.py, in its own process group with resource limits):
   kit/criterion.py SRC_DIR BUILD CRITERION_JSON SEED JOBS IMAGES_DIR
 
+SEED is the grading seed: compare criteria render batch b with SEED * 1000 + b;
+grade criteria get it as lib.Context(build, seed=SEED), which shifts every
+chapter seed the test uses (tests/lib.py shifted_seed; SEED 1 = the tests' own).
+
 Prints {"passed": bool, "p_value": float|null, "message": str, "images": {...}}.
 """
 import importlib.util
@@ -16,7 +20,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import compare  # noqa: E402
 
 
-def run_grade_test(src, build, c):
+def run_grade_test(src, build, c, seed):
     tests = os.path.join(src, "tests")
     sys.path.insert(0, tests)
     import lib
@@ -31,7 +35,7 @@ def run_grade_test(src, build, c):
     if test is None:
         return False, None, f"no {c['test']} in tests/{c['module']}.py"
     try:
-        test(lib.Context(build))
+        test(lib.Context(build, seed=seed))  # grading seed 1 runs the tests' own fixed seeds
         return True, None, "passed"
     except AssertionError as e:
         return False, None, str(e)[:2000] or "assertion failed"
@@ -46,7 +50,7 @@ def main():
     out = {"passed": False, "p_value": None, "message": "", "images": {}}
     try:
         if c["kind"] == "grade":
-            out["passed"], out["p_value"], out["message"] = run_grade_test(src, build, c)
+            out["passed"], out["p_value"], out["message"] = run_grade_test(src, build, c, int(seed))
         elif c["kind"] == "compare":
             (out["passed"], out["p_value"], out["message"],
              out["images"]) = compare.run_compare(src, build, c, rub, int(seed), int(jobs), images)

@@ -8,7 +8,9 @@ usage: kit/grade.py SUBMISSION [--report DIR] [--chapters "01_local ..."] [--see
   SUBMISSION          a filled-in handout or any copy of this project (a directory)
   --report DIR        where the report goes (default SUBMISSION/out/grade)
   --chapters "A B"    chapters to grade (default: the handout's, else every chapter in the rubric)
-  --seed N            seed of the statistical criteria's renders (default 1; batch b uses N * 1000 + b)
+  --seed N            grading seed (default 1): compare criteria render batch b with seed N * 1000 + b;
+                      grade criteria run with every chapter seed shifted by N (tests/lib.py Context;
+                      1 = the tests' own seeds)
   --jobs N            renders run at once and make -j (default 2)
   --statistical-only  only the criteria of kind compare (for calibration)
   --timeout S         per criterion, whole process group killed after S seconds (default 300)

@@ -5,6 +5,8 @@ variances may differ (both variances counted), two-sided p-value from the t
 distribution with Welch-Satterthwaite degrees of freedom.
 variance_ratio(a, b): one-sided F test that a's variance is not larger than b's.
 holm(pvalues): Holm's step-down adjusted p-values (family-wise error control).
+t_quantile(alpha, df), f_quantile(alpha, d1, d2): the bounds that two-sided t and
+one-sided F tests at level alpha use (tests/lib.py takes its tolerances from them).
 """
 import math
 
@@ -62,6 +64,32 @@ def f_upper(f, d1, d2):
     if f <= 0.0:
         return 1.0
     return betainc(d2 / 2.0, d1 / 2.0, d2 / (d2 + d1 * f))
+
+
+def _invert(upper_tail, alpha):
+    """The x >= 0 with upper_tail(x) = alpha, for a decreasing upper_tail (bisection)."""
+    lo, hi = 0.0, 1.0
+    while upper_tail(hi) > alpha:
+        lo, hi = hi, 2.0 * hi
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if upper_tail(mid) > alpha:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo <= 1e-12 * hi:
+            break
+    return 0.5 * (lo + hi)
+
+
+def t_quantile(alpha, df):
+    """The t with P(|T| >= t) = alpha for Student's t with df degrees of freedom."""
+    return _invert(lambda t: t_two_sided(t, df), alpha)
+
+
+def f_quantile(alpha, d1, d2):
+    """The f with P(F >= f) = alpha for the F distribution with (d1, d2) degrees of freedom."""
+    return _invert(lambda f: f_upper(f, d1, d2), alpha)
 
 
 def mean_var(xs):

@@ -67,6 +67,50 @@ def test_statistics(ctx):
     assert abs(se - (5 / 12 + 2) ** 0.5) < 1e-12 and abs(t + 3.5 / se) < 1e-12
     assert abs(df - (5 / 12 + 2) ** 2 / ((5 / 12) ** 2 / 3 + 4 / 4)) < 1e-9
     assert stats.holm([0.01, 0.04, 0.03]) == [0.03, 0.06, 0.06]
+    assert abs(stats.t_quantile(0.05, 10) - 2.228138852) < 1e-8 and abs(stats.t_quantile(0.05, 1) - 12.7062047) < 1e-6
+    assert abs(stats.f_quantile(0.05, 1, 10) - 4.9646027) < 1e-6
+
+
+def test_grading_seed_shifts_every_chapter_seed(ctx):
+    """lib.Context(build, seed): None and 1 leave a test's arguments alone; another grading seed
+    maps an explicit --seed X to shifted_seed(X, seed), one to one (equal seeds stay equal, different
+    ones different), gives a run without --seed what --seed 1 gets, and leaves --help and values that
+    are no seed alone; kit/criterion.py hands its SEED to the grade criteria's Context."""
+    import lib
+    args = ["scenes/cornell.scene", "--spp", "4", "--seed", "11"]
+    for seed in (None, 1):
+        assert lib.Context(ctx.build, seed=seed).seeded(args) == args
+        assert lib.Context(ctx.build, seed=seed).seeded(args[:3]) == args[:3]
+    c = lib.Context(ctx.build, seed=7)
+    assert c.seeded(args) == args[:4] + [str(lib.shifted_seed(11, 7))] and lib.shifted_seed(11, 7) != 11
+    assert c.seeded(args[:3]) == args[:3] + ["--seed", str(lib.shifted_seed(1, 7))]
+    for unchanged in (["--help"], ["x", "-h"], ["x", "--seed"], ["x", "--seed", "-1"], ["x", "--seed", str(2 ** 31)]):
+        assert c.seeded(unchanged) == unchanged, unchanged
+    chapter_seeds = list(range(2000)) + [2 ** 31 - 1]
+    for grading_seed in (2, 3, 200, 10 ** 6):
+        shifted = [lib.shifted_seed(x, grading_seed) for x in chapter_seeds]
+        assert len(set(shifted)) == len(shifted) and all(0 <= x < 2 ** 31 for x in shifted)
+        assert not set(shifted) & set(chapter_seeds[:200]), "grading seeds should not reuse the tests' own seeds"
+    images = []
+    for extra in ([], ["--seed", 1], ["--seed", 2]):
+        img, stats = c.render("04_pathtrace", "scenes/cornell.scene", "--size", "8x8", "--spp", 2, "--probe-samples",
+                              32, *extra, name="seeded")
+        images.append(img.pixels)
+        assert stats["seed"] == lib.shifted_seed(extra[1] if extra else 1, 7)
+    assert images[0] == images[1] != images[2]
+    # kit/criterion.py with SEED 5: the grade test sees Context(build, seed=5).
+    src = ctx.path("criterion-src")
+    os.makedirs(os.path.join(src, "tests"))
+    os.makedirs(os.path.join(src, "kit"))
+    for rel in ("tests/lib.py", "tests/pfm.py", "kit/stats.py"):
+        shutil.copy2(os.path.join(ROOT, rel), os.path.join(src, rel))
+    with open(os.path.join(src, "tests", "grade_seed.py"), "w") as f:
+        f.write("def test_seed(ctx):\n    assert ctx.seed == 5, ctx.seed\n")
+    criterion = json.dumps({"kind": "grade", "module": "grade_seed", "test": "test_seed", "name": "seed"})
+    for seed, passed in (("5", True), ("1", False)):
+        r = kit("kit/criterion.py", src, "build", criterion, seed, "1", "", timeout=60)
+        result = json.loads(r.stdout[r.stdout.rfind("@@RESULT@@ ") + len("@@RESULT@@ "):])
+        assert result["passed"] is passed, (seed, result)
 
 
 def test_handout_builds_runs_and_grades(ctx):
