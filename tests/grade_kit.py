@@ -26,6 +26,15 @@ def kit(*args, cwd=ROOT, timeout=900):
                           stdin=subprocess.DEVNULL)
 
 
+def make_handout(ctx, name, chapters):
+    """`make handout` of these chapters into the scratch directory `name`; returns its path."""
+    out = ctx.path(name)
+    r = subprocess.run(["make", "--no-print-directory", "handout", f"OUT={out}", f"CHAPTERS={chapters}"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
 def copy_tree(dst):
     files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
     for rel in files:
@@ -118,10 +127,7 @@ def test_handout_builds_runs_and_grades(ctx):
     (exit 0, one TODO line per stub reached, black direct light), and make grade in it grades it."""
     if "asan" in ctx.build:
         return
-    out = ctx.path("handout")
-    r = subprocess.run(["make", "--no-print-directory", "handout", f"OUT={out}", "CHAPTERS=01_local"], cwd=ROOT,
-                       capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
+    out = make_handout(ctx, "handout", "01_local")
     assert os.path.exists(os.path.join(out, "assignments", "01_local", "ASSIGNMENT.md"))
     assert not os.path.exists(os.path.join(out, "tests", "mutants")) and not os.path.exists(
         os.path.join(out, "kit", "handout.py"))
@@ -154,10 +160,7 @@ def test_handout_of_chapter_5_stubs_run_and_say_so(ctx):
     TODO once."""
     if "asan" in ctx.build:
         return
-    out = ctx.path("handout5")
-    r = subprocess.run(["make", "--no-print-directory", "handout", f"OUT={out}", "CHAPTERS=05_photonmap"], cwd=ROOT,
-                       capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
+    out = make_handout(ctx, "handout5", "05_photonmap")
     with open(os.path.join(out, "assignments", "05_photonmap", "ASSIGNMENT.md")) as f:
         text = f.read()
     marked = [e for e in markers.all_exercises(ROOT) if e.lecture == 5]
