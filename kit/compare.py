@@ -65,19 +65,24 @@ def describe_exit(code, stderr):
     return f"exit status {code}{': ' + tail if tail else ''}"
 
 
+def run_chapter(root, c, cmd, what=""):
+    """Run the chapter command `cmd` of criterion c; CriterionFailed on a time-out or a non-zero exit."""
+    try:
+        r = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=RENDER_TIMEOUT,
+                           stdin=subprocess.DEVNULL, errors="replace")
+    except subprocess.TimeoutExpired:
+        raise CriterionFailed(f"{what}timed out after {RENDER_TIMEOUT} s")
+    if r.returncode != 0:
+        raise CriterionFailed(f"{c['chapter']} {' '.join(cmd[1:])}: " + describe_exit(r.returncode, r.stderr))
+
+
 def render(root, build, c, seed, out, threads=1):
     exe = os.path.join(root, build, c["chapter"])
     if not os.path.exists(exe):
         raise CriterionFailed(f"{build}/{c['chapter']} is missing (did not compile)")
     cmd = [exe, c["scene"], "--quiet", "--size", c.get("size", "32x32"), "--spp", str(c.get("spp", 1)),
            "--seed", str(seed), "--threads", str(threads), "--out", out, *c.get("args", [])]
-    try:
-        r = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=RENDER_TIMEOUT,
-                           stdin=subprocess.DEVNULL, errors="replace")
-    except subprocess.TimeoutExpired:
-        raise CriterionFailed(f"seed {seed}: timed out after {RENDER_TIMEOUT} s")
-    if r.returncode != 0:
-        raise CriterionFailed(f"{c['chapter']} {' '.join(cmd[1:])}: " + describe_exit(r.returncode, r.stderr))
+    run_chapter(root, c, cmd, f"seed {seed}: ")
     if not os.path.exists(out):
         raise CriterionFailed(f"seed {seed}: exit 0 but no output image {os.path.basename(out)}")
     w, h, pixels = read_pfm(out)
@@ -215,13 +220,7 @@ def surfaces_of(root, build, c):
            "--iterations", str(c.get("iterations", 500)), "--out", os.path.join(out, "s.pfm"),
            "--stats", os.path.join(out, "s.json"),
            *c.get("args", [])]
-    try:
-        r = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=RENDER_TIMEOUT,
-                           stdin=subprocess.DEVNULL, errors="replace")
-    except subprocess.TimeoutExpired:
-        raise CriterionFailed(f"timed out after {RENDER_TIMEOUT} s")
-    if r.returncode != 0:
-        raise CriterionFailed(f"{c['chapter']} {' '.join(cmd[1:])}: " + describe_exit(r.returncode, r.stderr))
+    run_chapter(root, c, cmd)
     try:
         with open(os.path.join(out, "s.json")) as f:
             data = json.load(f)
