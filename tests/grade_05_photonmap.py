@@ -28,13 +28,13 @@ value that is not the estimate's expectation, it says which bound it uses.
 import math
 import os
 
-from lib import BATCH_DF, CRITERION_ALPHA, ROOT, Image, radiosity_surfaces, check_bad_input, check_thread_independence, finite_image, \
-    lambert_polygon_irradiance, probe, t_bound
+from lib import BATCH_DF, CRITERION_ALPHA, ROOT, Image, radiosity_surfaces, check_bad_input, \
+    check_thread_independence, finite_image, lambert_polygon_irradiance, probe, t_bound
 
 CHAPTER = "05_photonmap"
 # Renders (seeds) behind an image mean: their spread gives its standard error with RENDERS - 1
-# degrees of freedom.  With 5 (six renders) Student's t at 1e-4 is 9.7 standard errors; with 15
-# it is 5.6, so 16 renders keep the tolerance tight.
+# degrees of freedom.  With 5 (six renders) Student's t at 5e-5 (CRITERION_ALPHA over four
+# comparisons) is 12.9 standard errors; with 15 it is 5.6, so 16 renders keep the tolerance tight.
 RENDERS = 16
 
 
