@@ -127,16 +127,41 @@ static double visible_fraction(const patch_mesh *m, const scene *s, const patch 
     return tested ? (double)visible / tested : 1.0;
 }
 
-/* Does a shadow edge cross the pair?  Of the rays between them some are
- * blocked and some not; only asked when F is at least --eps / 8, so that
- * the refinement follows the shadows where they carry light. */
+/* Where shadow_edge's rays start: near the corners, so that a shadow along
+ * an element's edge (a box's own shadow at its base) is seen. */
+static const double EDGE_INSET = 0.9;
+
+/* Does a shadow edge cross the pair?  Of the rays from each element's
+ * corners (EDGE_INSET of the way from its centre) to the other's centroid,
+ * and between the centroids, some are blocked and some not.  Only asked
+ * when F is at least --eps / 8, so that the refinement follows the shadows
+ * where they carry light. */
 static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq, double f)
 {
     if (f < r->eps / 8.0)
         return false;
-    uint64_t rays = 0;
-    double v = visible_fraction(r->m, r->s, ep, eq, &rays);
-    return v > 0.0 && v < 1.0;
+    vec3 from[9], to[9];
+    int n = 0;
+    for (int side = 0; side < 2; side++) {
+        const patch *e = side ? eq : ep, *other = side ? ep : eq;
+        vec3 centre = v3_splat(0.0);
+        for (int k = 0; k < e->corner_count; k++)
+            centre = v3_add(centre, v3_scale(e->corner[k], 1.0 / e->corner_count));
+        for (int k = 0; k < e->corner_count; k++) {
+            vec3 x = v3_add(centre, v3_scale(v3_sub(e->corner[k], centre), EDGE_INSET));
+            from[n] = patch_mesh_on_surface(r->m, e->surface, x), to[n++] = other->centroid;
+        }
+    }
+    from[n] = ep->centroid, to[n++] = eq->centroid;
+    int visible = 0, blocked = 0;
+    for (int k = 0; k < n && !(visible && blocked); k++) {
+        const patch *a = k < ep->corner_count || k == n - 1 ? ep : eq, *b = a == ep ? eq : ep;
+        if (v3_dot(b->normal, v3_sub(from[k], b->centroid)) <= r->s->epsilon ||
+            v3_dot(a->normal, v3_sub(to[k], a->centroid)) <= r->s->epsilon)
+            continue; /* behind the other element (see visible_fraction) */
+        scene_occluded(r->s, from[k], to[k]) ? blocked++ : visible++;
+    }
+    return visible && blocked;
 }
 
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  The
