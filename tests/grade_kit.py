@@ -35,6 +35,19 @@ def make_handout(ctx, name, chapters):
     return out
 
 
+def check_stub_run(r, chapter, pfm, what):
+    """A stubbed chapter's run `r`: exit 0, no sanitizer report, each stub it reached said
+    `chapters/<chapter>.c:N: TODO name is not implemented` once, and the image `pfm` is finite."""
+    import lib
+    assert r.returncode == 0 and "Sanitizer" not in r.stderr and "runtime error" not in r.stderr, \
+        f"{what}: exit {r.returncode}: {r.stderr[-2000:]}"
+    todo = [ln for ln in r.stderr.splitlines() if "TODO" in ln]
+    assert todo and all(ln.startswith(f"chapters/{chapter}.c:") and ln.endswith("is not implemented")
+                        for ln in todo), f"{what}: {r.stderr}"
+    assert len(todo) == len(set(todo)), f"{what}: a stub spoke more than once: {todo}"
+    assert lib.finite_image(lib.read_pfm(pfm)), f"{what}: NaN or infinite pixels from the stubs"
+
+
 def copy_tree(dst):
     files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
     for rel in files:
@@ -139,10 +152,7 @@ def test_handout_builds_runs_and_grades(ctx):
     pfm = ctx.path("stub.pfm")
     r = subprocess.run([os.path.join(out, "build", "01_local"), "scenes/cornell.scene", "--quiet", "--size", "8x8",
                         "--bounces", "1:1", "--out", pfm], cwd=out, capture_output=True, text=True, timeout=60)
-    assert r.returncode == 0, r.stderr
-    todo = [ln for ln in r.stderr.splitlines() if "TODO" in ln]
-    assert todo and all(ln.startswith("chapters/01_local.c:") and ln.endswith("is not implemented") for ln in todo), \
-        r.stderr
+    check_stub_run(r, "01_local", pfm, "01_local --bounces 1:1")
     import lib
     assert all(p == (0.0, 0.0, 0.0) for p in lib.read_pfm(pfm).pixels), "the stubbed direct light is not black"
     r = subprocess.run(["make", "--no-print-directory", "grade"], cwd=out, capture_output=True, text=True,
@@ -175,19 +185,13 @@ def test_handout_of_chapter_5_stubs_run_and_say_so(ctx):
     assert all(f'TODO_ONCE("{e.name}")' in source for e in marked)
     r = subprocess.run(["make", "-j2", "build/05_photonmap"], cwd=out, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0 and "warning" not in r.stderr, r.stderr[-3000:]
-    import lib
     for maps in ("global", "caustic", "both"):
         pfm = ctx.path(f"stub5-{maps}.pfm")
         r = subprocess.run([os.path.join(out, "build", "05_photonmap"), "scenes/cornell-spheres.scene", "--quiet",
                             "--size", "8x8", "--spp", "3", "--photons", "2000", "--maps", maps, "--gather", "2",
                             "--probe-photons", "32", "--out", pfm], cwd=out, capture_output=True, text=True,
                            timeout=60)
-        assert r.returncode == 0, r.stderr
-        todo = [ln for ln in r.stderr.splitlines() if "TODO" in ln]
-        assert todo and all(ln.startswith("chapters/05_photonmap.c:") and ln.endswith("is not implemented")
-                            for ln in todo), r.stderr
-        assert len(todo) == len(set(todo)), f"a stub spoke more than once: {todo}"
-        assert lib.finite_image(lib.read_pfm(pfm)), f"--maps {maps}: NaN or infinite pixels from the stubs"
+        check_stub_run(r, "05_photonmap", pfm, f"--maps {maps}")
 
 
 def test_handout_stubs_run_every_method_under_the_sanitizers(ctx):
@@ -207,19 +211,11 @@ def test_handout_stubs_run_every_method_under_the_sanitizers(ctx):
     runs += [("03_radiosity", box, ["--solver", s] + (["--patch-size", 150] if s != "hierarchical" else []))
              for s in ("jacobi", "gauss-seidel", "shooting", "direct", "hierarchical")]
     runs += [("04_pathtrace", spheres, ["--spp", 4, "--estimator", e]) for e in ("hemisphere", "cosine", "light", "mis")]
-    import lib
     for chapter, scene, args in runs:
         pfm = ctx.path("stub.pfm")
         r = subprocess.run([os.path.join(out, "build", "asan", chapter), scene, "--quiet", "--size", "12x12",
                             *map(str, args), "--out", pfm], cwd=out, capture_output=True, text=True, timeout=300)
-        what = f"{chapter} {' '.join(map(str, args))}"
-        assert r.returncode == 0 and "Sanitizer" not in r.stderr and "runtime error" not in r.stderr, \
-            f"{what}: exit {r.returncode}: {r.stderr[-2000:]}"
-        todo = [ln for ln in r.stderr.splitlines() if "TODO" in ln]
-        assert todo and all(ln.startswith(f"chapters/{chapter}.c:") and ln.endswith("is not implemented")
-                            for ln in todo), f"{what}: {r.stderr}"
-        assert len(todo) == len(set(todo)), f"{what}: a stub spoke more than once: {todo}"
-        assert lib.finite_image(lib.read_pfm(pfm)), f"{what}: NaN or infinite pixels from the stubs"
+        check_stub_run(r, chapter, pfm, f"{chapter} {' '.join(map(str, args))}")
 
 
 def test_solution_scores_full_marks_on_chapter_1(ctx):

@@ -95,14 +95,27 @@ static void add_link(refiner *r, int p, int q)
     r->receiver[r->count] = p, r->source[r->count++] = q;
 }
 
+/* The mean of element e's corners (in its plane; the centroid of a curved element is on the surface). */
+static vec3 corner_mean(const patch *e)
+{
+    vec3 mean = v3_splat(0.0);
+    for (int k = 0; k < e->corner_count; k++)
+        mean = v3_add(mean, v3_scale(e->corner[k], 1.0 / e->corner_count));
+    return mean;
+}
+
+/* The point a fraction t of the way from `mean` (corner_mean) to corner k of e, on the surface. */
+static vec3 toward_corner(const patch_mesh *m, const patch *e, vec3 mean, int k, double t)
+{
+    return patch_mesh_on_surface(m, e->surface, v3_add(mean, v3_scale(v3_sub(e->corner[k], mean), t)));
+}
+
 /* Points for visibility rays: the corners moved half-way to the centroid, on the surface. */
 static int sample_points(const patch_mesh *m, const patch *e, vec3 *out)
 {
-    vec3 flat = v3_splat(0.0);
+    vec3 mean = corner_mean(e);
     for (int k = 0; k < e->corner_count; k++)
-        flat = v3_add(flat, v3_scale(e->corner[k], 1.0 / e->corner_count));
-    for (int k = 0; k < e->corner_count; k++)
-        out[k] = patch_mesh_on_surface(m, e->surface, v3_scale(v3_add(e->corner[k], flat), 0.5));
+        out[k] = toward_corner(m, e, mean, k, 0.5);
     return e->corner_count;
 }
 
@@ -131,35 +144,32 @@ static double visible_fraction(const patch_mesh *m, const scene *s, const patch 
  * an element's edge (a box's own shadow at its base) is seen. */
 static const double EDGE_INSET = 0.9;
 
+/* Count the ray from x on element a to y on element b as visible or blocked,
+ * if each end is in front of the other's element (see visible_fraction). */
+static void count_ray(const scene *s, const patch *a, vec3 x, const patch *b, vec3 y, int *visible, int *blocked)
+{
+    if (v3_dot(b->normal, v3_sub(x, b->centroid)) <= s->epsilon ||
+        v3_dot(a->normal, v3_sub(y, a->centroid)) <= s->epsilon)
+        return;
+    scene_occluded(s, x, y) ? ++*blocked : ++*visible;
+}
+
 /* Does a shadow edge cross the pair?  Of the rays from each element's
  * corners (EDGE_INSET of the way from its centre) to the other's centroid,
- * and between the centroids, some are blocked and some not.  Only asked
- * when F is at least --eps / 8, so that the refinement follows the shadows
- * where they carry light. */
+ * and between the centroids, some are blocked and some not (at most 9 rays,
+ * stopping at the first mixed pair).  Only asked when F is at least
+ * --eps / 8, so that the refinement follows the shadows where they carry light. */
 static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq, double f)
 {
     if (f < r->eps / 8.0)
         return false;
-    vec3 from[9], to[9];
-    int n = 0;
+    int visible = 0, blocked = 0;
+    count_ray(r->s, ep, ep->centroid, eq, eq->centroid, &visible, &blocked);
     for (int side = 0; side < 2; side++) {
         const patch *e = side ? eq : ep, *other = side ? ep : eq;
-        vec3 centre = v3_splat(0.0);
-        for (int k = 0; k < e->corner_count; k++)
-            centre = v3_add(centre, v3_scale(e->corner[k], 1.0 / e->corner_count));
-        for (int k = 0; k < e->corner_count; k++) {
-            vec3 x = v3_add(centre, v3_scale(v3_sub(e->corner[k], centre), EDGE_INSET));
-            from[n] = patch_mesh_on_surface(r->m, e->surface, x), to[n++] = other->centroid;
-        }
-    }
-    from[n] = ep->centroid, to[n++] = eq->centroid;
-    int visible = 0, blocked = 0;
-    for (int k = 0; k < n && !(visible && blocked); k++) {
-        const patch *a = k < ep->corner_count || k == n - 1 ? ep : eq, *b = a == ep ? eq : ep;
-        if (v3_dot(b->normal, v3_sub(from[k], b->centroid)) <= r->s->epsilon ||
-            v3_dot(a->normal, v3_sub(to[k], a->centroid)) <= r->s->epsilon)
-            continue; /* behind the other element (see visible_fraction) */
-        scene_occluded(r->s, from[k], to[k]) ? blocked++ : visible++;
+        vec3 mean = corner_mean(e);
+        for (int k = 0; k < e->corner_count && !(visible && blocked); k++)
+            count_ray(r->s, e, toward_corner(r->m, e, mean, k, EDGE_INSET), other, other->centroid, &visible, &blocked);
     }
     return visible && blocked;
 }
@@ -208,14 +218,10 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
         /* The outer integral by the points 1/sqrt(3) of the way from the centroid
          * to the corners (Gauss's 2 x 2 rule on a parallelogram): the centroid
          * alone would miss the curvature of the 1/r^2 kernel, always low. */
-        vec3 flat = v3_splat(0.0);
-        for (int k = 0; k < ep->corner_count; k++)
-            flat = v3_add(flat, v3_scale(ep->corner[k], 1.0 / ep->corner_count));
+        vec3 mean = corner_mean(ep);
         double f = 0.0;
-        for (int k = 0; k < ep->corner_count; k++) {
-            vec3 x = v3_add(flat, v3_scale(v3_sub(ep->corner[k], flat), 1.0 / sqrt(3.0)));
-            f += F(patch_mesh_on_surface(m, ep->surface, x), ep->normal, eq->corner, eq->corner_count);
-        }
+        for (int k = 0; k < ep->corner_count; k++)
+            f += F(toward_corner(m, ep, mean, k, 1.0 / sqrt(3.0)), ep->normal, eq->corner, eq->corner_count);
         if (f <= 0.0)
             return 0.0;
         return f / ep->corner_count * visible_fraction(m, s, ep, eq, rays);
