@@ -46,11 +46,17 @@ typedef struct {
     patch_mesh *m;
     const scene *s;
     point_to_polygon_fn point_to_polygon;
-    double eps;
+    double eps, eps_spread;
     int levels;
     int *receiver, *source; /* the links, in the order the oracle makes them */
+    float *known_F;         /* a form factor the first pass computed for the same pair, or -1 */
     long count, capacity;
     int failed; /* 1: out of memory, 2: over LINK_LIMIT, 3: over ELEMENT_LIMIT */
+    /* The second pass (--eps-spread) knows the first pass's solution: */
+    const vec3 *radiance; /* per element: B, the area-weighted mean over its leaves */
+    const vec3 *spread;   /* per element: the largest minus the smallest B of its leaves */
+    int known;            /* the elements 0 .. known - 1 have them (newer ones do not) */
+    double mean_radiance; /* of the scene's reflecting leaves, area-weighted */
 } refiner;
 
 /* The children of element e, splitting it first if it is a leaf; -1 when out of memory. */
@@ -86,12 +92,16 @@ static void add_link(refiner *r, int p, int q)
         int *source = realloc(r->source, (size_t)capacity * sizeof *source);
         if (source)
             r->source = source;
-        if (!receiver || !source) {
+        float *known_F = realloc(r->known_F, (size_t)capacity * sizeof *known_F);
+        if (known_F)
+            r->known_F = known_F;
+        if (!receiver || !source || !known_F) {
             r->failed = 1;
             return;
         }
         r->capacity = capacity;
     }
+    r->known_F[r->count] = -1.0f;
     r->receiver[r->count] = p, r->source[r->count++] = q;
 }
 
@@ -174,12 +184,40 @@ static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq, doub
     return visible && blocked;
 }
 
+/* Second pass: how many times brighter than the scene's mean q is, at
+ * least 1.  A link's error grows with F times its source's radiance
+ * (Hanrahan et al.'s BF refinement), so the light's links are made finer. */
+static double brightness(const refiner *r, int q)
+{
+    if (!r->radiance || q >= r->known)
+        return 1.0;
+    return fmax(1.0, v3_average(r->radiance[q]) / r->mean_radiance);
+}
+
+/* Second pass: a link takes its source's radiance as constant.  Where the
+ * source's leaves differ by spread_q, what p gathers may be off by up to
+ * rho_p F_pq spread_q: this bound as a fraction of p's radiance (the worst
+ * channel).  0 when unknown. */
+static double spread_bound(const refiner *r, int p, int q, const patch *ep, double fpq)
+{
+    if (!r->radiance || p >= r->known || q >= r->known)
+        return 0.0;
+    vec3 bound = v3_scale(v3_mul(ep->albedo, r->spread[q]), fpq), b = r->radiance[p];
+    double worst = 0.0;
+    for (int c = 0; c < 3; c++)
+        if (v3_get(b, c) > 0.0)
+            worst = fmax(worst, v3_get(bound, c) / v3_get(b, c));
+    return worst;
+}
+
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  The
  * form factors both ways are estimated from each element's centroid by
  * Lambert's formula (R10's inner integral, no visibility).  Both below --eps
- * and no shadow edge across the pair: linked at this level.  Otherwise the element that looks larger
- * from the other (q when F_pq > F_qp) is split and its children refined
- * against the other; an element at --levels is not split further. */
+ * (in the second pass: times the source's brightness), the spread bound
+ * below --eps-spread and no shadow edge across the pair: linked at this
+ * level.  Otherwise the element that looks larger from the other (q when
+ * F_pq > F_qp) is split and its children refined against the other; an
+ * element at --levels is not split further. */
 static void refine(refiner *r, int p, int q)
 {
     if (r->failed)
@@ -191,7 +229,9 @@ static void refine(refiner *r, int p, int q)
     double fpq = r->point_to_polygon(ep.centroid, ep.normal, eq.corner, eq.corner_count);
     double fqp = r->point_to_polygon(eq.centroid, eq.normal, ep.corner, ep.corner_count);
     bool can_p = r->h->level[p] < r->levels, can_q = r->h->level[q] < r->levels;
-    if ((fpq < r->eps && fqp < r->eps && !shadow_edge(r, &ep, &eq, fmax(fpq, fqp))) || (!can_p && !can_q)) {
+    double bright = brightness(r, q);
+    bool small = fpq * bright < r->eps && fqp * bright < r->eps && spread_bound(r, p, q, &ep, fpq) <= r->eps_spread;
+    if ((small && !shadow_edge(r, &ep, &eq, fmax(fpq, fqp))) || (!can_p && !can_q)) {
         add_link(r, p, q);
         return;
     }
@@ -253,7 +293,8 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
     return total;
 }
 
-/* The links grouped by receiver (a counting sort, stable) with their form factors. */
+/* The links grouped by receiver (a counting sort, stable) with their form
+ * factors: computed, unless the first pass has one for the pair. */
 static int store_links(hierarchy *h, refiner *r, const radiosity_options *o, radiosity_stats *stats)
 {
     long n = r->count;
@@ -270,16 +311,19 @@ static int store_links(hierarchy *h, refiner *r, const radiosity_options *o, rad
     if (!next)
         return -1;
     memcpy(next, h->link_start, (size_t)h->element_count * sizeof *next);
-    for (long k = 0; k < n; k++)
+    for (long k = 0; k < n; k++) {
+        h->link_F[next[r->receiver[k]]] = r->known_F[k];
         h->link_source[next[r->receiver[k]]++] = r->source[k];
+    }
     free(next);
     h->link_count = n;
     uint64_t rays = 0;
 #pragma omp parallel for schedule(dynamic, 64) reduction(+ : rays)
     for (int e = 0; e < h->element_count; e++)
         for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
-            h->link_F[k] = (float)link_form_factor(h, r->m, r->s, r->point_to_polygon, o->quadrature, e,
-                                                   h->link_source[k], &rays);
+            if (h->link_F[k] < 0.0f)
+                h->link_F[k] = (float)link_form_factor(h, r->m, r->s, r->point_to_polygon, o->quadrature, e,
+                                                       h->link_source[k], &rays);
     stats->visibility_rays += rays;
     return 0;
 }
@@ -298,6 +342,8 @@ static void row_sums(const hierarchy *h, const patch_mesh *m, int e, double abov
         row_sums(h, m, m->cells[e].first_child + k, above, stats);
 }
 
+static int refine_again(hierarchy *h, refiner *r, const radiosity_options *o, radiosity_stats *stats);
+
 int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *stats,
                     point_to_polygon_fn point_to_polygon, char *err, size_t err_size)
 {
@@ -311,7 +357,8 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
     hierarchy_free(h);
     double start = omp_get_wtime();
     h->root_count = m->cell_count;
-    refiner r = {.h = h, .m = m, .s = s, .point_to_polygon = point_to_polygon, .eps = o->eps, .levels = o->levels};
+    refiner r = {.h = h, .m = m, .s = s, .point_to_polygon = point_to_polygon, .eps = o->eps,
+                 .eps_spread = o->eps_spread, .levels = o->levels};
     if (track(h, m, s))
         r.failed = 1;
     for (int p = 0; p < h->root_count; p++)
@@ -320,7 +367,10 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
                 refine(&r, p, q);
     if (!r.failed && store_links(h, &r, o, stats))
         r.failed = 1;
-    free(r.receiver), free(r.source);
+    stats->first_pass_links = h->link_count;
+    if (!r.failed && o->eps_spread > 0.0 && refine_again(h, &r, o, stats))
+        r.failed = r.failed ? r.failed : 1;
+    free(r.receiver), free(r.source), free(r.known_F);
     stats->formfactor_s += omp_get_wtime() - start; /* refinement and the links' form factors */
     if (r.failed == 3)
         return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d elements (the limit); raise --eps",
@@ -386,6 +436,85 @@ static void push_pull_all(hierarchy *h, const patch_mesh *m, int source, const v
 #pragma omp parallel for schedule(dynamic, 1)
     for (int root = 0; root < h->root_count; root++)
         push_pull(h, m, root, v3_splat(0.0), source, first_shot);
+}
+
+/* B per element (all bounces of the emission, summed until a term's power
+ * is below 1e-3 of the emission's) and its spread over the element's leaves. */
+static void first_pass_solution(hierarchy *h, const patch_mesh *m, vec3 *B, vec3 *spread)
+{
+    int n = h->element_count;
+    vec3 *lowest = spread, *highest = B + n; /* B has room for 2n: the second half is scratch */
+    memset(h->gathered, 0, (size_t)n * sizeof *h->gathered);
+    memset(B, 0, (size_t)n * sizeof *B);
+    push_pull_all(h, m, 0, NULL);
+    double first_power = 0.0;
+    for (int k = 0; k < 1000; k++) {
+        double power = 0.0;
+        for (int e = 0; e < n; e++) {
+            B[e] = v3_add(B[e], h->term[e]);
+            if (m->cells[e].first_child < 0)
+                power += h->element[e].area * v3_average(h->term[e]);
+        }
+        first_power = k == 0 ? power : first_power;
+        if (!(power > 1e-3 * first_power))
+            break;
+        gather(h);
+        push_pull_all(h, m, 2, NULL);
+    }
+    for (int e = n - 1; e >= 0; e--) { /* children come after their parent */
+        int child = m->cells[e].first_child;
+        lowest[e] = highest[e] = B[e];
+        for (int k = child; k >= 0 && k < child + 4; k++)
+            lowest[e] = v3_min(lowest[e], lowest[k]), highest[e] = v3_max(highest[e], highest[k]);
+    }
+    for (int e = 0; e < n; e++)
+        spread[e] = v3_sub(highest[e], lowest[e]);
+}
+
+/* The second pass (--eps-spread): solve on the first pass's links, then
+ * refine again from the roots with B known (brightness, spread_bound).  A
+ * link the first pass made too keeps its form factor.  A scene lit only by
+ * point lights has no emission for B to start from: one pass. */
+static int refine_again(hierarchy *h, refiner *r, const radiosity_options *o, radiosity_stats *stats)
+{
+    int n = h->element_count;
+    vec3 *B = malloc(3 * (size_t)n * sizeof *B), *spread = B ? B + 2 * (size_t)n : NULL;
+    h->gathered = calloc(2 * (size_t)n + 1, sizeof *h->gathered);
+    if (!B || !h->gathered)
+        return free(B), -1;
+    h->term = h->gathered + n;
+    first_pass_solution(h, r->m, B, spread);
+    free(h->gathered), h->gathered = h->term = NULL;
+    double area = 0.0, sum = 0.0;
+    for (int e = 0; e < n; e++)
+        if (r->m->cells[e].first_child < 0 && v3_average(h->element[e].emission) <= 0.0)
+            area += h->element[e].area, sum += h->element[e].area * v3_average(B[e]);
+    if (!(sum > 0.0))
+        return free(B), 0;
+    long *first_start = h->link_start;
+    int *first_source = h->link_source;
+    float *first_F = h->link_F;
+    h->link_start = NULL, h->link_source = NULL, h->link_F = NULL;
+    *r = (refiner){.h = h, .m = r->m, .s = r->s, .point_to_polygon = r->point_to_polygon, .eps = r->eps,
+                   .eps_spread = r->eps_spread, .levels = r->levels, .receiver = r->receiver, .source = r->source,
+                   .known_F = r->known_F, .capacity = r->capacity, .radiance = B, .spread = spread, .known = n,
+                   .mean_radiance = sum / area};
+    for (int p = 0; p < h->root_count; p++)
+        for (int q = 0; q < h->root_count; q++)
+            if (p != q)
+                refine(r, p, q);
+    for (long k = 0; k < r->count; k++) {
+        int p = r->receiver[k];
+        if (p >= n)
+            continue; /* an element the second pass made */
+        for (long j = first_start[p]; j < first_start[p + 1]; j++) /* a receiver has few links: a linear search */
+            if (first_source[j] == r->source[k]) {
+                r->known_F[k] = first_F[j];
+                break;
+            }
+    }
+    free(first_start), free(first_source), free(first_F), free(B);
+    return r->failed || store_links(h, r, o, stats) ? -1 : 0;
 }
 
 int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, int first, int last,

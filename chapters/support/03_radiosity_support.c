@@ -99,6 +99,9 @@ const option RADIOSITY_OPTIONS[] = {
      .help = "write the surface-to-surface form factors (from,to,F)"},
     {"--eps", "E", OPTION_CUSTOM, 0, .parse = parse_eps, .default_text = "1e-2",
      .help = "hierarchical: link two elements when both form-factor estimates are below E, in (0, 1]"},
+    {"--eps-spread", "S", OPTION_DOUBLE, OPTION_FIELD(eps_spread), .min = 0.0, .max = 1.0, .default_text = "1e-3",
+     .help = "hierarchical: solve, then refine again where rho F (the source's spread) passes S x the receiver's "
+             "radiance; 0: one pass"},
     {"--levels", "N", OPTION_CUSTOM, 0, .parse = parse_levels, .default_text = "8",
      .help = "hierarchical: split an element at most N times below its surface, 1..12"},
     {0},
@@ -151,6 +154,8 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
     if (o->solver == SOLVER_HIERARCHICAL) {
         fprintf(json, ",\n  \"elements\": %ld,\n  \"links\": %ld,\n  \"levels\": %d", r->elements, r->links, r->levels);
         json_field_number(json, "eps", o->eps);
+        json_field_number(json, "eps_spread", o->eps_spread);
+        fprintf(json, ",\n  \"first_pass_links\": %ld", r->first_pass_links);
         json_field_number(json, "hierarchy_bytes", r->hierarchy_bytes);
     }
     json_surface_radiance(json, s, m, radiance);

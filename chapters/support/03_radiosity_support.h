@@ -35,6 +35,7 @@ typedef struct {
     const char *formfactors_path;
     int patch_size_argv; /* where --patch-size was given, for error messages */
     double eps;          /* --solver hierarchical: link when both form-factor estimates are below eps */
+    double eps_spread;   /* --solver hierarchical: second pass, a link's bound on its source's variation (0: off) */
     int levels;          /* --solver hierarchical: deepest split below a root */
     int eps_argv, levels_argv;
 } radiosity_options;
@@ -52,6 +53,7 @@ typedef struct {
     bool have_matrix_checks;
     double reciprocity_error, row_sum_min, row_sum_max;
     long elements, links; /* --solver hierarchical: quadtree cells (all levels), links */
+    long first_pass_links; /* --solver hierarchical: links before the second pass (--eps-spread) */
     int levels;           /* the deepest level reached */
     double hierarchy_bytes;
 } radiosity_stats;
