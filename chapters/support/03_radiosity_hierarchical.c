@@ -260,8 +260,11 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
          * alone would miss the curvature of the 1/r^2 kernel, always low. */
         vec3 mean = corner_mean(ep);
         double f = 0.0;
-        for (int k = 0; k < ep->corner_count; k++)
-            f += F(toward_corner(m, ep, mean, k, 1.0 / sqrt(3.0)), ep->normal, eq->corner, eq->corner_count);
+        for (int k = 0; k < ep->corner_count; k++) {
+            vec3 x = toward_corner(m, ep, mean, k, 1.0 / sqrt(3.0));
+            if (v3_dot(eq->normal, v3_sub(x, eq->centroid)) > s->epsilon) /* x in front of q (one-sided q) */
+                f += F(x, ep->normal, eq->corner, eq->corner_count);
+        }
         if (f <= 0.0)
             return 0.0;
         return f / ep->corner_count * visible_fraction(m, s, ep, eq, rays);
@@ -344,6 +347,51 @@ static void row_sums(const hierarchy *h, const patch_mesh *m, int e, double abov
 
 static int refine_again(hierarchy *h, refiner *r, const radiosity_options *o, radiosity_stats *stats);
 
+/* Inside a solid: a ray along the normal meets the back of a surface first
+ * (the floor under a box meets the underside of the box's top). */
+static bool buried(const scene *s, vec3 x, vec3 n)
+{
+    hit first;
+    ray along_normal = {scene_offset_origin(s, x, n, n), n};
+    return scene_intersect(s, along_normal, INFINITY, &first) && v3_dot(first.normal, n) > 0.0;
+}
+
+/* The fraction of element e's area outside every solid: a leaf's from its
+ * centroid and sample points, a parent's the area-weighted mean of its
+ * children's.  A box standing on the floor buries the floor under it; an
+ * element across the box's edge gathers light on one part only, and
+ * push_pull gives that light to the part that is not buried. */
+static double exposure_of(hierarchy *h, const patch_mesh *m, const scene *s, int e)
+{
+    const mesh_cell *c = &m->cells[e];
+    const patch *element = &h->element[e];
+    double exposure = 0.0;
+    if (c->first_child < 0) {
+        vec3 point[5];
+        int count = sample_points(m, element, point);
+        point[count++] = element->centroid;
+        for (int k = 0; k < count; k++)
+            exposure += !buried(s, point[k], element->normal) / (double)count;
+    } else {
+        for (int k = c->first_child; k < c->first_child + 4; k++)
+            exposure += exposure_of(h, m, s, k) * h->element[k].area / element->area;
+    }
+    h->exposure[e] = (float)exposure;
+    return exposure;
+}
+
+static int exposure_all(hierarchy *h, const patch_mesh *m, const scene *s)
+{
+    float *exposure = realloc(h->exposure, (size_t)h->element_count * sizeof *exposure + 1);
+    if (!exposure)
+        return -1;
+    h->exposure = exposure;
+#pragma omp parallel for schedule(dynamic, 1)
+    for (int root = 0; root < h->root_count; root++)
+        exposure_of(h, m, s, root);
+    return 0;
+}
+
 int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *stats,
                     point_to_polygon_fn point_to_polygon, char *err, size_t err_size)
 {
@@ -368,8 +416,10 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
     if (!r.failed && store_links(h, &r, o, stats))
         r.failed = 1;
     stats->first_pass_links = h->link_count;
-    if (!r.failed && o->eps_spread > 0.0 && refine_again(h, &r, o, stats))
+    if (!r.failed && o->eps_spread > 0.0 && (exposure_all(h, m, s) || refine_again(h, &r, o, stats)))
         r.failed = r.failed ? r.failed : 1;
+    if (!r.failed && exposure_all(h, m, s))
+        r.failed = 1;
     free(r.receiver), free(r.source), free(r.known_F);
     stats->formfactor_s += omp_get_wtime() - start; /* refinement and the links' form factors */
     if (r.failed == 3)
@@ -395,25 +445,31 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
     return radiosity_collect_patches(m, s, o, err, err_size); /* the leaves become the patches */
 }
 
-/* Push-pull: what e and its ancestors gathered (down) is pushed to its
- * leaves, which add their source; e's term is the area-weighted mean of
- * its children's, pulled up.  source: 0 emission, 1 first_shot, 2 none. */
+/* Push-pull, on the exposed part of each element (see exposure_of): what e
+ * and its ancestors gathered (down) is pushed to its leaves, which add
+ * their source; e's term is the mean of its children's over their exposed
+ * area, pulled up.  An element's gathered light is a mean over its whole
+ * area, which is 0 where the element is buried: over the exposed part it is
+ * gathered / exposure.  source: 0 emission, 1 first_shot, 2 none. */
 static vec3 push_pull(hierarchy *h, const patch_mesh *m, int e, vec3 down, int source, const vec3 *first_shot)
 {
-    down = v3_add(down, h->gathered[e]);
+    double exposure = h->exposure[e];
+    if (exposure > 0.0)
+        down = v3_madd(down, h->gathered[e], 1.0 / exposure);
     const mesh_cell *c = &m->cells[e];
     vec3 up = v3_splat(0.0);
     if (c->first_child < 0) {
-        up = source == 0 ? v3_add(down, h->element[e].emission)
-             : source == 1 ? v3_add(down, first_shot[c->patch])
+        up = source == 0   ? v3_add(down, h->element[e].emission)
+             : source == 1 ? v3_madd(down, first_shot[c->patch], exposure > 0.0 ? 1.0 / exposure : 0.0)
                            : down;
     } else {
-        double area = 0.0;
+        double exposed_area = 0.0;
         for (int k = c->first_child; k < c->first_child + 4; k++) {
-            up = v3_madd(up, push_pull(h, m, k, down, source, first_shot), h->element[k].area);
-            area += h->element[k].area;
+            double weight = h->element[k].area * h->exposure[k];
+            up = v3_madd(up, push_pull(h, m, k, down, source, first_shot), weight);
+            exposed_area += weight;
         }
-        up = v3_scale(up, 1.0 / area);
+        up = v3_scale(up, exposed_area > 0.0 ? 1.0 / exposed_area : 0.0);
     }
     h->term[e] = up;
     return up;
@@ -453,7 +509,7 @@ static void first_pass_solution(hierarchy *h, const patch_mesh *m, vec3 *B, vec3
         for (int e = 0; e < n; e++) {
             B[e] = v3_add(B[e], h->term[e]);
             if (m->cells[e].first_child < 0)
-                power += h->element[e].area * v3_average(h->term[e]);
+                power += h->element[e].area * h->exposure[e] * v3_average(h->term[e]);
         }
         first_power = k == 0 ? power : first_power;
         if (!(power > 1e-3 * first_power))
@@ -461,14 +517,15 @@ static void first_pass_solution(hierarchy *h, const patch_mesh *m, vec3 *B, vec3
         gather(h);
         push_pull_all(h, m, 2, NULL);
     }
-    for (int e = n - 1; e >= 0; e--) { /* children come after their parent */
+    for (int e = n - 1; e >= 0; e--) { /* children come after their parent; buried leaves do not count */
         int child = m->cells[e].first_child;
-        lowest[e] = highest[e] = B[e];
+        lowest[e] = child < 0 && h->exposure[e] > 0.0 ? B[e] : v3_splat(INFINITY);
+        highest[e] = child < 0 && h->exposure[e] > 0.0 ? B[e] : v3_splat(-INFINITY);
         for (int k = child; k >= 0 && k < child + 4; k++)
             lowest[e] = v3_min(lowest[e], lowest[k]), highest[e] = v3_max(highest[e], highest[k]);
     }
     for (int e = 0; e < n; e++)
-        spread[e] = v3_sub(highest[e], lowest[e]);
+        spread[e] = h->exposure[e] > 0.0 ? v3_sub(highest[e], lowest[e]) : v3_splat(0.0);
 }
 
 /* The second pass (--eps-spread): solve on the first pass's links, then
@@ -488,7 +545,7 @@ static int refine_again(hierarchy *h, refiner *r, const radiosity_options *o, ra
     double area = 0.0, sum = 0.0;
     for (int e = 0; e < n; e++)
         if (r->m->cells[e].first_child < 0 && v3_average(h->element[e].emission) <= 0.0)
-            area += h->element[e].area, sum += h->element[e].area * v3_average(B[e]);
+            area += h->element[e].area * h->exposure[e], sum += h->element[e].area * h->exposure[e] * v3_average(B[e]);
     if (!(sum > 0.0))
         return free(B), 0;
     long *first_start = h->link_start;
@@ -523,15 +580,15 @@ int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, i
     memset(h->gathered, 0, (size_t)h->element_count * sizeof *h->gathered);
     push_pull_all(h, m, 0, first_shot); /* term 0: E at the leaves, pulled up */
     for (int k = 0;; k++) {
-        if (k >= first)
+        if (k >= first) /* a patch's radiance is its mean over its whole area */
             for (int i = 0; i < m->patch_count; i++)
-                L[i] = v3_add(L[i], h->term[m->patches[i].cell]);
+                L[i] = v3_madd(L[i], h->term[m->patches[i].cell], h->exposure[m->patches[i].cell]);
         gather(h);
         push_pull_all(h, m, k == 0 ? 1 : 2, first_shot); /* term k + 1 */
         double power = 0.0;
         for (int i = 0; i < m->patch_count; i++) {
             vec3 t = h->term[m->patches[i].cell];
-            power += m->patches[i].area * (fabs(t.x) + fabs(t.y) + fabs(t.z));
+            power += m->patches[i].area * h->exposure[m->patches[i].cell] * (fabs(t.x) + fabs(t.y) + fabs(t.z));
         }
         r->iterations = k + 1;
         record_residual(r, power / source_norm);
@@ -543,6 +600,6 @@ int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, i
 
 void hierarchy_free(hierarchy *h)
 {
-    free(h->element), free(h->level), free(h->gathered), free(h->link_start), free(h->link_source), free(h->link_F);
+    free(h->element), free(h->level), free(h->exposure), free(h->gathered), free(h->link_start), free(h->link_source), free(h->link_F);
     *h = (hierarchy){0};
 }
