@@ -76,7 +76,7 @@ static int children(refiner *r, int e)
     return first;
 }
 
-static void add_link(refiner *r, int p, int q)
+static void add_link(refiner *r, int p, int q, float known_F)
 {
     if (r->count == r->capacity) {
         long capacity = r->capacity ? 2 * r->capacity : 4096;
@@ -101,7 +101,7 @@ static void add_link(refiner *r, int p, int q)
         }
         r->capacity = capacity;
     }
-    r->known_F[r->count] = -1.0f;
+    r->known_F[r->count] = known_F;
     r->receiver[r->count] = p, r->source[r->count++] = q;
 }
 
@@ -210,39 +210,85 @@ static double spread_bound(const refiner *r, int p, int q, const patch *ep, doub
     return worst;
 }
 
+/* A pair the refinement has still to judge: p receives from q.  F: the
+ * first pass's form factor for this link (the second pass starts from the
+ * first's links), or -1. */
+typedef struct {
+    int p, q;
+    float F;
+} pair;
+
+enum verdict { NO_LINK, LINK, SPLIT_RECEIVER, SPLIT_SOURCE };
+
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  The
  * form factors both ways are estimated from each element's centroid by
  * Lambert's formula (R10's inner integral, no visibility).  Both below --eps
  * (in the second pass: times the source's brightness), the spread bound
- * below --eps-spread and no shadow edge across the pair: linked at this
- * level.  Otherwise the element that looks larger from the other (q when
- * F_pq > F_qp) is split and its children refined against the other; an
- * element at --levels is not split further. */
-static void refine(refiner *r, int p, int q)
+ * below --eps-spread and no shadow edge across the pair: a link at this
+ * level.  Otherwise split the element that looks larger from the other (q
+ * when F_pq > F_qp); an element at --levels is not split further. */
+static enum verdict judge(const refiner *r, int p, int q)
 {
-    if (r->failed)
-        return;
-    const patch ep = r->h->element[p], eq = r->h->element[q]; /* copies: splitting moves the array */
+    const patch *ep = &r->h->element[p], *eq = &r->h->element[q];
     double epsilon = r->s->epsilon;
-    if (!patch_in_front(&eq, ep.centroid, ep.normal, epsilon) || !patch_in_front(&ep, eq.centroid, eq.normal, epsilon))
-        return; /* one-sided: they cannot exchange light */
-    double fpq = r->point_to_polygon(ep.centroid, ep.normal, eq.corner, eq.corner_count);
-    double fqp = r->point_to_polygon(eq.centroid, eq.normal, ep.corner, ep.corner_count);
+    if (!patch_in_front(eq, ep->centroid, ep->normal, epsilon) || !patch_in_front(ep, eq->centroid, eq->normal, epsilon))
+        return NO_LINK; /* one-sided: they cannot exchange light */
+    double fpq = r->point_to_polygon(ep->centroid, ep->normal, eq->corner, eq->corner_count);
+    double fqp = r->point_to_polygon(eq->centroid, eq->normal, ep->corner, ep->corner_count);
     bool can_p = r->h->level[p] < r->levels, can_q = r->h->level[q] < r->levels;
     double bright = brightness(r, q);
-    bool small = fpq * bright < r->eps && fqp * bright < r->eps && spread_bound(r, p, q, &ep, fpq) <= r->eps_spread;
-    if ((small && !shadow_edge(r, &ep, &eq, fmax(fpq, fqp))) || (!can_p && !can_q)) {
-        add_link(r, p, q);
-        return;
-    }
-    bool split_source = can_q && (fpq > fqp || !can_p);
-    int first = children(r, split_source ? q : p);
-    if (first < 0) {
-        r->failed = r->failed ? r->failed : 1;
-        return;
+    bool small = fpq * bright < r->eps && fqp * bright < r->eps && spread_bound(r, p, q, ep, fpq) <= r->eps_spread;
+    if ((small && !shadow_edge(r, ep, eq, bright * fmax(fpq, fqp))) || (!can_p && !can_q))
+        return LINK;
+    return can_q && (fpq > fqp || !can_p) ? SPLIT_SOURCE : SPLIT_RECEIVER;
+}
+
+/* Append the four pairs of a split element's children to next (grown as needed). */
+static int push_children(pair **next, long *count, long *capacity, pair t, enum verdict v, int first)
+{
+    if (*count + 4 > *capacity) {
+        long grown = *capacity ? 2 * *capacity : 4096;
+        pair *bigger = realloc(*next, (size_t)grown * sizeof *bigger);
+        if (!bigger)
+            return -1;
+        *next = bigger, *capacity = grown;
     }
     for (int k = 0; k < 4; k++)
-        split_source ? refine(r, p, first + k) : refine(r, first + k, q);
+        (*next)[(*count)++] = v == SPLIT_SOURCE ? (pair){t.p, first + k, -1.0f} : (pair){first + k, t.q, -1.0f};
+    return 0;
+}
+
+/* Hanrahan et al.'s recursion, breadth first: judge every pair of a round
+ * (in parallel: judging only reads), then link or split them one by one;
+ * the children's pairs make the next round.  The same links as the
+ * depth-first recursion, in another order.  Takes todo (malloc'ed). */
+static void refine_rounds(refiner *r, pair *todo, long count)
+{
+    while (count > 0 && !r->failed) {
+        unsigned char *verdict = malloc((size_t)count);
+        pair *next = NULL;
+        long next_count = 0, next_capacity = 0;
+        if (!verdict) {
+            r->failed = 1;
+            break;
+        }
+#pragma omp parallel for schedule(dynamic, 256)
+        for (long k = 0; k < count; k++)
+            verdict[k] = (unsigned char)judge(r, todo[k].p, todo[k].q);
+        for (long k = 0; k < count && !r->failed; k++) {
+            pair t = todo[k];
+            if (verdict[k] == LINK)
+                add_link(r, t.p, t.q, t.F);
+            else if (verdict[k] != NO_LINK) {
+                int first = children(r, verdict[k] == SPLIT_SOURCE ? t.q : t.p);
+                if (first < 0 || push_children(&next, &next_count, &next_capacity, t, verdict[k], first))
+                    r->failed = r->failed ? r->failed : 1;
+            }
+        }
+        free(verdict), free(todo);
+        todo = next, count = next_count;
+    }
+    free(todo);
 }
 
 /* A link's form factor F_pq (R10).  Far apart: Lambert's formula at four
@@ -407,12 +453,15 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
     h->root_count = m->cell_count;
     refiner r = {.h = h, .m = m, .s = s, .point_to_polygon = point_to_polygon, .eps = o->eps,
                  .eps_spread = o->eps_spread, .levels = o->levels};
-    if (track(h, m, s))
+    pair *todo = malloc((size_t)h->root_count * h->root_count * sizeof *todo + 1);
+    long count = 0;
+    if (track(h, m, s) || !todo)
         r.failed = 1;
-    for (int p = 0; p < h->root_count; p++)
+    for (int p = 0; p < h->root_count && todo; p++)
         for (int q = 0; q < h->root_count; q++)
             if (p != q)
-                refine(&r, p, q);
+                todo[count++] = (pair){p, q, -1.0f};
+    refine_rounds(&r, todo, count);
     if (!r.failed && store_links(h, &r, o, stats))
         r.failed = 1;
     stats->first_pass_links = h->link_count;
@@ -548,29 +597,18 @@ static int refine_again(hierarchy *h, refiner *r, const radiosity_options *o, ra
             area += h->element[e].area * h->exposure[e], sum += h->element[e].area * h->exposure[e] * v3_average(B[e]);
     if (!(sum > 0.0))
         return free(B), 0;
-    long *first_start = h->link_start;
-    int *first_source = h->link_source;
-    float *first_F = h->link_F;
+    pair *todo = malloc((size_t)h->link_count * sizeof *todo + 1);
+    if (!todo)
+        return free(B), -1;
+    long count = 0;
+    for (int e = 0; e < n; e++)
+        for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
+            todo[count++] = (pair){e, h->link_source[k], h->link_F[k]};
+    free(h->link_start), free(h->link_source), free(h->link_F);
     h->link_start = NULL, h->link_source = NULL, h->link_F = NULL;
-    *r = (refiner){.h = h, .m = r->m, .s = r->s, .point_to_polygon = r->point_to_polygon, .eps = r->eps,
-                   .eps_spread = r->eps_spread, .levels = r->levels, .receiver = r->receiver, .source = r->source,
-                   .known_F = r->known_F, .capacity = r->capacity, .radiance = B, .spread = spread, .known = n,
-                   .mean_radiance = sum / area};
-    for (int p = 0; p < h->root_count; p++)
-        for (int q = 0; q < h->root_count; q++)
-            if (p != q)
-                refine(r, p, q);
-    for (long k = 0; k < r->count; k++) {
-        int p = r->receiver[k];
-        if (p >= n)
-            continue; /* an element the second pass made */
-        for (long j = first_start[p]; j < first_start[p + 1]; j++) /* a receiver has few links: a linear search */
-            if (first_source[j] == r->source[k]) {
-                r->known_F[k] = first_F[j];
-                break;
-            }
-    }
-    free(first_start), free(first_source), free(first_F), free(B);
+    r->count = 0, r->radiance = B, r->spread = spread, r->known = n, r->mean_radiance = sum / area;
+    refine_rounds(r, todo, count); /* what the first pass split, the second splits too: start from its links */
+    free(B);
     return r->failed || store_links(h, r, o, stats) ? -1 : 0;
 }
 
