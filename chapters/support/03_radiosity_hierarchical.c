@@ -15,6 +15,11 @@ enum { ELEMENT_LIMIT = 4000000, WORST_CASE_LIMIT = 16000000, LINK_LIMIT = 400000
 /* Pairs closer than this many radii are integrated at quadrature points (as chapter 3's NEAR_FACTOR). */
 static const double NEAR_FACTOR = 6.0;
 
+/* The oracle estimates F by the disc approximation beyond this many radii
+ * (measured on the Cornell box: 4 gives the error of Lambert's formula
+ * everywhere, 2 does not). */
+static const double DISC_FACTOR = 4.0;
+
 /* Geometry, albedo and emission of the cells the mesh gained since the last call. */
 static int track(hierarchy *h, const patch_mesh *m, const scene *s)
 {
@@ -28,7 +33,10 @@ static int track(hierarchy *h, const patch_mesh *m, const scene *s)
         unsigned char *level = realloc(h->level, (size_t)capacity);
         if (level)
             h->level = level;
-        if (!element || !level)
+        int *parent = realloc(h->parent, (size_t)capacity * sizeof *parent);
+        if (parent)
+            h->parent = parent;
+        if (!element || !level || !parent)
             return -1;
         h->capacity = capacity;
     }
@@ -36,7 +44,7 @@ static int track(hierarchy *h, const patch_mesh *m, const scene *s)
         patch *e = &h->element[h->element_count];
         patch_mesh_cell_geometry(m, h->element_count, e);
         radiosity_material(s, e->surface, &e->albedo, &e->emission);
-        h->level[h->element_count] = 0;
+        h->level[h->element_count] = 0, h->parent[h->element_count] = -1;
     }
     return 0;
 }
@@ -72,7 +80,7 @@ static int children(refiner *r, int e)
     if (first < 0 || track(r->h, r->m, r->s))
         return -1;
     for (int k = 0; k < 4; k++)
-        r->h->level[first + k] = (unsigned char)(r->h->level[e] + 1);
+        r->h->level[first + k] = (unsigned char)(r->h->level[e] + 1), r->h->parent[first + k] = e;
     return first;
 }
 
@@ -167,12 +175,9 @@ static void count_ray(const scene *s, const patch *a, vec3 x, const patch *b, ve
 /* Does a shadow edge cross the pair?  Of the rays from each element's
  * corners (EDGE_INSET of the way from its centre) to the other's centroid,
  * and between the centroids, some are blocked and some not (at most 9 rays,
- * stopping at the first mixed pair).  Only asked when F is at least
- * --eps / 8, so that the refinement follows the shadows where they carry light. */
-static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq, double f)
+ * stopping at the first mixed pair). */
+static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq)
 {
-    if (f < r->eps / 8.0)
-        return false;
     int visible = 0, blocked = 0;
     count_ray(r->s, ep, ep->centroid, eq, eq->centroid, &visible, &blocked);
     for (int side = 0; side < 2; side++) {
@@ -182,6 +187,24 @@ static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq, doub
             count_ray(r->s, e, toward_corner(r->m, e, mean, k, EDGE_INSET), other, other->centroid, &visible, &blocked);
     }
     return visible && blocked;
+}
+
+/* Is the pair worth a shadow test?  The first pass knows no radiance: where
+ * F is at least --eps / 8.  A shadow edge across a link can make its whole
+ * transfer F_pq B_q wrong, so the second pass tests where F_pq times q's
+ * radiance over the scene's mean (q's emission, or the B of q or of its
+ * nearest ancestor the first pass made) is at least --eps: the light's
+ * shadows are followed down to F of about eps / 50, a dim wall's hardly at
+ * all (the first pass tested those). */
+static bool worth_shadow_test(const refiner *r, int q, const patch *eq, double f)
+{
+    if (!r->radiance)
+        return f >= r->eps / 8.0;
+    int known = q;
+    while (known >= r->known)
+        known = r->h->parent[known];
+    double radiance = fmax(v3_average(r->radiance[known]), v3_average(eq->emission));
+    return f * radiance / r->mean_radiance >= r->eps;
 }
 
 /* Second pass: how many times brighter than the scene's mean q is, at
@@ -220,9 +243,28 @@ typedef struct {
 
 enum verdict { NO_LINK, LINK, SPLIT_RECEIVER, SPLIT_SOURCE };
 
+/* The oracle's form factors both ways, from each element's centroid, no
+ * visibility.  Far apart (more than DISC_FACTOR radii, each in front of the
+ * other): the disc approximation A cos cos / (pi r^2 + A), as in Hanrahan et
+ * al.'s oracle, with no arc tangents (the oracle is asked millions of
+ * times).  Closer: Lambert's formula (R10's inner integral), exact. */
+static void estimate_form_factors(const refiner *r, const patch *ep, const patch *eq, double *fpq, double *fqp)
+{
+    vec3 d = v3_sub(eq->centroid, ep->centroid);
+    double distance = v3_length(d);
+    double cos_p = v3_dot(ep->normal, d) / distance, cos_q = -v3_dot(eq->normal, d) / distance;
+    if (distance > DISC_FACTOR * (ep->radius + eq->radius) && cos_p > 0.0 && cos_q > 0.0) {
+        *fpq = eq->area * cos_p * cos_q / (M_PI * distance * distance + eq->area);
+        *fqp = ep->area * cos_p * cos_q / (M_PI * distance * distance + ep->area);
+        return;
+    }
+    *fpq = r->point_to_polygon(ep->centroid, ep->normal, eq->corner, eq->corner_count);
+    *fqp = r->point_to_polygon(eq->centroid, eq->normal, ep->corner, ep->corner_count);
+}
+
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  The
- * form factors both ways are estimated from each element's centroid by
- * Lambert's formula (R10's inner integral, no visibility).  Both below --eps
+ * form factors both ways are estimated from each element's centroid
+ * (estimate_form_factors).  Both below --eps
  * (in the second pass: times the source's brightness), the spread bound
  * below --eps-spread and no shadow edge across the pair: a link at this
  * level.  Otherwise split the element that looks larger from the other (q
@@ -233,12 +275,12 @@ static enum verdict judge(const refiner *r, int p, int q)
     double epsilon = r->s->epsilon;
     if (!patch_in_front(eq, ep->centroid, ep->normal, epsilon) || !patch_in_front(ep, eq->centroid, eq->normal, epsilon))
         return NO_LINK; /* one-sided: they cannot exchange light */
-    double fpq = r->point_to_polygon(ep->centroid, ep->normal, eq->corner, eq->corner_count);
-    double fqp = r->point_to_polygon(eq->centroid, eq->normal, ep->corner, ep->corner_count);
+    double fpq, fqp;
+    estimate_form_factors(r, ep, eq, &fpq, &fqp);
     bool can_p = r->h->level[p] < r->levels, can_q = r->h->level[q] < r->levels;
     double bright = brightness(r, q);
     bool small = fpq * bright < r->eps && fqp * bright < r->eps && spread_bound(r, p, q, ep, fpq) <= r->eps_spread;
-    if ((small && !shadow_edge(r, ep, eq, bright * fmax(fpq, fqp))) || (!can_p && !can_q))
+    if ((small && !(worth_shadow_test(r, q, eq, fmax(fpq, fqp)) && shadow_edge(r, ep, eq))) || (!can_p && !can_q))
         return LINK;
     return can_q && (fpq > fqp || !can_p) ? SPLIT_SOURCE : SPLIT_RECEIVER;
 }
@@ -638,6 +680,6 @@ int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, i
 
 void hierarchy_free(hierarchy *h)
 {
-    free(h->element), free(h->level), free(h->exposure), free(h->gathered), free(h->link_start), free(h->link_source), free(h->link_F);
+    free(h->element), free(h->level), free(h->parent), free(h->exposure), free(h->gathered), free(h->link_start), free(h->link_source), free(h->link_F);
     *h = (hierarchy){0};
 }

@@ -24,6 +24,7 @@ typedef struct {
     int element_count, root_count, capacity;
     patch *element;   /* per cell of the mesh: its geometry, albedo and emission */
     unsigned char *level; /* depth below its root */
+    int *parent;          /* -1 for a root */
     float *exposure;      /* the fraction of its area outside every solid (not buried) */
     vec3 *gathered;       /* per element: rho Sum_links F L (one Neumann term) */
     vec3 *term;           /* per element: the term, pulled up from the leaves */
