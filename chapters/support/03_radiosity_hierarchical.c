@@ -1,16 +1,10 @@
 /* 03_radiosity_hierarchical.c — hierarchical radiosity (see 03_radiosity_hierarchical.h). */
-#include "03_radiosity_hierarchical.h"
+#include "03_radiosity_hierarchical_store.h"
 
 #include <math.h>
 #include <omp.h>
 #include <stdlib.h>
 #include <string.h>
-
-
-/* Elements: at most 4 M (as the uniform mesh), and --levels is refused when
- * its worst case (every root split to the last level) passes 16 M; links:
- * 40 M (320 MiB). */
-enum { ELEMENT_LIMIT = 4000000, WORST_CASE_LIMIT = 16000000, LINK_LIMIT = 40000000 };
 
 /* Pairs closer than this many radii are integrated at quadrature points (as chapter 3's NEAR_FACTOR). */
 static const double NEAR_FACTOR = 6.0;
@@ -20,123 +14,6 @@ static const double NEAR_FACTOR = 6.0;
  * everywhere, 2 does not). */
 static const double DISC_FACTOR = 4.0;
 
-/* Geometry, albedo and emission of the cells the mesh gained since the last call. */
-static int track(hierarchy *h, const patch_mesh *m, const scene *s)
-{
-    if (m->cell_count > h->capacity) {
-        int capacity = h->capacity ? h->capacity : 256;
-        while (capacity < m->cell_count)
-            capacity *= 2;
-        patch *element = realloc(h->element, (size_t)capacity * sizeof *element);
-        if (element)
-            h->element = element;
-        unsigned char *level = realloc(h->level, (size_t)capacity);
-        if (level)
-            h->level = level;
-        int *parent = realloc(h->parent, (size_t)capacity * sizeof *parent);
-        if (parent)
-            h->parent = parent;
-        if (!element || !level || !parent)
-            return -1;
-        h->capacity = capacity;
-    }
-    for (; h->element_count < m->cell_count; h->element_count++) {
-        patch *e = &h->element[h->element_count];
-        patch_mesh_cell_geometry(m, h->element_count, e);
-        radiosity_material(s, e->surface, &e->albedo, &e->emission);
-        h->level[h->element_count] = 0, h->parent[h->element_count] = -1;
-    }
-    return 0;
-}
-
-typedef struct {
-    hierarchy *h;
-    patch_mesh *m;
-    const scene *s;
-    point_to_polygon_fn point_to_polygon;
-    double eps, eps_spread;
-    int levels;
-    int *receiver, *source; /* the links, in the order the oracle makes them */
-    float *known_F;         /* a form factor the first pass computed for the same pair, or -1 */
-    long count, capacity;
-    int failed; /* 1: out of memory, 2: over LINK_LIMIT, 3: over ELEMENT_LIMIT */
-    /* The second pass (--eps-spread) knows the first pass's solution: */
-    const vec3 *radiance; /* per element: B, the area-weighted mean over its leaves */
-    const vec3 *spread;   /* per element: the largest minus the smallest B of its leaves */
-    int known;            /* the elements 0 .. known - 1 have them (newer ones do not) */
-    double mean_radiance; /* of the scene's reflecting leaves, area-weighted */
-} refiner;
-
-/* The children of element e, splitting it first if it is a leaf; -1 when out of memory. */
-static int children(refiner *r, int e)
-{
-    if (r->m->cells[e].first_child >= 0)
-        return r->m->cells[e].first_child;
-    if (r->m->cell_count + 4 > ELEMENT_LIMIT) {
-        r->failed = 3;
-        return -1;
-    }
-    int first = patch_mesh_split(r->m, e);
-    if (first < 0 || track(r->h, r->m, r->s))
-        return -1;
-    for (int k = 0; k < 4; k++)
-        r->h->level[first + k] = (unsigned char)(r->h->level[e] + 1), r->h->parent[first + k] = e;
-    return first;
-}
-
-static void add_link(refiner *r, int p, int q, float known_F)
-{
-    if (r->count == r->capacity) {
-        long capacity = r->capacity ? 2 * r->capacity : 4096;
-        if (capacity > LINK_LIMIT)
-            capacity = LINK_LIMIT;
-        if (r->count == capacity) {
-            r->failed = 2;
-            return;
-        }
-        int *receiver = realloc(r->receiver, (size_t)capacity * sizeof *receiver);
-        if (receiver)
-            r->receiver = receiver;
-        int *source = realloc(r->source, (size_t)capacity * sizeof *source);
-        if (source)
-            r->source = source;
-        float *known_F = realloc(r->known_F, (size_t)capacity * sizeof *known_F);
-        if (known_F)
-            r->known_F = known_F;
-        if (!receiver || !source || !known_F) {
-            r->failed = 1;
-            return;
-        }
-        r->capacity = capacity;
-    }
-    r->known_F[r->count] = known_F;
-    r->receiver[r->count] = p, r->source[r->count++] = q;
-}
-
-/* The mean of element e's corners (in its plane; the centroid of a curved element is on the surface). */
-static vec3 corner_mean(const patch *e)
-{
-    vec3 mean = v3_splat(0.0);
-    for (int k = 0; k < e->corner_count; k++)
-        mean = v3_add(mean, v3_scale(e->corner[k], 1.0 / e->corner_count));
-    return mean;
-}
-
-/* The point a fraction t of the way from `mean` (corner_mean) to corner k of e, on the surface. */
-static vec3 toward_corner(const patch_mesh *m, const patch *e, vec3 mean, int k, double t)
-{
-    return patch_mesh_on_surface(m, e->surface, v3_add(mean, v3_scale(v3_sub(e->corner[k], mean), t)));
-}
-
-/* Points for visibility rays: the corners moved half-way to the centroid, on the surface. */
-static int sample_points(const patch_mesh *m, const patch *e, vec3 *out)
-{
-    vec3 mean = corner_mean(e);
-    for (int k = 0; k < e->corner_count; k++)
-        out[k] = toward_corner(m, e, mean, k, 0.5);
-    return e->corner_count;
-}
-
 /* The fraction of up to four rays between the two elements that nothing
  * blocks.  Only pairs of sample points in front of each other's element
  * count: a ray to a point behind the receiver's plane would run into the
@@ -145,7 +22,7 @@ static int sample_points(const patch_mesh *m, const patch *e, vec3 *out)
 static double visible_fraction(const patch_mesh *m, const scene *s, const patch *ep, const patch *eq, uint64_t *rays)
 {
     vec3 a[4], b[4];
-    int na = sample_points(m, ep, a), nb = sample_points(m, eq, b), tested = 0, visible = 0;
+    int na = element_sample_points(m, ep, a), nb = element_sample_points(m, eq, b), tested = 0, visible = 0;
     for (int k = 0; k < na * nb && tested < 4; k++) {
         vec3 x = a[k % na], y = b[(k + k / na) % nb]; /* the diagonal pairs first, then shifted */
         if (v3_dot(ep->normal, v3_sub(y, ep->centroid)) <= s->epsilon ||
@@ -182,12 +59,15 @@ static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq)
     count_ray(r->s, ep, ep->centroid, eq, eq->centroid, &visible, &blocked);
     for (int side = 0; side < 2; side++) {
         const patch *e = side ? eq : ep, *other = side ? ep : eq;
-        vec3 mean = corner_mean(e);
+        vec3 mean = element_corner_mean(e);
         for (int k = 0; k < e->corner_count && !(visible && blocked); k++)
-            count_ray(r->s, e, toward_corner(r->m, e, mean, k, EDGE_INSET), other, other->centroid, &visible, &blocked);
+            count_ray(r->s, e, element_toward_corner(r->m, e, mean, k, EDGE_INSET), other, other->centroid, &visible,
+                      &blocked);
     }
     return visible && blocked;
 }
+
+/* ---- the second pass's tests: the oracle with the first pass's solution B ---------------- */
 
 /* Is the pair worth a shadow test?  The first pass knows no radiance: where
  * F is at least --eps / 8.  A shadow edge across a link can make its whole
@@ -233,13 +113,7 @@ static double spread_bound(const refiner *r, int p, int q, const patch *ep, doub
     return worst;
 }
 
-/* A pair the refinement has still to judge: p receives from q.  F: the
- * first pass's form factor for this link (the second pass starts from the
- * first's links), or -1. */
-typedef struct {
-    int p, q;
-    float F;
-} pair;
+/* ---- refinement ------------------------------------------------------------------------- */
 
 enum verdict { NO_LINK, LINK, SPLIT_RECEIVER, SPLIT_SOURCE };
 
@@ -262,18 +136,18 @@ static void estimate_form_factors(const refiner *r, const patch *ep, const patch
     *fqp = r->point_to_polygon(eq->centroid, eq->normal, ep->corner, ep->corner_count);
 }
 
-/* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  The
- * form factors both ways are estimated from each element's centroid
- * (estimate_form_factors).  Both below --eps
- * (in the second pass: times the source's brightness), the spread bound
- * below --eps-spread and no shadow edge across the pair: a link at this
- * level.  Otherwise split the element that looks larger from the other (q
- * when F_pq > F_qp); an element at --levels is not split further. */
+/* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  A
+ * link at this level when both form-factor estimates are below --eps (in
+ * the second pass, times q's brightness), the spread bound is within
+ * --eps-spread, and no shadow edge crosses the pair where a test is worth
+ * it.  Otherwise split the element that looks larger from the other (q when
+ * F_pq > F_qp); an element at --levels is not split further. */
 static enum verdict judge(const refiner *r, int p, int q)
 {
     const patch *ep = &r->h->element[p], *eq = &r->h->element[q];
     double epsilon = r->s->epsilon;
-    if (!patch_in_front(eq, ep->centroid, ep->normal, epsilon) || !patch_in_front(ep, eq->centroid, eq->normal, epsilon))
+    if (!patch_in_front(eq, ep->centroid, ep->normal, epsilon) ||
+        !patch_in_front(ep, eq->centroid, eq->normal, epsilon))
         return NO_LINK; /* one-sided: they cannot exchange light */
     double fpq, fqp;
     estimate_form_factors(r, ep, eq, &fpq, &fqp);
@@ -283,21 +157,6 @@ static enum verdict judge(const refiner *r, int p, int q)
     if ((small && !(worth_shadow_test(r, q, eq, fmax(fpq, fqp)) && shadow_edge(r, ep, eq))) || (!can_p && !can_q))
         return LINK;
     return can_q && (fpq > fqp || !can_p) ? SPLIT_SOURCE : SPLIT_RECEIVER;
-}
-
-/* Append the four pairs of a split element's children to next (grown as needed). */
-static int push_children(pair **next, long *count, long *capacity, pair t, enum verdict v, int first)
-{
-    if (*count + 4 > *capacity) {
-        long grown = *capacity ? 2 * *capacity : 4096;
-        pair *bigger = realloc(*next, (size_t)grown * sizeof *bigger);
-        if (!bigger)
-            return -1;
-        *next = bigger, *capacity = grown;
-    }
-    for (int k = 0; k < 4; k++)
-        (*next)[(*count)++] = v == SPLIT_SOURCE ? (pair){t.p, first + k, -1.0f} : (pair){first + k, t.q, -1.0f};
-    return 0;
 }
 
 /* Hanrahan et al.'s recursion, breadth first: judge every pair of a round
@@ -320,10 +179,11 @@ static void refine_rounds(refiner *r, pair *todo, long count)
         for (long k = 0; k < count && !r->failed; k++) {
             pair t = todo[k];
             if (verdict[k] == LINK)
-                add_link(r, t.p, t.q, t.F);
+                refiner_add_link(r, t.p, t.q, t.F);
             else if (verdict[k] != NO_LINK) {
-                int first = children(r, verdict[k] == SPLIT_SOURCE ? t.q : t.p);
-                if (first < 0 || push_children(&next, &next_count, &next_capacity, t, verdict[k], first))
+                bool split_source = verdict[k] == SPLIT_SOURCE;
+                int first = refiner_children(r, split_source ? t.q : t.p);
+                if (first < 0 || pairs_push_children(&next, &next_count, &next_capacity, t, split_source, first))
                     r->failed = r->failed ? r->failed : 1;
             }
         }
@@ -334,22 +194,23 @@ static void refine_rounds(refiner *r, pair *todo, long count)
 }
 
 /* A link's form factor F_pq (R10).  Far apart: Lambert's formula at four
- * points of p times the fraction of rays between them not blocked.  Near: the outer integral over M x M sub-triangle
- * centroids of each triangle of p, a ray from each to a point of q. */
+ * points of p times the fraction of rays between them not blocked.  Near:
+ * the outer integral over M x M sub-triangle centroids of each triangle of
+ * p (--quadrature M), a ray from each to a point of q. */
 static double link_form_factor(const hierarchy *h, const patch_mesh *m, const scene *s, point_to_polygon_fn F, int M,
                                int p, int q, uint64_t *rays)
 {
     const patch *ep = &h->element[p], *eq = &h->element[q];
     vec3 b[4];
-    int nb = sample_points(m, eq, b);
+    int nb = element_sample_points(m, eq, b);
     if (v3_length(v3_sub(eq->centroid, ep->centroid)) > NEAR_FACTOR * (ep->radius + eq->radius)) {
         /* The outer integral by the points 1/sqrt(3) of the way from the centroid
          * to the corners (Gauss's 2 x 2 rule on a parallelogram): the centroid
          * alone would miss the curvature of the 1/r^2 kernel, always low. */
-        vec3 mean = corner_mean(ep);
+        vec3 mean = element_corner_mean(ep);
         double f = 0.0;
         for (int k = 0; k < ep->corner_count; k++) {
-            vec3 x = toward_corner(m, ep, mean, k, 1.0 / sqrt(3.0));
+            vec3 x = element_toward_corner(m, ep, mean, k, 1.0 / sqrt(3.0));
             if (v3_dot(eq->normal, v3_sub(x, eq->centroid)) > s->epsilon) /* x in front of q (one-sided q) */
                 f += F(x, ep->normal, eq->corner, eq->corner_count);
         }
@@ -388,26 +249,8 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
  * factors: computed, unless the first pass has one for the pair. */
 static int store_links(hierarchy *h, refiner *r, const radiosity_options *o, radiosity_stats *stats)
 {
-    long n = r->count;
-    h->link_start = calloc((size_t)h->element_count + 1, sizeof *h->link_start);
-    h->link_source = malloc((size_t)n * sizeof *h->link_source + 1);
-    h->link_F = malloc((size_t)n * sizeof *h->link_F + 1);
-    if (!h->link_start || !h->link_source || !h->link_F)
+    if (hierarchy_group_links(h, r))
         return -1;
-    for (long k = 0; k < n; k++)
-        h->link_start[r->receiver[k] + 1]++;
-    for (int e = 0; e < h->element_count; e++)
-        h->link_start[e + 1] += h->link_start[e];
-    long *next = malloc((size_t)h->element_count * sizeof *next + 1);
-    if (!next)
-        return -1;
-    memcpy(next, h->link_start, (size_t)h->element_count * sizeof *next);
-    for (long k = 0; k < n; k++) {
-        h->link_F[next[r->receiver[k]]] = r->known_F[k];
-        h->link_source[next[r->receiver[k]]++] = r->source[k];
-    }
-    free(next);
-    h->link_count = n;
     uint64_t rays = 0;
 #pragma omp parallel for schedule(dynamic, 64) reduction(+ : rays)
     for (int e = 0; e < h->element_count; e++)
@@ -419,124 +262,7 @@ static int store_links(hierarchy *h, refiner *r, const radiosity_options *o, rad
     return 0;
 }
 
-/* Each leaf's row sum: the form factors of its links and its ancestors'
- * (1 in a closed scene, as the matrix solvers' row_sum_min/max). */
-static void row_sums(const hierarchy *h, const patch_mesh *m, int e, double above, radiosity_stats *stats)
-{
-    for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
-        above += h->link_F[k];
-    if (m->cells[e].first_child < 0) {
-        stats->row_sum_min = fmin(stats->row_sum_min, above), stats->row_sum_max = fmax(stats->row_sum_max, above);
-        return;
-    }
-    for (int k = 0; k < 4; k++)
-        row_sums(h, m, m->cells[e].first_child + k, above, stats);
-}
-
-static int refine_again(hierarchy *h, refiner *r, const radiosity_options *o, radiosity_stats *stats);
-
-/* Inside a solid: a ray along the normal meets the back of a surface first
- * (the floor under a box meets the underside of the box's top). */
-static bool buried(const scene *s, vec3 x, vec3 n)
-{
-    hit first;
-    ray along_normal = {scene_offset_origin(s, x, n, n), n};
-    return scene_intersect(s, along_normal, INFINITY, &first) && v3_dot(first.normal, n) > 0.0;
-}
-
-/* The fraction of element e's area outside every solid: a leaf's from its
- * centroid and sample points, a parent's the area-weighted mean of its
- * children's.  A box standing on the floor buries the floor under it; an
- * element across the box's edge gathers light on one part only, and
- * push_pull gives that light to the part that is not buried. */
-static double exposure_of(hierarchy *h, const patch_mesh *m, const scene *s, int e)
-{
-    const mesh_cell *c = &m->cells[e];
-    const patch *element = &h->element[e];
-    double exposure = 0.0;
-    if (c->first_child < 0) {
-        vec3 point[5];
-        int count = sample_points(m, element, point);
-        point[count++] = element->centroid;
-        for (int k = 0; k < count; k++)
-            exposure += !buried(s, point[k], element->normal) / (double)count;
-    } else {
-        for (int k = c->first_child; k < c->first_child + 4; k++)
-            exposure += exposure_of(h, m, s, k) * h->element[k].area / element->area;
-    }
-    h->exposure[e] = (float)exposure;
-    return exposure;
-}
-
-static int exposure_all(hierarchy *h, const patch_mesh *m, const scene *s)
-{
-    float *exposure = realloc(h->exposure, (size_t)h->element_count * sizeof *exposure + 1);
-    if (!exposure)
-        return -1;
-    h->exposure = exposure;
-#pragma omp parallel for schedule(dynamic, 1)
-    for (int root = 0; root < h->root_count; root++)
-        exposure_of(h, m, s, root);
-    return 0;
-}
-
-int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *stats,
-                    point_to_polygon_fn point_to_polygon, char *err, size_t err_size)
-{
-    double roots = m->cell_count, bound = roots * (pow(4.0, o->levels + 1) - 1.0) / 3.0;
-    if (bound > WORST_CASE_LIMIT) /* refused before the hierarchy is allocated */
-        return snprintf(err, err_size,
-                        "argv:%d: --levels %d allows up to %.3g elements (%d roots), more than the limit %d; "
-                        "lower --levels",
-                        o->levels_argv, o->levels, bound, m->cell_count, WORST_CASE_LIMIT),
-               2;
-    hierarchy_free(h);
-    double start = omp_get_wtime();
-    h->root_count = m->cell_count;
-    refiner r = {.h = h, .m = m, .s = s, .point_to_polygon = point_to_polygon, .eps = o->eps,
-                 .eps_spread = o->eps_spread, .levels = o->levels};
-    pair *todo = malloc((size_t)h->root_count * h->root_count * sizeof *todo + 1);
-    long count = 0;
-    if (track(h, m, s) || !todo)
-        r.failed = 1;
-    for (int p = 0; p < h->root_count && todo; p++)
-        for (int q = 0; q < h->root_count; q++)
-            if (p != q)
-                todo[count++] = (pair){p, q, -1.0f};
-    refine_rounds(&r, todo, count);
-    if (!r.failed && store_links(h, &r, o, stats))
-        r.failed = 1;
-    stats->first_pass_links = h->link_count;
-    if (!r.failed && o->eps_spread > 0.0 && (exposure_all(h, m, s) || refine_again(h, &r, o, stats)))
-        r.failed = r.failed ? r.failed : 1;
-    if (!r.failed && exposure_all(h, m, s))
-        r.failed = 1;
-    free(r.receiver), free(r.source), free(r.known_F);
-    stats->formfactor_s += omp_get_wtime() - start; /* refinement and the links' form factors */
-    if (r.failed == 3)
-        return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d elements (the limit); raise --eps",
-                        o->eps_argv, o->eps, ELEMENT_LIMIT),
-               2;
-    if (r.failed == 2)
-        return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d links (the limit); raise --eps",
-                        o->eps_argv, o->eps, LINK_LIMIT),
-               2;
-    if (r.failed || !(h->gathered = calloc(2 * (size_t)h->element_count + 1, sizeof *h->gathered)))
-        return snprintf(err, err_size, "argv:0: out of memory for the hierarchy"), 2;
-    h->term = h->gathered + h->element_count;
-    stats->elements = h->element_count, stats->links = h->link_count, stats->levels = 0;
-    stats->have_matrix_checks = true, stats->row_sum_min = INFINITY, stats->row_sum_max = 0.0;
-    for (int root = 0; root < h->root_count; root++)
-        row_sums(h, m, root, 0.0, stats);
-    for (int e = 0; e < h->element_count; e++)
-        stats->levels = stats->levels > h->level[e] ? stats->levels : h->level[e];
-    stats->hierarchy_bytes = (double)h->element_count * (sizeof(patch) + sizeof(mesh_cell) + 2 * sizeof(vec3) + 1 +
-                                                         sizeof(long)) +
-                             (double)m->vertex_count * sizeof(vec3) + (double)h->link_count * (sizeof(int) + sizeof(float));
-    return radiosity_collect_patches(m, s, o, err, err_size); /* the leaves become the patches */
-}
-
-/* Push-pull, on the exposed part of each element (see exposure_of): what e
+/* Push-pull, on the exposed part of each element (hierarchy_exposure): what e
  * and its ancestors gathered (down) is pushed to its leaves, which add
  * their source; e's term is the mean of its children's over their exposed
  * area, pulled up.  An element's gathered light is a mean over its whole
@@ -620,9 +346,12 @@ static void first_pass_solution(hierarchy *h, const patch_mesh *m, vec3 *B, vec3
 }
 
 /* The second pass (--eps-spread): solve on the first pass's links, then
- * refine again from the roots with B known (brightness, spread_bound).  A
- * link the first pass made too keeps its form factor.  A scene lit only by
- * point lights has no emission for B to start from: one pass. */
+ * judge them again with B known (brightness, spread_bound,
+ * worth_shadow_test).  The second oracle is the stricter, so it splits
+ * whatever the first split: starting from the first pass's links gives the
+ * links a second refinement from the roots would, and a link kept keeps its
+ * form factor.  B holds the emission's light only: a scene lit only by
+ * point lights has none to start from, and gets one pass. */
 static int refine_again(hierarchy *h, refiner *r, const radiosity_options *o, radiosity_stats *stats)
 {
     int n = h->element_count;
@@ -654,6 +383,59 @@ static int refine_again(hierarchy *h, refiner *r, const radiosity_options *o, ra
     return r->failed || store_links(h, r, o, stats) ? -1 : 0;
 }
 
+int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *stats,
+                    point_to_polygon_fn point_to_polygon, char *err, size_t err_size)
+{
+    double roots = m->cell_count, bound = roots * (pow(4.0, o->levels + 1) - 1.0) / 3.0;
+    if (bound > WORST_CASE_LIMIT) /* refused before the hierarchy is allocated */
+        return snprintf(err, err_size,
+                        "argv:%d: --levels %d allows up to %.3g elements (%d roots), more than the limit %d; "
+                        "lower --levels",
+                        o->levels_argv, o->levels, bound, m->cell_count, WORST_CASE_LIMIT),
+               2;
+    hierarchy_free(h);
+    double start = omp_get_wtime();
+    h->root_count = m->cell_count;
+    refiner r = {.h = h,
+                 .m = m,
+                 .s = s,
+                 .point_to_polygon = point_to_polygon,
+                 .eps = o->eps,
+                 .eps_spread = o->eps_spread,
+                 .levels = o->levels};
+    pair *todo = malloc((size_t)h->root_count * h->root_count * sizeof *todo + 1);
+    long count = 0;
+    if (hierarchy_track_new_cells(h, m, s) || !todo)
+        r.failed = 1;
+    for (int p = 0; p < h->root_count && todo; p++)
+        for (int q = 0; q < h->root_count; q++)
+            if (p != q)
+                todo[count++] = (pair){p, q, -1.0f};
+    refine_rounds(&r, todo, count);
+    if (!r.failed && store_links(h, &r, o, stats))
+        r.failed = 1;
+    stats->first_pass_links = h->link_count;
+    if (!r.failed && o->eps_spread > 0.0 && (hierarchy_exposure(h, m, s) || refine_again(h, &r, o, stats)))
+        r.failed = r.failed ? r.failed : 1;
+    if (!r.failed && hierarchy_exposure(h, m, s))
+        r.failed = 1;
+    free(r.receiver), free(r.source), free(r.known_F);
+    stats->formfactor_s += omp_get_wtime() - start; /* refinement and the links' form factors */
+    if (r.failed == 3)
+        return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d elements (the limit); raise --eps",
+                        o->eps_argv, o->eps, ELEMENT_LIMIT),
+               2;
+    if (r.failed == 2)
+        return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d links (the limit); raise --eps",
+                        o->eps_argv, o->eps, LINK_LIMIT),
+               2;
+    if (r.failed || !(h->gathered = calloc(2 * (size_t)h->element_count + 1, sizeof *h->gathered)))
+        return snprintf(err, err_size, "argv:0: out of memory for the hierarchy"), 2;
+    h->term = h->gathered + h->element_count;
+    hierarchy_report(h, m, stats);
+    return radiosity_collect_patches(m, s, o, err, err_size); /* the leaves become the patches */
+}
+
 int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, int first, int last,
                     const radiosity_options *o, radiosity_stats *r, double source_norm, vec3 *L)
 {
@@ -680,6 +462,7 @@ int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, i
 
 void hierarchy_free(hierarchy *h)
 {
-    free(h->element), free(h->level), free(h->parent), free(h->exposure), free(h->gathered), free(h->link_start), free(h->link_source), free(h->link_F);
+    free(h->element), free(h->level), free(h->parent), free(h->exposure), free(h->gathered), free(h->link_start),
+        free(h->link_source), free(h->link_F);
     *h = (hierarchy){0};
 }

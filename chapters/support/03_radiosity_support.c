@@ -80,8 +80,9 @@ const option RADIOSITY_OPTIONS[] = {
      .help = "refinement rounds, 1..8, each splitting patches in four; implies --adaptive"},
     {"--adaptive-threshold", "T", OPTION_DOUBLE, OPTION_FIELD(adaptive_threshold), .min = 1e-6, .max = 1e6,
      .default_text = "0.1", .help = "split where a patch and the mean of its corners differ by T x the mean radiance"},
-    {"--solver", NULL, OPTION_CHOICE, OPTION_FIELD(solver), .choices = "jacobi|gauss-seidel|shooting|direct|hierarchical",
-     .default_text = "jacobi", .help = "how L = E + KL is solved"},
+    {"--solver", NULL, OPTION_CHOICE, OPTION_FIELD(solver),
+     .choices = "jacobi|gauss-seidel|shooting|direct|hierarchical", .default_text = "jacobi",
+     .help = "how L = E + KL is solved"},
     {"--tol", "T", OPTION_DOUBLE, OPTION_FIELD(tolerance), .min = 0.0, .max = 1.0, .default_text = "1e-4",
      .help = "stop when the residual falls below T (a fraction of the source power)"},
     {"--iterations", "N", OPTION_INT, OPTION_FIELD(max_iterations), .min = 1, .max = 100000000, .default_text = "1000",
@@ -224,8 +225,9 @@ int radiosity_mesh_scene(patch_mesh *m, const scene *s, const radiosity_options 
     bool hierarchical = o->solver == SOLVER_HIERARCHICAL;
     double size = hierarchical && o->patch_size_argv == 0 ? INFINITY : o->patch_size; /* roots: whole surfaces */
     if (hierarchical && o->formfactors_path) /* n^2 form factors between the leaves: what the hierarchy avoids */
-        return snprintf(err, err_size, "argv:0: --formfactors sums every patch-to-patch form factor; --solver "
-                                       "hierarchical keeps links instead: use another solver for the table"),
+        return snprintf(err, err_size,
+                        "argv:0: --formfactors sums every patch-to-patch form factor; --solver "
+                        "hierarchical keeps links instead: use another solver for the table"),
                2;
     if (hierarchical && o->adaptive)
         warn_once(&warned_adaptive, "03_radiosity: --adaptive is ignored by --solver hierarchical, which refines "
