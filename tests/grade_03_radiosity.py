@@ -585,6 +585,42 @@ def test_hierarchical_second_pass_follows_the_light(ctx):
         assert line.startswith("argv:5:") and "--eps-spread" in line, line
 
 
+def test_hierarchical_floor_under_a_box_carries_no_light(ctx):
+    """The floor under the short box is inside a solid: no light reaches it, so
+    its leaves must be black, while the floor just outside the box is lit.  An
+    element across the box's edge gathers light on its exposed part only;
+    spreading that over the buried part too would light the floor under the
+    box and darken the strip beside it (the box sides see that strip at F up
+    to 0.5).  Flat shading: each face carries its leaf's radiance."""
+    ply = ctx.path("h.ply")
+    ctx.render(CHAPTER, "scenes/cornell.scene", "--size", "8x8", *HIER, "--eps", 8e-2, "--shading", "flat",
+               "--out", ply, name="buried")
+    vertices, faces = read_ply(ply)
+    footprint = [(130, 65), (82, 225), (240, 272), (290, 114)]  # the short box's base (x, z), scenes/cornell.scene
+    buried, beside = [], []
+    for face in faces:
+        corners = [vertices[i] for i in face]
+        if any(abs(v[1]) > 1e-6 for v in corners):
+            continue  # not the floor
+        x, z = sum(v[0] for v in corners) / len(corners), sum(v[2] for v in corners) / len(corners)
+        inside_by = min(side_distances(footprint, x, z))
+        if inside_by > 10:
+            buried.append(max(corners[0][3:6]))
+        elif -30 < inside_by < -10:
+            beside.append(min(corners[0][3:6]))
+    assert len(buried) >= 4 and len(beside) >= 4, (len(buried), len(beside))
+    assert max(buried) == 0.0, f"a floor leaf under the box has radiance {max(buried)}"
+    assert min(beside) > 0.0, "a floor leaf beside the box is black"
+
+
+def side_distances(polygon, x, z):
+    """Signed distances from (x, z) to the lines of a convex polygon's sides, positive inside."""
+    sides = list(zip(polygon, polygon[1:] + polygon[:1]))
+    orientation = 1 if sum(ax * bz - bx * az for (ax, az), (bx, bz) in sides) > 0 else -1
+    return [orientation * ((bx - ax) * (z - az) - (bz - az) * (x - ax)) / math.hypot(bx - ax, bz - az)
+            for (ax, az), (bx, bz) in sides]
+
+
 def test_hierarchical_independent_of_threads(ctx):
     check_thread_independence(ctx, CHAPTER, "scenes/cornell.scene", "--size", "16x16", *HIER, "--eps", 5e-2,
                               "--levels", 5)
