@@ -136,6 +136,13 @@ static void estimate_form_factors(const refiner *r, const patch *ep, const patch
     *fqp = r->point_to_polygon(eq->centroid, eq->normal, ep->corner, ep->corner_count);
 }
 
+/* One-sided elements exchange light only when each centroid is in front of the other. */
+static bool facing(const patch *ep, const patch *eq, double epsilon)
+{
+    return patch_in_front(eq, ep->centroid, ep->normal, epsilon) &&
+           patch_in_front(ep, eq->centroid, eq->normal, epsilon);
+}
+
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  A
  * link at this level when both form-factor estimates are below --eps (in
  * the second pass, times q's brightness), the spread bound is within
@@ -145,16 +152,17 @@ static void estimate_form_factors(const refiner *r, const patch *ep, const patch
 static enum verdict judge(const refiner *r, int p, int q)
 {
     const patch *ep = &r->h->element[p], *eq = &r->h->element[q];
-    double epsilon = r->s->epsilon;
-    if (!patch_in_front(eq, ep->centroid, ep->normal, epsilon) ||
-        !patch_in_front(ep, eq->centroid, eq->normal, epsilon))
+    if (!facing(ep, eq, r->s->epsilon))
         return NO_LINK; /* one-sided: they cannot exchange light */
     double fpq, fqp;
     estimate_form_factors(r, ep, eq, &fpq, &fqp);
-    bool can_p = r->h->level[p] < r->levels, can_q = r->h->level[q] < r->levels;
     double bright = brightness(r, q);
-    bool small = fpq * bright < r->eps && fqp * bright < r->eps && spread_bound(r, p, q, ep, fpq) <= r->eps_spread;
-    if ((small && !(worth_shadow_test(r, q, eq, fmax(fpq, fqp)) && shadow_edge(r, ep, eq))) || (!can_p && !can_q))
+    bool link = fpq * bright < r->eps && fqp * bright < r->eps;
+    link = link && spread_bound(r, p, q, ep, fpq) <= r->eps_spread;
+    if (link && worth_shadow_test(r, q, eq, fmax(fpq, fqp)))
+        link = !shadow_edge(r, ep, eq);
+    bool can_p = r->h->level[p] < r->levels, can_q = r->h->level[q] < r->levels;
+    if (link || (!can_p && !can_q))
         return LINK;
     return can_q && (fpq > fqp || !can_p) ? SPLIT_SOURCE : SPLIT_RECEIVER;
 }
