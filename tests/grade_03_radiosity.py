@@ -564,7 +564,7 @@ def test_hierarchical_second_pass_follows_the_light(ctx):
     link is too coarse (a bright source, or a source whose leaves differ).  On the
     Cornell box at --eps 4e-2 it must bring the per-surface means closer to path
     tracing: RMS relative error over surfaces and channels at most 3/4 of the first
-    pass's (measured: 7.6 % one pass, 1.2 % two).  Both are measured against the
+    pass's (measured: 7.6 % one pass, 1.7 % two).  Both are measured against the
     same path-traced means, so its noise (about 0.3 % per surface at 2^18 walks)
     adds the same floor to both; a second pass that changed nothing would fail."""
     common = ["--size", "8x8", "--tol", 1e-6, *HIER, "--eps", 4e-2]
@@ -579,7 +579,7 @@ def test_hierarchical_second_pass_follows_the_light(ctx):
         errors[key] = math.sqrt(sum(x * x for x in e) / len(e))
     assert errors["two"] <= 0.75 * errors["one"], errors
     one, two = runs["one"], runs["two"]
-    assert one["first_pass_links"] == one["links"] and two["first_pass_links"] == one["links"] < two["links"]
+    assert one["first_pass_links"] == one["links"] and two["first_pass_links"] < two["links"]
     for bad in ("-1e-3", "nan", "1.5", "x"):
         line = check_exit_2(ctx, ["scenes/cornell.scene", "--solver", "hierarchical", "--eps-spread", bad])
         assert line.startswith("argv:5:") and "--eps-spread" in line, line
