@@ -2,18 +2,24 @@
  * Aupperle 1991) for chapter 3's --solver hierarchical.
  *
  * Part of lecture 3, kept in its own file because the chapter is at its
- * length limit: read it after solve_jacobi() in chapters/03_radiosity.c.
- * Each input surface is the root of a quadtree of elements (the cells of
- * the patch mesh, split in four by patch_mesh_split).  Instead of a form
- * factor for every pair of patches, a link joins two elements at the level
- * where their form factor is small: the refinement oracle splits the larger
- * of the pair (seen from the other) until both F estimates are below --eps
- * or --levels is reached.  Memory is O(elements + links).  The solve is the
- * Neumann series (R6) term by term as in Jacobi: gather (each element
- * receives rho Sum_links F L over its links) then push-pull (what an element
+ * length limit: read it after solve_jacobi() in chapters/03_radiosity.c
+ * (the bookkeeping is in 03_radiosity_hierarchical_store.[ch]).  Each input
+ * surface is the root of a quadtree of elements (the cells of the patch
+ * mesh, split in four by patch_mesh_split).  Instead of a form factor for
+ * every pair of patches, a link joins two elements at the level where
+ * their form factor is small: the refinement oracle splits the larger of
+ * the pair (seen from the other) until both F estimates are below --eps, no
+ * shadow edge crosses the pair, or --levels is reached.  A second pass
+ * (--eps-spread) solves on those links and refines again where the
+ * solution says a link is too coarse: a bright source (F B, Hanrahan et
+ * al.'s BF refinement), a source whose radiance varies, a shadow of the
+ * light.  Memory is O(elements + links).  The solve is the Neumann series
+ * (R6) term by term as in Jacobi: gather (each element receives
+ * rho Sum_links F L over its links) then push-pull (what an element
  * gathers is pushed down to its leaves, and each element's radiance is the
- * area-weighted mean of its children's, pulled up).  The leaves are the
- * patches that the image, the probes and the PLY use. */
+ * mean of its children's, pulled up), both over the part of each element
+ * that is not buried inside a solid (the floor under a box).  The leaves
+ * are the patches that the image, the probes and the PLY use. */
 #ifndef CHAPTERS_RADIOSITY_HIERARCHICAL_H
 #define CHAPTERS_RADIOSITY_HIERARCHICAL_H
 
@@ -22,8 +28,10 @@
 
 typedef struct {
     int element_count, root_count, capacity;
-    patch *element;   /* per cell of the mesh: its geometry, albedo and emission */
+    patch *element;       /* per cell of the mesh: its geometry, albedo and emission */
     unsigned char *level; /* depth below its root */
+    int *parent;          /* -1 for a root */
+    float *exposure;      /* the fraction of its area outside every solid (not buried) */
     vec3 *gathered;       /* per element: rho Sum_links F L (one Neumann term) */
     vec3 *term;           /* per element: the term, pulled up from the leaves */
     long link_count;

@@ -80,8 +80,9 @@ const option RADIOSITY_OPTIONS[] = {
      .help = "refinement rounds, 1..8, each splitting patches in four; implies --adaptive"},
     {"--adaptive-threshold", "T", OPTION_DOUBLE, OPTION_FIELD(adaptive_threshold), .min = 1e-6, .max = 1e6,
      .default_text = "0.1", .help = "split where a patch and the mean of its corners differ by T x the mean radiance"},
-    {"--solver", NULL, OPTION_CHOICE, OPTION_FIELD(solver), .choices = "jacobi|gauss-seidel|shooting|direct|hierarchical",
-     .default_text = "jacobi", .help = "how L = E + KL is solved"},
+    {"--solver", NULL, OPTION_CHOICE, OPTION_FIELD(solver),
+     .choices = "jacobi|gauss-seidel|shooting|direct|hierarchical", .default_text = "jacobi",
+     .help = "how L = E + KL is solved"},
     {"--tol", "T", OPTION_DOUBLE, OPTION_FIELD(tolerance), .min = 0.0, .max = 1.0, .default_text = "1e-4",
      .help = "stop when the residual falls below T (a fraction of the source power)"},
     {"--iterations", "N", OPTION_INT, OPTION_FIELD(max_iterations), .min = 1, .max = 100000000, .default_text = "1000",
@@ -99,6 +100,9 @@ const option RADIOSITY_OPTIONS[] = {
      .help = "write the surface-to-surface form factors (from,to,F)"},
     {"--eps", "E", OPTION_CUSTOM, 0, .parse = parse_eps, .default_text = "1e-2",
      .help = "hierarchical: link two elements when both form-factor estimates are below E, in (0, 1]"},
+    {"--eps-spread", "S", OPTION_DOUBLE, OPTION_FIELD(eps_spread), .min = 0.0, .max = 1.0, .default_text = "1e-3",
+     .help = "hierarchical: solve, then refine again where rho F (the source's spread) passes S x the receiver's "
+             "radiance; 0: one pass"},
     {"--levels", "N", OPTION_CUSTOM, 0, .parse = parse_levels, .default_text = "8",
      .help = "hierarchical: split an element at most N times below its surface, 1..12"},
     {0},
@@ -151,6 +155,8 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
     if (o->solver == SOLVER_HIERARCHICAL) {
         fprintf(json, ",\n  \"elements\": %ld,\n  \"links\": %ld,\n  \"levels\": %d", r->elements, r->links, r->levels);
         json_field_number(json, "eps", o->eps);
+        json_field_number(json, "eps_spread", o->eps_spread);
+        fprintf(json, ",\n  \"first_pass_links\": %ld", r->first_pass_links);
         json_field_number(json, "hierarchy_bytes", r->hierarchy_bytes);
     }
     json_surface_radiance(json, s, m, radiance);
@@ -219,8 +225,9 @@ int radiosity_mesh_scene(patch_mesh *m, const scene *s, const radiosity_options 
     bool hierarchical = o->solver == SOLVER_HIERARCHICAL;
     double size = hierarchical && o->patch_size_argv == 0 ? INFINITY : o->patch_size; /* roots: whole surfaces */
     if (hierarchical && o->formfactors_path) /* n^2 form factors between the leaves: what the hierarchy avoids */
-        return snprintf(err, err_size, "argv:0: --formfactors sums every patch-to-patch form factor; --solver "
-                                       "hierarchical keeps links instead: use another solver for the table"),
+        return snprintf(err, err_size,
+                        "argv:0: --formfactors sums every patch-to-patch form factor; --solver "
+                        "hierarchical keeps links instead: use another solver for the table"),
                2;
     if (hierarchical && o->adaptive)
         warn_once(&warned_adaptive, "03_radiosity: --adaptive is ignored by --solver hierarchical, which refines "

@@ -29,12 +29,13 @@ typedef struct {
     double tolerance;
     int max_iterations;
     int max_patches;
-    int quadrature;    /* M: each patch triangle is sampled at the centroids of M x M sub-triangles */
+    int quadrature;          /* M: each patch triangle is sampled at the centroids of M x M sub-triangles */
     int smooth;              /* --shading flat|smooth: 1 interpolates per-vertex radiance */
     int enforce_reciprocity; /* --reciprocity check|enforce: 1 averages A_i F_ij and A_j F_ji */
     const char *formfactors_path;
     int patch_size_argv; /* where --patch-size was given, for error messages */
     double eps;          /* --solver hierarchical: link when both form-factor estimates are below eps */
+    double eps_spread;   /* --solver hierarchical: second pass, a link's bound on its source's variation (0: off) */
     int levels;          /* --solver hierarchical: deepest split below a root */
     int eps_argv, levels_argv;
 } radiosity_options;
@@ -43,16 +44,17 @@ typedef struct {
 typedef struct {
     const char *solver_used;
     int refinements, iterations, shots;
-    double residual;  /* the last one recorded */
-    double *history;  /* every residual recorded */
+    double residual; /* the last one recorded */
+    double *history; /* every residual recorded */
     int history_count, history_capacity;
     bool converged, no_light;
     double formfactor_s, solve_s;
     uint64_t visibility_rays;
     bool have_matrix_checks;
     double reciprocity_error, row_sum_min, row_sum_max;
-    long elements, links; /* --solver hierarchical: quadtree cells (all levels), links */
-    int levels;           /* the deepest level reached */
+    long elements, links;  /* --solver hierarchical: quadtree cells (all levels), links */
+    long first_pass_links; /* --solver hierarchical: links before the second pass (--eps-spread) */
+    int levels;            /* the deepest level reached */
     double hierarchy_bytes;
 } radiosity_stats;
 

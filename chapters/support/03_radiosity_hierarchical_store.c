@@ -1,0 +1,206 @@
+/* 03_radiosity_hierarchical_store.c — the hierarchical solver's bookkeeping (see the .h). */
+#include "03_radiosity_hierarchical_store.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+int hierarchy_track_new_cells(hierarchy *h, const patch_mesh *m, const scene *s)
+{
+    if (m->cell_count > h->capacity) {
+        int capacity = h->capacity ? h->capacity : 256;
+        while (capacity < m->cell_count)
+            capacity *= 2;
+        patch *element = realloc(h->element, (size_t)capacity * sizeof *element);
+        if (element)
+            h->element = element;
+        unsigned char *level = realloc(h->level, (size_t)capacity);
+        if (level)
+            h->level = level;
+        int *parent = realloc(h->parent, (size_t)capacity * sizeof *parent);
+        if (parent)
+            h->parent = parent;
+        if (!element || !level || !parent)
+            return -1;
+        h->capacity = capacity;
+    }
+    for (; h->element_count < m->cell_count; h->element_count++) {
+        patch *e = &h->element[h->element_count];
+        patch_mesh_cell_geometry(m, h->element_count, e);
+        radiosity_material(s, e->surface, &e->albedo, &e->emission);
+        h->level[h->element_count] = 0, h->parent[h->element_count] = -1;
+    }
+    return 0;
+}
+
+int refiner_children(refiner *r, int e)
+{
+    if (r->m->cells[e].first_child >= 0)
+        return r->m->cells[e].first_child;
+    if (r->m->cell_count + 4 > ELEMENT_LIMIT) {
+        r->failed = 3;
+        return -1;
+    }
+    int first = patch_mesh_split(r->m, e);
+    if (first < 0 || hierarchy_track_new_cells(r->h, r->m, r->s))
+        return -1;
+    for (int k = 0; k < 4; k++)
+        r->h->level[first + k] = (unsigned char)(r->h->level[e] + 1), r->h->parent[first + k] = e;
+    return first;
+}
+
+void refiner_add_link(refiner *r, int p, int q, float known_F)
+{
+    if (r->count == r->capacity) {
+        long capacity = r->capacity ? 2 * r->capacity : 4096;
+        if (capacity > LINK_LIMIT)
+            capacity = LINK_LIMIT;
+        if (r->count == capacity) {
+            r->failed = 2;
+            return;
+        }
+        int *receiver = realloc(r->receiver, (size_t)capacity * sizeof *receiver);
+        if (receiver)
+            r->receiver = receiver;
+        int *source = realloc(r->source, (size_t)capacity * sizeof *source);
+        if (source)
+            r->source = source;
+        float *known_F = realloc(r->known_F, (size_t)capacity * sizeof *known_F);
+        if (known_F)
+            r->known_F = known_F;
+        if (!receiver || !source || !known_F) {
+            r->failed = 1;
+            return;
+        }
+        r->capacity = capacity;
+    }
+    r->known_F[r->count] = known_F;
+    r->receiver[r->count] = p, r->source[r->count++] = q;
+}
+
+int pairs_push_children(pair **next, long *count, long *capacity, pair t, bool split_source, int first)
+{
+    if (*count + 4 > *capacity) {
+        long grown = *capacity ? 2 * *capacity : 4096;
+        pair *bigger = realloc(*next, (size_t)grown * sizeof *bigger);
+        if (!bigger)
+            return -1;
+        *next = bigger, *capacity = grown;
+    }
+    for (int k = 0; k < 4; k++)
+        (*next)[(*count)++] = split_source ? (pair){t.p, first + k, -1.0f} : (pair){first + k, t.q, -1.0f};
+    return 0;
+}
+
+int hierarchy_group_links(hierarchy *h, const refiner *r)
+{
+    long n = r->count;
+    h->link_start = calloc((size_t)h->element_count + 1, sizeof *h->link_start);
+    h->link_source = malloc((size_t)n * sizeof *h->link_source + 1);
+    h->link_F = malloc((size_t)n * sizeof *h->link_F + 1);
+    long *next = malloc((size_t)h->element_count * sizeof *next + 1);
+    if (!h->link_start || !h->link_source || !h->link_F || !next)
+        return free(next), -1;
+    for (long k = 0; k < n; k++)
+        h->link_start[r->receiver[k] + 1]++;
+    for (int e = 0; e < h->element_count; e++)
+        h->link_start[e + 1] += h->link_start[e];
+    memcpy(next, h->link_start, (size_t)h->element_count * sizeof *next);
+    for (long k = 0; k < n; k++) {
+        h->link_F[next[r->receiver[k]]] = r->known_F[k];
+        h->link_source[next[r->receiver[k]]++] = r->source[k];
+    }
+    free(next);
+    h->link_count = n;
+    return 0;
+}
+
+vec3 element_corner_mean(const patch *e)
+{
+    vec3 mean = v3_splat(0.0);
+    for (int k = 0; k < e->corner_count; k++)
+        mean = v3_add(mean, v3_scale(e->corner[k], 1.0 / e->corner_count));
+    return mean;
+}
+
+vec3 element_toward_corner(const patch_mesh *m, const patch *e, vec3 mean, int k, double t)
+{
+    return patch_mesh_on_surface(m, e->surface, v3_add(mean, v3_scale(v3_sub(e->corner[k], mean), t)));
+}
+
+int element_sample_points(const patch_mesh *m, const patch *e, vec3 *out)
+{
+    vec3 mean = element_corner_mean(e);
+    for (int k = 0; k < e->corner_count; k++)
+        out[k] = element_toward_corner(m, e, mean, k, 0.5);
+    return e->corner_count;
+}
+
+/* Inside a solid: a ray along the normal meets the back of a surface first
+ * (the floor under a box meets the underside of the box's top). */
+static bool buried(const scene *s, vec3 x, vec3 n)
+{
+    hit first;
+    ray along_normal = {scene_offset_origin(s, x, n, n), n};
+    return scene_intersect(s, along_normal, INFINITY, &first) && v3_dot(first.normal, n) > 0.0;
+}
+
+/* The fraction of element e's area outside every solid: a leaf's from its
+ * centroid and sample points, a parent's the area-weighted mean of its
+ * children's. */
+double exposure_of(hierarchy *h, const patch_mesh *m, const scene *s, int e)
+{
+    const mesh_cell *c = &m->cells[e];
+    const patch *element = &h->element[e];
+    double exposure = 0.0;
+    if (c->first_child < 0) {
+        vec3 point[5];
+        int count = element_sample_points(m, element, point);
+        point[count++] = element->centroid;
+        for (int k = 0; k < count; k++)
+            exposure += !buried(s, point[k], element->normal) / (double)count;
+    } else {
+        for (int k = c->first_child; k < c->first_child + 4; k++)
+            exposure += exposure_of(h, m, s, k) * h->element[k].area / element->area;
+    }
+    h->exposure[e] = (float)exposure;
+    return exposure;
+}
+
+int hierarchy_exposure(hierarchy *h, const patch_mesh *m, const scene *s)
+{
+    float *exposure = realloc(h->exposure, (size_t)h->element_count * sizeof *exposure + 1);
+    if (!exposure)
+        return -1;
+    h->exposure = exposure;
+#pragma omp parallel for schedule(dynamic, 1)
+    for (int root = 0; root < h->root_count; root++)
+        exposure_of(h, m, s, root);
+    return 0;
+}
+
+static void hierarchy_row_sums(const hierarchy *h, const patch_mesh *m, int e, double above, radiosity_stats *stats)
+{
+    for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
+        above += h->link_F[k];
+    if (m->cells[e].first_child < 0) {
+        stats->row_sum_min = fmin(stats->row_sum_min, above), stats->row_sum_max = fmax(stats->row_sum_max, above);
+        return;
+    }
+    for (int k = 0; k < 4; k++)
+        hierarchy_row_sums(h, m, m->cells[e].first_child + k, above, stats);
+}
+
+void hierarchy_report(const hierarchy *h, const patch_mesh *m, radiosity_stats *stats)
+{
+    stats->elements = h->element_count, stats->links = h->link_count, stats->levels = 0;
+    stats->have_matrix_checks = true, stats->row_sum_min = INFINITY, stats->row_sum_max = 0.0;
+    for (int root = 0; root < h->root_count; root++)
+        hierarchy_row_sums(h, m, root, 0.0, stats);
+    for (int e = 0; e < h->element_count; e++)
+        stats->levels = stats->levels > h->level[e] ? stats->levels : h->level[e];
+    stats->hierarchy_bytes =
+        (double)h->element_count *
+            (sizeof(patch) + sizeof(mesh_cell) + 2 * sizeof(vec3) + 1 + sizeof(long) + sizeof(int) + sizeof(float)) +
+        (double)m->vertex_count * sizeof(vec3) + (double)h->link_count * (sizeof(int) + sizeof(float));
+}
