@@ -585,6 +585,31 @@ def test_hierarchical_second_pass_follows_the_light(ctx):
         assert line.startswith("argv:5:") and "--eps-spread" in line, line
 
 
+def test_hierarchical_tiny_bright_light(ctx):
+    """A light a hundredth the Cornell light's area and a hundred times as bright
+    (scenes/cornell-small-light.scene): the second pass weighs its links by its
+    brightness, capped, so the solve stays within a few times the Cornell box's
+    links (uncapped it passed the 40 M link limit) and agrees with path tracing per
+    surface within the bound of the agreement test above, 0.5 sqrt(eps) of the
+    surface's radiance plus the scene's mean, and 4 standard errors."""
+    eps = 2e-2
+    args = ["--size", "8x8", "--solver", "hierarchical", "--quadrature", 1, "--eps", eps, "--eps-spread", 7e-4]
+    _, small = ctx.render(CHAPTER, "scenes/cornell-small-light.scene", *args, name="small")
+    _, normal = ctx.render(CHAPTER, "scenes/cornell.scene", *args, name="normal")
+    assert small["links"] < 2 * normal["links"], (small["links"], normal["links"])
+    _, traced = ctx.render("04_pathtrace", "scenes/cornell-small-light.scene", "--size", "8x8", "--spp", 1,
+                           "--surface-samples", 1 << 16, "--probe-samples", 32, name="pt_small")
+    S, pt = surfaces(small), surfaces(traced)
+    reflecting = [x for name, x in S.items() if name != "light"]
+    area = sum(x["area"] for x in reflecting)
+    for name in pt:
+        for c in range(3):
+            mean = sum(x["area"] * x["radiance"][c] for x in reflecting) / area
+            h, t = S[name]["radiance"][c], pt[name]["radiance"][c]
+            bound = 0.5 * math.sqrt(eps) * (h + mean) + 4 * pt[name]["standard_error"][c]
+            assert abs(h - t) <= bound, f"{name}[{c}]: hierarchical {h:.5f}, path tracing {t:.5f}, bound {bound:.3g}"
+
+
 def test_hierarchical_floor_under_a_box_carries_no_light(ctx):
     """The floor under the short box is inside a solid: no light reaches it, so
     its leaves must be black, while the floor just outside the box is lit.  An

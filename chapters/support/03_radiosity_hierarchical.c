@@ -14,6 +14,14 @@ static const double NEAR_FACTOR = 6.0;
  * (measured on the Cornell box: the same error as 1 in 70 % of the time). */
 static const double FIRST_PASS_COARSER = 2.0;
 
+/* The second pass weighs F by a source's radiance over the scene's mean
+ * reflected radiance, at most this much.  The Cornell box's light is about
+ * 165 times the mean; a light a hundredth its size and a hundred times as
+ * bright (scenes/cornell-small-light.scene) 16,500 times, and weighing its
+ * links by that split every receiver and the light to --levels (over 40 M
+ * links at --eps 2e-2), though its form factors are accurate long before. */
+static const double BRIGHTNESS_CAP = 256.0;
+
 /* The oracle estimates F by the disc approximation beyond this many radii
  * (measured on the Cornell box: 4 gives the error of Lambert's formula
  * everywhere, 2 does not). */
@@ -78,9 +86,9 @@ static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq)
  * F is at least --eps / 8.  A shadow edge across a link can make its whole
  * transfer F_pq B_q wrong, so the second pass tests where F_pq times q's
  * radiance over the scene's mean (q's emission, or the B of q or of its
- * nearest ancestor the first pass made) is at least --eps: the light's
- * shadows are followed down to F of about eps / 50, a dim wall's hardly at
- * all (the first pass tested those). */
+ * nearest ancestor the first pass made, at most BRIGHTNESS_CAP) is at
+ * least --eps: the light's shadows are followed down to F of about
+ * eps / 165, a dim wall's hardly at all (the first pass tested those). */
 static bool worth_shadow_test(const refiner *r, int q, const patch *eq, double f)
 {
     if (!r->radiance)
@@ -89,7 +97,7 @@ static bool worth_shadow_test(const refiner *r, int q, const patch *eq, double f
     while (known >= r->known)
         known = r->h->parent[known];
     double radiance = fmax(v3_average(r->radiance[known]), v3_average(eq->emission));
-    return f * radiance / r->mean_radiance >= r->eps;
+    return f * fmin(radiance / r->mean_radiance, BRIGHTNESS_CAP) >= r->eps;
 }
 
 /* Second pass: how many times brighter than the scene's mean q is, at
@@ -99,7 +107,7 @@ static double brightness(const refiner *r, int q)
 {
     if (!r->radiance || q >= r->known)
         return 1.0;
-    return fmax(1.0, v3_average(r->radiance[q]) / r->mean_radiance);
+    return fmin(fmax(1.0, v3_average(r->radiance[q]) / r->mean_radiance), BRIGHTNESS_CAP);
 }
 
 /* Second pass: a link takes its source's radiance as constant.  Where the
