@@ -651,6 +651,20 @@ def test_hierarchical_independent_of_threads(ctx):
                               "--levels", 5)
 
 
+def test_hierarchical_default_levels_fit_the_element_limit(ctx):
+    """scenes/bubble.scene has 246 roots: --levels 8 could make 2.15e7 elements,
+    past the limit of 1.6e7, and is refused when asked for; the default instead
+    goes as deep as the limit allows (7: 5.4e6 elements at worst) and runs."""
+    args = ["scenes/bubble.scene", "--solver", "hierarchical", "--quadrature", "1", "--eps", "0.1", "--eps-spread", "0"]
+    _, stats = ctx.render(CHAPTER, *args[:1], "--size", "8x8", *args[1:], name="bubble")
+    assert stats["levels"] == 7, stats["levels"]
+    out = ctx.path("refused.png")
+    r = ctx.run(CHAPTER, *args, "--levels", "8", "--out", out)
+    line = r.stderr.strip().splitlines()[-1]  # after the warning that glass spheres are not meshed
+    assert r.returncode == 2 and not os.path.exists(out), (r.returncode, r.stderr)
+    assert line.startswith("argv:") and "--levels 8" in line and "limit" in line, line
+
+
 def test_hierarchical_bad_eps_and_levels_exit_2(ctx):
     for bad in ("0", "-1e-3", "nan", "inf", "1.5", "x"):
         line = check_exit_2(ctx, ["scenes/cornell.scene", "--solver", "hierarchical", "--eps", bad])

@@ -406,15 +406,21 @@ static int refine_again(hierarchy *h, refiner *r, const radiosity_options *o, ra
     return r->failed || store_links(h, r, o, stats) ? -1 : 0;
 }
 
+/* Elements when every one of the roots is split to the last level. */
+static double worst_case_elements(int roots, int levels) { return roots * (pow(4.0, levels + 1) - 1.0) / 3.0; }
+
 int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *stats,
                     point_to_polygon_fn point_to_polygon, char *err, size_t err_size)
 {
-    double roots = m->cell_count, bound = roots * (pow(4.0, o->levels + 1) - 1.0) / 3.0;
+    int levels = o->levels; /* the default: as deep as the limit allows for this many roots */
+    while (o->levels_argv == 0 && levels > 1 && worst_case_elements(m->cell_count, levels) > WORST_CASE_LIMIT)
+        levels--;
+    double bound = worst_case_elements(m->cell_count, levels);
     if (bound > WORST_CASE_LIMIT) /* refused before the hierarchy is allocated */
         return snprintf(err, err_size,
                         "argv:%d: --levels %d allows up to %.3g elements (%d roots), more than the limit %d; "
                         "lower --levels",
-                        o->levels_argv, o->levels, bound, m->cell_count, WORST_CASE_LIMIT),
+                        o->levels_argv, levels, bound, m->cell_count, WORST_CASE_LIMIT),
                2;
     hierarchy_free(h);
     double start = omp_get_wtime();
@@ -425,7 +431,7 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
                  .point_to_polygon = point_to_polygon,
                  .eps = o->eps_spread > 0.0 ? FIRST_PASS_COARSER * o->eps : o->eps,
                  .eps_spread = o->eps_spread,
-                 .levels = o->levels};
+                 .levels = levels};
     pair *todo = malloc((size_t)h->root_count * h->root_count * sizeof *todo + 1);
     long count = 0;
     if (hierarchy_track_new_cells(h, m, s) || !todo)

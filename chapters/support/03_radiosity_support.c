@@ -104,7 +104,8 @@ const option RADIOSITY_OPTIONS[] = {
      .help = "hierarchical: solve, then refine again where rho F (the source's spread) passes S x the receiver's "
              "radiance; 0: one pass"},
     {"--levels", "N", OPTION_CUSTOM, 0, .parse = parse_levels, .default_text = "8",
-     .help = "hierarchical: split an element at most N times below its surface, 1..12"},
+     .help = "hierarchical: split an element at most N times below its surface, 1..12; by default "
+             "fewer where the scene has so many surfaces that 8 could pass the element limit"},
     {0},
 };
 #undef OPTION_FIELD
