@@ -111,8 +111,7 @@ static double form_factor_estimate(const radiosity_state *st, const scene *s, in
     const patch_mesh *m = &st->mesh;
     const patch *pi = &m->patches[i], *pj = &m->patches[j];
     /* One-sided patches: j must be in front of i and i in front of j. */
-    if (!patch_in_front(pj, pi->centroid, pi->normal, s->epsilon) ||
-        !patch_in_front(pi, pj->centroid, pj->normal, s->epsilon))
+    if (!patches_facing(pi, pj, s->epsilon))
         return 0.0;
     double distance = v3_length(v3_sub(pj->centroid, pi->centroid));
     if (distance > NEAR_FACTOR * (pi->radius + pj->radius)) {

@@ -416,6 +416,11 @@ bool patch_in_front(const patch *p, vec3 origin, vec3 n, double epsilon)
     return false;
 }
 
+bool patches_facing(const patch *a, const patch *b, double epsilon)
+{
+    return patch_in_front(b, a->centroid, a->normal, epsilon) && patch_in_front(a, b->centroid, b->normal, epsilon);
+}
+
 void patch_mesh_cell_geometry(const patch_mesh *m, int c, patch *p)
 {
     const mesh_cell *cell = &m->cells[c];

@@ -98,6 +98,10 @@ vec3 patch_mesh_on_surface(const patch_mesh *m, int surface, vec3 p);
 /* Is a corner of p in front of the plane (origin, n)?  epsilon: rounding. */
 bool patch_in_front(const patch *p, vec3 origin, vec3 n, double epsilon);
 
+/* Can one-sided patches a and b exchange light: is each in front of the
+ * other's centroid plane (patch_in_front both ways)? */
+bool patches_facing(const patch *a, const patch *b, double epsilon);
+
 /* A cell's geometry as a patch (corners, normal, area, centroid, radius;
  * no quadrature points): on a sphere the centroid is lifted onto it. */
 void patch_mesh_cell_geometry(const patch_mesh *m, int cell, patch *p);

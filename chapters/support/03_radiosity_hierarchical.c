@@ -83,8 +83,9 @@ static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq)
 /* ---- the second pass's tests: the oracle with the first pass's solution B ---------------- */
 
 /* Is the pair worth a shadow test?  The first pass knows no radiance: where
- * F is at least --eps / 8.  A shadow edge across a link can make its whole
- * transfer F_pq B_q wrong, so the second pass tests where F_pq times q's
+ * F is at least its eps / 8 (its eps: FIRST_PASS_COARSER x --eps).  A
+ * shadow edge across a link can make its whole transfer F_pq B_q wrong, so
+ * the second pass tests where F_pq times q's
  * radiance over the scene's mean (q's emission, or the B of q or of its
  * nearest ancestor the first pass made, at most BRIGHTNESS_CAP) is at
  * least --eps: the light's shadows are followed down to F of about
@@ -149,23 +150,16 @@ static void estimate_form_factors(const refiner *r, const patch *ep, const patch
     *fqp = r->point_to_polygon(eq->centroid, eq->normal, ep->corner, ep->corner_count);
 }
 
-/* One-sided elements exchange light only when each centroid is in front of the other. */
-static bool facing(const patch *ep, const patch *eq, double epsilon)
-{
-    return patch_in_front(eq, ep->centroid, ep->normal, epsilon) &&
-           patch_in_front(ep, eq->centroid, eq->normal, epsilon);
-}
-
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  A
- * link at this level when both form-factor estimates are below --eps (in
- * the second pass, times q's brightness), the spread bound is within
+ * link at this level when both form-factor estimates are below the pass's
+ * eps (in the second pass --eps, and F times q's brightness), the spread bound is within
  * --eps-spread, and no shadow edge crosses the pair where a test is worth
  * it.  Otherwise split the element that looks larger from the other (q when
  * F_pq > F_qp); an element at --levels is not split further. */
 static enum verdict judge(const refiner *r, int p, int q)
 {
     const patch *ep = &r->h->element[p], *eq = &r->h->element[q];
-    if (!facing(ep, eq, r->s->epsilon))
+    if (!patches_facing(ep, eq, r->s->epsilon))
         return NO_LINK; /* one-sided: they cannot exchange light */
     double fpq, fqp;
     estimate_form_factors(r, ep, eq, &fpq, &fqp);

@@ -32,6 +32,7 @@ typedef struct {
     unsigned char *level; /* depth below its root */
     int *parent;          /* -1 for a root */
     float *exposure;      /* the fraction of its area outside every solid (not buried) */
+    int exposure_count;   /* elements whose exposure is known (hierarchy_exposure) */
     vec3 *gathered;       /* per element: rho Sum_links F L (one Neumann term) */
     vec3 *term;           /* per element: the term, pulled up from the leaves */
     long link_count;

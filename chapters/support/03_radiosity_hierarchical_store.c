@@ -148,11 +148,13 @@ static bool buried(const scene *s, vec3 x, vec3 n)
 /* The fraction of element e's area outside every solid: a leaf's from its
  * centroid and sample points, a parent's the area-weighted mean of its
  * children's. */
-double exposure_of(hierarchy *h, const patch_mesh *m, const scene *s, int e)
+static double exposure_of(hierarchy *h, const patch_mesh *m, const scene *s, int e)
 {
     const mesh_cell *c = &m->cells[e];
     const patch *element = &h->element[e];
     double exposure = 0.0;
+    if (c->first_child < 0 && e < h->exposure_count)
+        return h->exposure[e]; /* a leaf measured by an earlier call, still a leaf */
     if (c->first_child < 0) {
         vec3 point[5];
         int count = element_sample_points(m, element, point);
@@ -176,6 +178,7 @@ int hierarchy_exposure(hierarchy *h, const patch_mesh *m, const scene *s)
 #pragma omp parallel for schedule(dynamic, 1)
     for (int root = 0; root < h->root_count; root++)
         exposure_of(h, m, s, root);
+    h->exposure_count = h->element_count;
     return 0;
 }
 

@@ -67,7 +67,7 @@ vec3 element_toward_corner(const patch_mesh *m, const patch *e, vec3 mean, int k
 /* Points for visibility rays: the corners moved half-way to the centroid, on the surface. */
 int element_sample_points(const patch_mesh *m, const patch *e, vec3 *out);
 
-/* h->exposure of every element: the fraction of its area outside every
+/* h->exposure of every element (a leaf's measured once, across calls): the fraction of its area outside every
  * solid.  A box standing on the floor buries the floor under it; an element
  * across the box's edge gathers light on one part only, and push_pull
  * gives that light to the part that is not buried.  -1 when out of memory. */
