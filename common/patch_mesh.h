@@ -2,8 +2,8 @@
  *
  * Chapter 3 solves for one radiance per patch; this is where the patches
  * come from and how the image finds them again.  Nothing here is the
- * lecture: it is the bookkeeping around it (Chen's `room.c` and `draw.c` to
- * his `rad.c`, Graphics Gems II).
+ * lecture: it is the bookkeeping around it (what Chen's `room.c` and
+ * `draw.c` are to his `rad.c`, Graphics Gems II).
  *
  *   - meshing: each quad of the scene becomes a grid of cells (the bilinear
  *     map of the quad cut into u, v squares), each triangle m^2 similar

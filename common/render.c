@@ -94,7 +94,7 @@ void json_vec3(FILE *f, vec3 v)
 
 /* --- command line ---------------------------------------------------------------- */
 
-/* The options every chapter shares (DESIGN.md's contract), one row each. */
+/* The options every chapter shares (README's option lists), one row each. */
 static int parse_out(void *state, const char *value, int argv_index, char *why, size_t why_size)
 {
     render_options *o = state;

@@ -3,7 +3,7 @@
  * A chapter fills in a `chapter` struct (its name, its own command-line
  * options, an optional prepare step, and the radiance along one camera ray)
  * and hands control to render_main().  The driver does everything that is
- * not the point of any chapter: the command line (DESIGN.md contract),
+ * not the point of any chapter: the command line (the options README lists),
  * loading the scene, camera rays, the OpenMP pixel loop, progressive passes
  * under a --time budget, the progress bar, statistics JSON, error metrics
  * against a --ref image, and atomic output files.

@@ -6,7 +6,7 @@
  * every sphere as itself; a BVH over those primitives answers
  * scene_intersect() and scene_occluded().
  *
- * The file format is the contract in DESIGN.md ("Scene format").
+ * The file format is described in docs/scene-format.md.
  */
 #ifndef COMMON_SCENE_H
 #define COMMON_SCENE_H

@@ -1,9 +1,9 @@
 /* todo.h — what a student's handout puts in place of a function to write.
  *
- * kit/handout.py replaces the body of every function marked [exercise N.M]
- * with a stub that calls TODO_ONCE("name") and returns a neutral value (zero,
- * false, nothing), so the chapter compiles and runs and its image is black or
- * partial.  The first call prints "file:line: TODO name is not implemented"
+ * The instructor's handout script replaces the body of every function
+ * marked [exercise N.M] with a stub that calls TODO_ONCE("name") and returns
+ * a neutral value (zero, false, nothing), so the chapter compiles and runs
+ * and its image is black or partial.  The first call prints "file:line: TODO name is not implemented"
  * on stderr; later calls (from any thread) print nothing.
  */
 #ifndef COMMON_TODO_H

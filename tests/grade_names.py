@@ -50,7 +50,8 @@ from lib import ROOT
 sys.path.insert(0, os.path.join(ROOT, "kit"))
 import handout  # noqa: E402  (kit/handout.py: INSTRUCTOR_ONLY, what a handout leaves out)
 
-MARKDOWN = ["docs/*.md", "README.md", "kit/README.md", "kit/CALIBRATION.md", "viewer/README.md", "slides/*.md"]
+MARKDOWN = ["docs/*.md", "README.md", "kit/README.md", "kit/CALIBRATION.md", "viewer/README.md", "slides/*.md",
+            "assignments/*/ASSIGNMENT.md"]
 PYTHON_DIRS = ("kit/", "tests/", "bench/", "tradeoff/")
 NOTES = "docs/lecture-notes.md"
 
@@ -81,21 +82,25 @@ TRACKER_NUMBER = re.compile(r"\biss" r"ues?\s+#?[0-9]+")
 # ---- the tree -------------------------------------------------------------------------------------
 
 
-def tracked_files():
-    out = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout
-    return sorted(f for f in out.decode().split("\0") if f and os.path.isfile(os.path.join(ROOT, f)))
+def tracked_files(root):
+    """The files of a tree: git's list in the project, every file in a handout (which has no .git)."""
+    if not os.path.exists(os.path.join(root, ".git")):
+        return sorted(os.path.relpath(os.path.join(d, f), root) for d, _, names in os.walk(root) for f in names)
+    out = subprocess.run(["git", "ls-files", "-z"], cwd=root, capture_output=True, check=True).stdout
+    return sorted(f for f in out.decode().split("\0") if f and os.path.isfile(os.path.join(root, f)))
 
 
-def read(rel):
-    with open(os.path.join(ROOT, rel), encoding="utf-8", errors="replace") as f:
+def read(rel, root=ROOT):
+    with open(os.path.join(root, rel), encoding="utf-8", errors="replace") as f:
         return f.read()
 
 
 class Tree:
     """What the tree has: files, directories, functions per file, options, make targets, labels."""
 
-    def __init__(self, build):
-        self.files = tracked_files()
+    def __init__(self, build, root=ROOT):
+        self.root = root
+        self.files = tracked_files(root)
         self.file_set = set(self.files)
         self.dirs = set()
         for f in self.files:
@@ -103,16 +108,18 @@ class Tree:
             for i in range(1, len(parts) + 1):
                 self.dirs.add("/".join(parts[:i]))
         self.basenames = {os.path.basename(f) for f in self.files}
-        self.functions = {f: defined_functions(f, read(f)) for f in self.files
+        # (the project's stems: a handout lacks kit/CALIBRATION.md, but CALIBRATION is still no placeholder)
+        self.stems = {os.path.basename(f).split(".")[0] for f in tracked_files(ROOT)}
+        self.functions = {f: defined_functions(f, read(f, root)) for f in self.files
                           if f.endswith((".c", ".h", ".py", ".cjs")) and not f.startswith("tests/mutants/")}
         self.all_functions = set().union(*self.functions.values())
         self.python_modules = {os.path.basename(f)[:-3]: f for f in self.files if f.endswith(".py")}
         self.chapter_options = chapter_options(build)
-        self.program_options = program_options(self.files)
+        self.program_options = program_options(self.files, root)
         self.all_options = set().union(*self.chapter_options.values(), *self.program_options.values())
-        self.code_words = code_words(self.files)
-        self.targets = make_targets(build)
-        self.labels = defined_labels(read(NOTES))
+        self.code_words = code_words(self.files, root)
+        self.targets = make_targets(build, root)
+        self.labels = defined_labels(read(NOTES, root))
 
     def matching(self, pattern):
         """Tracked files (or directories) a path or glob names: chapters/NN_*.c, common/render.[ch]."""
@@ -165,7 +172,7 @@ def defined_functions(path, text):
     return names - C_KEYWORDS
 
 
-def code_words(files):
+def code_words(files, root):
     """Every word of the tree's code, comments and docstrings left out (so that a comment cannot vouch
     for itself), and the stems of the file names (`grade_docs`, `bench_03_radiosity`)."""
     words = set()
@@ -174,11 +181,11 @@ def code_words(files):
             continue
         words.update(re.split(r"[/.]", f))
         if f.endswith((".c", ".h")):
-            words.update(re.findall(r"\w+", re.sub(r"/\*.*?\*/|//[^\n]*", " ", read(f), flags=re.S)))
+            words.update(re.findall(r"\w+", re.sub(r"/\*.*?\*/|//[^\n]*", " ", read(f, root), flags=re.S)))
         elif f.endswith(".py"):
-            words.update(python_code_words(read(f)))
+            words.update(python_code_words(read(f, root)))
         elif f.endswith((".cjs", ".mk", ".json", ".scene", ".sh", ".gp")) or f == "Makefile":
-            words.update(re.findall(r"\w+", read(f)))
+            words.update(re.findall(r"\w+", read(f, root)))
     return words
 
 
@@ -210,21 +217,21 @@ def chapter_options(build):
     return options
 
 
-def program_options(files):
+def program_options(files, root):
     """{"kit/grade.py": {"--report", ...}}: the "--name" strings the other programs compare against
     (the viewer's option table, the Python scripts' argument loops)."""
     options = {}
     for f in files:
         if f.endswith((".c", ".py", ".cjs", ".sh", ".mk")) and not f.startswith(("chapters/", "tests/mutants/")):
-            found = set(re.findall(r"[\"'](--[a-z][a-z0-9-]*)", read(f)))
+            found = set(re.findall(r"[\"'](--[a-z][a-z0-9-]*)", read(f, root)))
             if found:
                 options[f] = found
     return options
 
 
-def make_targets(build):
+def make_targets(build, root):
     """Every target the Makefile and its included *.mk files define (make's own database)."""
-    r = subprocess.run(["make", "-pnq", f"BUILD={build}", "--no-print-directory"], cwd=ROOT, capture_output=True,
+    r = subprocess.run(["make", "-pnq", f"BUILD={build}", "--no-print-directory"], cwd=root, capture_output=True,
                        text=True, timeout=60)
     targets, not_a_target = set(), False
     for line in r.stdout.splitlines():
@@ -304,17 +311,17 @@ def texts(tree):
     """[(file, first line, text, kind)]: kind "md" for Markdown, "comment" for code comments."""
     out = []
     for pattern in MARKDOWN:
-        for f in sorted(glob.glob(os.path.join(ROOT, pattern))):
-            rel = os.path.relpath(f, ROOT)
+        for f in sorted(glob.glob(os.path.join(tree.root, pattern))):
+            rel = os.path.relpath(f, tree.root)
             if rel in tree.file_set:
-                out.append((rel, 1, read(rel), "md"))
+                out.append((rel, 1, read(rel, tree.root), "md"))
     for f in tree.files:
         if f.startswith("tests/mutants/") or f == "tests/grade_names.py":
             continue
         if f.endswith((".c", ".h")):
-            out += [(f, line, text, "comment") for line, text in c_comments(read(f))]
+            out += [(f, line, text, "comment") for line, text in c_comments(read(f, tree.root))]
         elif f.endswith(".py") and f.startswith(PYTHON_DIRS):
-            out += [(f, line, text, "comment") for line, text in python_comments(read(f))]
+            out += [(f, line, text, "comment") for line, text in python_comments(read(f, tree.root))]
     return out
 
 
@@ -334,8 +341,8 @@ WRITTEN_BY_RUNS = ("tests/fuzz/findings",)
 TOP_DIRS = ("chapters", "common", "kit", "docs", "tests", "slides", "viewer", "bench", "tradeoff", "scenes")
 PATH = re.compile(r"(?<![\w/.-])((?:%s)/(?:[\w./*<>-]|\[ch\])*(?:[\w*/]|\[ch\]))" % "|".join(TOP_DIRS))
 BARE_FILE = re.compile(r"(?<![\w/.<-])([\w*-]+\.(?:c|h|\[ch\]|py|scene|mk|cjs|sh))(?![/\w])")
-# a file of another project: "Chen's `room.c`, `draw.c` and `rad.c`"
-OTHER_PROJECTS_FILES = re.compile(r"\b\w+'s\s+(?:`?[\w.]+`?\s*(?:,|and)\s*)*`?$")
+# a file of another project: "Chen's `room.c` and `draw.c`" (a possessive earlier in the sentence)
+OTHER_PROJECTS_FILES = re.compile(r"\b[A-Z]\w*'s\s")
 # the stems of files a reader is to write: example.scene, x.scene
 PLACEHOLDER_STEMS = {"x", "example", "my", "name", "file", "foo"}
 OPTION = re.compile(r"(?<![\w-])(--[a-z][a-z0-9-]*)")
@@ -349,10 +356,12 @@ def line_of(first, text, pos):
     return first + text.count("\n", 0, pos)
 
 
-def placeholder(path):
-    """Paths that stand for what a run writes or the reader picks: out/, DIR, FILE, <name>, NAME."""
+def placeholder(path, tree):
+    """Paths that stand for what the reader picks: DIR, FILE.json, <name>, NN_name, x.scene (a word in
+    capitals that is no file's stem, as README is)."""
     stem = os.path.basename(path).split(".")[0]
-    return bool(re.search(r"<|\b[A-Z]{2,}\b|(?:\b|_)name\b", path.replace("NN", ""))) or stem in PLACEHOLDER_STEMS
+    capitals = set(re.findall(r"\b[A-Z]{2,}\b", path.replace("NN", ""))) - tree.stems
+    return bool(capitals or re.search(r"<|(?:\b|_)name\b", path)) or stem in PLACEHOLDER_STEMS
 
 
 def check_functions(tree, f, first, text, problems):
@@ -382,20 +391,20 @@ def check_identifiers(tree, f, first, text, problems):
     """A name with an underscore in backticks (`sample_bsdf`, `truncated_paths`) is a word of the code."""
     for m in re.finditer(r"`([^`\n]+)`", text):
         for word in re.findall(r"(?<![\w.-])([A-Za-z]\w*_\w+)\b(?!\()", m.group(1)):
-            if word not in tree.code_words and not placeholder(word) and not EXTERNAL_PREFIX.match(word):
+            if word not in tree.code_words and not placeholder(word, tree) and not EXTERNAL_PREFIX.match(word):
                 problems.append(f"{f}:{line_of(first, text, m.start())}: `{word}` is not a name in the tree's code")
 
 
 def check_paths(tree, f, first, text, problems):
     for m in PATH.finditer(text):
         path = m.group(1).rstrip(".")
-        if not placeholder(path) and not tree.matching(path) and not os.path.exists(os.path.join(ROOT, path)) \
+        if not placeholder(path, tree) and not tree.matching(path) and not os.path.exists(os.path.join(tree.root, path)) \
                 and not path.startswith(WRITTEN_BY_RUNS):
             problems.append(f"{f}:{line_of(first, text, m.start())}: no file or directory {path}")
     for m in BARE_FILE.finditer(text):
         name = m.group(1)
-        line_start = text.rfind("\n", 0, m.start()) + 1
-        if placeholder(name) or OTHER_PROJECTS_FILES.search(text[line_start:m.start()]):
+        sentence = re.split(r"[.!?:;]\s", text[:m.start()])[-1]
+        if placeholder(name, tree) or OTHER_PROJECTS_FILES.search(sentence):
             continue
         if not any(glob_regex(name).fullmatch(b) for b in tree.basenames):
             problems.append(f"{f}:{line_of(first, text, m.start())}: no file named {name} in the tree")
@@ -457,11 +466,11 @@ def check_labels(tree, f, first, text, problems):
 
 
 def check_student_visible(tree, problems):
-    student = [f for f in tree.files if not f.startswith(handout.INSTRUCTOR_ONLY) and f != "tests/grade_names.py"
+    student = [f for f in tree.files if not f.startswith(handout.INSTRUCTOR_ONLY)
                and not f.endswith((".png", ".pfm", ".json", ".patch", ".lock", ".pyc")) and "/bad/" not in f]
     for f in student:
         try:
-            text = read(f)
+            text = read(f, tree.root)
         except OSError:
             continue
         for pattern in (NAMES_STUDENTS_LACK, TRACKER_NUMBER):
@@ -470,8 +479,9 @@ def check_student_visible(tree, problems):
                                 "does not have it (a handout gets this file)")
 
 
-def problems_of(build):
-    tree = Tree(build)
+def problems_of(build, root=ROOT):
+    """["file:line: what is missing"] for the project (root) or a handout written from it."""
+    tree = Tree(build, root)
     problems = []
     for f, first, text, kind in texts(tree):
         check_functions(tree, f, first, text, problems)
@@ -489,6 +499,19 @@ def test_every_name_in_the_texts_exists(ctx):
     assert not problems, f"{len(problems)} names in the texts that the tree does not have:\n" + "\n".join(problems)
 
 
+def test_every_name_in_a_handout_exists(ctx):
+    """A handout (every chapter stubbed) names only what the handout has: no link to the instructor's
+    files, no target or option it lacks."""
+    out = os.path.join(ctx.scratch, "handout")
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "kit", "handout.py"), out], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, f"kit/handout.py failed: {r.stderr}"
+    problems = problems_of(ctx.build, out)
+    assert not problems, f"{len(problems)} names in the handout's texts that the handout does not have:\n" + \
+        "\n".join(problems)
+
+
 if __name__ == "__main__":
-    for p in problems_of(sys.argv[1] if len(sys.argv) > 1 else "build"):
+    # tests/grade_names.py [BUILD [ROOT]]: the problems, one a line (ROOT: a handout's directory)
+    for p in problems_of(*(sys.argv[1:3] or ["build"])):
         print(p)

@@ -2,7 +2,7 @@
 docs/scene-format.md), so a student who clones the repository can follow
 a `(R9)` in a comment and look up every statement a scene may use.
 
-  - every equation label cited in chapters/, common/ and slides/*.md is
+  - every equation label cited in chapters/, common/ and the slide decks is
     defined in docs/lecture-notes.md, on a line that starts with
     **(Rn)** or in a heading containing (Rn), and defined only once;
   - every statement keyword the parser accepts (the strcmp keywords of
