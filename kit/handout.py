@@ -8,30 +8,50 @@ usage: kit/handout.py OUT_DIR [CHAPTER ...]        (make handout OUT=DIR CHAPTER
 
 The tree is the project's tracked files (git ls-files) minus what only the
 instructor may see (INSTRUCTOR_ONLY below: the kit's own tests and mutants,
-the slides, which quote the solutions).  In the chosen chapters every function
+its calibration and this script).  In the chosen chapters every function
 marked [exercise N.M] gets a stub body (kit/markers.py): it prints
 "file:line: TODO name is not implemented" once and returns zero, so the
 handout compiles without warnings and runs, with black or partial images.
 assignments/NN_name/ASSIGNMENT.md says what to write and how it is graded
-(from the markers and kit/rubric.json); `make grade` in the handout grades it.
+(from the markers of the stubbed text and kit/rubric.json); README.md is the
+student's (kit/student/README.md); `make grade` in the handout grades it.
+The slides go as their Markdown and builder: `make slides` in the handout
+builds student decks (slides/build.py --student) from the handout's own code.
+
+The tree is written next to OUT_DIR under a temporary name and renamed at the
+end: on any refusal (exit 2, "file:line: message") nothing is left.  It refuses
+an unknown chapter, an [exercise] tag that is not just above a function, and a
+handout in which a function of any file still holds one of the stubbed
+exercises' answers (kit/markers.py answers_in_tree: chapter 5 once carried
+copies of chapter 4's scattering in common/).
 """
+import ast
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
+import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import markers  # noqa: E402
 import rubric as rubric_module  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-INSTRUCTOR_ONLY = ("tests/mutants/", "tests/grade_kit.py", "kit/handout.py", "kit/calibrate.py", "kit/README.md",
-                   "kit/CALIBRATION.md", "slides/", ".ci/")
+INSTRUCTOR_ONLY = ("tests/mutants/", "tests/grade_kit.py", "tests/grade_handout.py", "kit/handout.py",
+                   "kit/calibrate.py", "kit/README.md", "kit/CALIBRATION.md", "kit/student/", ".ci/")
+STUDENT_README = os.path.join("kit", "student", "README.md")
+
+
+class Refused(Exception):
+    pass
 
 
 def fail(message):
-    print(f"kit/handout.py: {message}", file=sys.stderr)
+    """Exit 2 with message; lines that start with file:line: stand as they are."""
+    lines = [ln if re.match(r"[\w./-]+:\d+: ", ln) else f"kit/handout.py: {ln}" for ln in message.splitlines()]
+    print("\n".join(lines), file=sys.stderr)
     sys.exit(2)
 
 
@@ -39,14 +59,130 @@ def tracked_files(root):
     try:
         out = subprocess.run(["git", "ls-files", "-z"], cwd=root, capture_output=True, check=True).stdout
     except (OSError, subprocess.CalledProcessError) as e:
-        fail(f"git ls-files failed in {root}: {e}")
+        raise Refused(f"git ls-files failed in {root}: {e}")
     files = [f for f in out.decode().split("\0") if f]
     return [f for f in files if not f.startswith(INSTRUCTOR_ONLY) and os.path.isfile(os.path.join(root, f))]
 
 
-def assignment_text(chapter, exercises, criteria, rub):
+# ---- the numbers ASSIGNMENT.md states, computed from their sources ----------------------------------
+
+def criterion_alpha(root):
+    """CRITERION_ALPHA of tests/lib.py, read as a literal (importing lib is not needed for one number)."""
+    path = os.path.join(root, "tests", "lib.py")
+    with open(path) as f:
+        tree = ast.parse(f.read(), path)
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "CRITERION_ALPHA" for t in node.targets):
+            return float(ast.literal_eval(node.value))
+    raise Refused(f"{path}: no CRITERION_ALPHA")
+
+
+def _budget_names(function):
+    """True when a test function takes a false-alarm budget of CRITERION_ALPHA: it calls t_bound with
+    the default alpha, or names CRITERION_ALPHA outside an alpha= argument.  A test that passes its
+    own alpha= asks for a difference to be present (a power requirement such as chapter 5's "bias
+    falls"): it has no false-alarm rate of CRITERION_ALPHA."""
+    own_alpha = set()
+    for node in ast.walk(function):
+        if isinstance(node, ast.Call) and any(k.arg == "alpha" for k in node.keywords):
+            own_alpha.add(id(node))
+            for k in node.keywords:
+                own_alpha.update(id(x) for x in ast.walk(k.value))
+    names = set()
+    for node in ast.walk(function):
+        if id(node) in own_alpha:
+            continue
+        if isinstance(node, ast.Name):
+            names.add(node.id)
+        elif isinstance(node, ast.Attribute):
+            names.add(node.attr)
+    return names
+
+
+def _test_functions(path):
+    with open(path) as f:
+        tree = ast.parse(f.read(), path)
+    return {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
+
+
+def grade_criteria_with_budget(root, criteria):
+    """The grade criteria whose test (or a helper of its module or tests/lib.py it calls) has a Monte
+    Carlo tolerance at CRITERION_ALPHA (tests/lib.py t_bound)."""
+    lib = _test_functions(os.path.join(root, "tests", "lib.py"))
+    found = []
+    for c in criteria:
+        if c["kind"] != "grade":
+            continue
+        pool = {**lib, **_test_functions(os.path.join(root, "tests", c["module"] + ".py"))}
+        todo, seen = [c["test"]], set()
+        while todo:
+            name = todo.pop()
+            if name in seen or name not in pool:
+                continue
+            seen.add(name)
+            names = _budget_names(pool[name])
+            if names & {"t_bound", "CRITERION_ALPHA"} and name != "t_bound":
+                found.append(c)
+                break
+            todo += sorted(names & set(pool))
+    return found
+
+
+def false_failure_budget(root, rub, criteria):
+    """(rate, text): the designed chance that grading `criteria` fails a correct solution, by the union
+    bound: each compare criterion family_alpha / (compare criteria of the rubric) (kit/rubric.json,
+    Bonferroni), each grade criterion with a tolerance CRITERION_ALPHA (tests/lib.py)."""
+    all_compare = [c for c in rub["criteria"] if rubric_module.statistical(c)]
+    compare = [c for c in criteria if rubric_module.statistical(c)]
+    graded = grade_criteria_with_budget(root, criteria)
+    alpha = criterion_alpha(root)
+    rate = rub["family_alpha"] * len(compare) / max(1, len(all_compare)) + alpha * len(graded)
+    text = (f"{len(compare)} criteria *vs reference* at {rub['family_alpha']} / {len(all_compare)} each "
+            f"(`family_alpha` of kit/rubric.json over its {len(all_compare)} such criteria) and "
+            f"{len(graded)} criteria with a Monte Carlo tolerance at {alpha} each (`CRITERION_ALPHA`, "
+            f"tests/lib.py)")
+    return rate, text
+
+
+def percent(rate):
+    return f"{100 * rate:.3g} %"
+
+
+def criterion_command(root, c):
+    """What a criterion runs, as the commands a student can type (rubric.criterion_commands when the
+    kit has it, else derived from the rubric row here)."""
+    if hasattr(rubric_module, "criterion_commands"):
+        commands = rubric_module.criterion_commands(root, c)
+        if commands or c["kind"] == "grade":
+            return [x["text"] if isinstance(x, dict) else x for x in commands]
+    import compare  # kit/compare.py: the same argument lists the grader runs
+    import lib  # tests/lib.py (compare put it on the path): command_text drops --out, --threads ...
+    if c["kind"] == "compare":
+        argv = compare.render_command(f"build/{c['chapter']}", c, "S", "out.pfm")[1:]
+        return [lib.command_text(c["chapter"], argv)]
+    if c["kind"] == "surfaces":
+        argv = [c["scene"], "--size", "8x8", "--spp", "1", "--patch-size", str(c.get("patch_size", 50)),
+                "--tol", str(c.get("tol", 1e-6)), "--iterations", str(c.get("iterations", 500)),
+                *c.get("args", [])]
+        return [lib.command_text(c["chapter"], argv)]
+    if c["kind"] == "unit":
+        return [f"build/tests/{c['test']}"]
+    return []
+
+
+# ---- ASSIGNMENT.md ----------------------------------------------------------------------------------
+
+def command_cell(root, c):
+    commands = criterion_command(root, c)
+    if commands:
+        return "<br>".join(f"`{x}`" for x in commands)
+    return f"`{c['test']}` in `tests/{c['module']}.py`"
+
+
+def assignment_text(root, chapter, exercises, criteria, rub):
+    """exercises: as parsed from the stubbed text (their lines are the handout's)."""
     lines = [f"# Assignment: {chapter}", "",
-             f"Write the bodies of the functions below.  In this handout each one is a stub that prints",
+             "Write the bodies of the functions below.  In this handout each one is a stub that prints",
              "`file:line: TODO name is not implemented` once and returns zero, so the chapter builds and",
              "runs from the start (its images are black or partial until you fill them in).", "",
              "    make                       # build every chapter into build/",
@@ -58,54 +194,52 @@ def assignment_text(chapter, exercises, criteria, rub):
     for e in exercises:
         lines.append(f"| {e.id} | `{e.name}` | `{e.file}:{e.line}` | {' '.join(e.labels) or '—'} |")
     for e in exercises:
-        lines += ["", f"### Exercise {e.id}: `{e.name}`", "", f"`{e.signature}` in `{e.file}`", ""]
+        lines += ["", f"### Exercise {e.id}: `{e.name}`", "", f"`{e.signature}` in `{e.file}:{e.line}`", ""]
         lines += ["> " + ln if ln else ">" for ln in e.comment.splitlines()]
     total = sum(c["points"] for c in criteria)
     lines += ["", f"## How it is graded ({total} points)", "",
-              "Each criterion is all or nothing.  Run `make grade` to see your score before you hand in.", "",
-              "| criterion | points | exercises | what is checked |", "|---|---|---|---|"]
+              "Each criterion is all or nothing.  Run `make grade` to see your score before you hand in.",
+              "The last column is what the criterion runs: the chapter, scene and options (build the unit",
+              "tests with `make tests`; a criterion *vs reference* runs its command with many seeds).", "",
+              "| criterion | points | exercises | what is checked | runs |", "|---|---|---|---|---|"]
     for c in criteria:
-        lines.append(f"| {c['name']} | {c['points']} | {', '.join(c['exercises'])} | {c['what']} |")
+        lines.append(f"| {c['name']} | {c['points']} | {', '.join(c['exercises']) or '—'} | {c['what']} | "
+                     f"{command_cell(root, c)} |")
+    rate, how = false_failure_budget(root, rub, criteria)
     lines += ["", "Criteria marked *vs reference* compare your image with the solution's, rendered with other",
               "seeds: the mean of each tile of "
               f"{rub['tile']}x{rub['tile']} pixels and each colour channel, over {rub['batches']} renders with",
               f"different seeds, against {rub['reference_batches']} of the solution, by Welch's t-test (both",
-              "variances counted) with Holm's correction over the tiles and channels; all statistical criteria",
-              f"together falsely fail a correct solution with probability at most {rub['family_alpha']}",
-              "(Bonferroni over the criteria).  A compile error gives 0 for the chapter; a crash, a time-out,",
-              "a NaN pixel or a missing output fails the criterion with a message.", ""]
+              "variances counted) with Holm's correction over the tiles and channels.  Other criteria compare",
+              "with closed forms or other methods within a Monte Carlo tolerance.  By design, the grading of",
+              f"this chapter fails a correct solution with probability at most {percent(rate)}: {how}.",
+              "A compile error gives 0 for the chapter; a crash, a time-out, a NaN pixel or a missing output",
+              "fails the criterion with a message.", ""]
     return "\n".join(lines)
 
 
-def main(argv):
-    if not argv or argv[0] in ("-h", "--help"):
-        print(__doc__.strip())
-        sys.exit(0 if argv else 2)
-    out, chosen = os.path.abspath(argv[0]), argv[1:]
-    if os.path.exists(out) and (not os.path.isdir(out) or os.listdir(out)):
-        fail(f"{argv[0]}: exists and is not an empty directory")
-    if out == ROOT or out.startswith(ROOT + os.sep) and not out.startswith(os.path.join(ROOT, "out") + os.sep):
-        fail(f"{argv[0]}: inside the project (use a directory outside it, or under out/)")
-    names = markers.chapter_names(ROOT)
-    try:
-        exercises = markers.all_exercises(ROOT)
-        rub = rubric_module.load(ROOT)
-    except ValueError as e:
-        fail(str(e))
-    marked = sorted({names[e.lecture] for e in exercises if e.lecture in names})
-    chosen = chosen or marked
-    for c in chosen:
-        if c not in names.values():
-            fail(f"no chapter {c} (chapters: {' '.join(sorted(names.values()))})")
-        if c not in marked:
-            fail(f"chapter {c} has no [exercise N.M] markers")
-    stubbed = [e for e in exercises if names.get(e.lecture) in chosen]
+# ---- README.md --------------------------------------------------------------------------------------
 
-    files = tracked_files(ROOT)
+def student_readme(root, chosen, names):
+    with open(os.path.join(root, STUDENT_README)) as f:
+        template = f.read()
+    rows = []
+    for chapter in chosen:
+        rows.append(f"| `{chapter}` | [assignments/{chapter}/ASSIGNMENT.md](assignments/{chapter}/ASSIGNMENT.md) "
+                    f"| `chapters/{chapter}.c` | `make grade CHAPTERS={chapter}` |")
+    others = sorted(set(names.values()) - set(chosen))
+    return (template.replace("{{assignments}}", "\n".join(rows))
+            .replace("{{chapters}}", " ".join(chosen))
+            .replace("{{first_chapter}}", chosen[0])
+            .replace("{{other_chapters}}", ", ".join(f"`{c}`" for c in others) or "none"))
+
+
+# ---- the tree ---------------------------------------------------------------------------------------
+
+def write_tree(out, files, stubbed):
     by_file = {}
     for e in stubbed:
         by_file.setdefault(e.file, []).append(e)
-    os.makedirs(out, exist_ok=True)
     for rel in files:
         dst = os.path.join(out, rel)
         os.makedirs(os.path.dirname(dst), exist_ok=True)
@@ -118,14 +252,89 @@ def main(argv):
             shutil.copy2(os.path.join(ROOT, rel), dst)
     if "common/todo.h" not in files:
         shutil.copy2(os.path.join(ROOT, "common", "todo.h"), os.path.join(out, "common", "todo.h"))
-    for chapter in chosen:
-        ex = [e for e in stubbed if names[e.lecture] == chapter]
-        crit = [c for c in rub["criteria"] if c["chapter"] == chapter]
-        os.makedirs(os.path.join(out, "assignments", chapter), exist_ok=True)
-        with open(os.path.join(out, "assignments", chapter, "ASSIGNMENT.md"), "w") as f:
-            f.write(assignment_text(chapter, ex, crit, rub))
-    with open(os.path.join(out, "kit", "handout.json"), "w") as f:
-        json.dump({"chapters": chosen, "stubbed": [f"{e.id} {e.file}:{e.name}" for e in stubbed]}, f, indent=1)
+
+
+def stubbed_markers(tree, stubbed):
+    """The stubbed exercises as the handout's text has them (its line numbers)."""
+    ids = {e.id for e in stubbed}
+    found = []
+    for rel in sorted({e.file for e in stubbed}):
+        found += [e for e in markers.parse_file(tree, rel) if e.id in ids]
+    missing = ids - {e.id for e in found}
+    if missing:
+        raise Refused(f"the stubbed text lost the markers of {', '.join(sorted(missing))}")
+    return sorted(found, key=lambda e: (e.lecture, e.number))
+
+
+def check_no_answers(tree, stubbed):
+    """Refuse when a function of the handout still holds an answer of a stubbed exercise."""
+    files = []
+    for base, _, names in os.walk(tree):
+        files += [os.path.relpath(os.path.join(base, n), tree) for n in names]
+    found = markers.answers_in_tree(tree, stubbed, sorted(files))
+    if found:
+        lines = [f"{fn.file}:{fn.line}: {fn.name} holds the answer of exercise {ex.id} ({ex.file} {ex.name}): "
+                 f"write it once, where the exercise is" for fn, ex in found]
+        raise Refused("\n".join(lines))
+
+
+def build(out, chosen_args):
+    names = markers.chapter_names(ROOT)
+    try:
+        exercises = markers.all_exercises(ROOT)
+        rub = rubric_module.load(ROOT)
+    except ValueError as e:
+        raise Refused(str(e))
+    marked = sorted({names[e.lecture] for e in exercises if e.lecture in names})
+    chosen = chosen_args or marked
+    for c in chosen:
+        if c not in names.values():
+            raise Refused(f"CHAPTERS: no chapter {c} (chapters: {' '.join(sorted(names.values()))})")
+        if c not in marked:
+            raise Refused(f"chapters/{c}.c:1: chapter {c} has no [exercise N.M] markers")
+    chosen = [c for c in names.values() if c in chosen]
+    stubbed = [e for e in exercises if names.get(e.lecture) in chosen]
+    files = tracked_files(ROOT)
+
+    parent = os.path.dirname(out)
+    os.makedirs(parent, exist_ok=True)
+    tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(out)}.partial-", dir=parent)
+    try:
+        write_tree(tmp, files, stubbed)
+        check_no_answers(tmp, stubbed)
+        in_handout = stubbed_markers(tmp, stubbed)
+        for chapter in chosen:
+            ex = [e for e in in_handout if names[e.lecture] == chapter]
+            crit = [c for c in rub["criteria"] if c["chapter"] == chapter]
+            os.makedirs(os.path.join(tmp, "assignments", chapter), exist_ok=True)
+            with open(os.path.join(tmp, "assignments", chapter, "ASSIGNMENT.md"), "w") as f:
+                f.write(assignment_text(ROOT, chapter, ex, crit, rub))
+        with open(os.path.join(tmp, "README.md"), "w") as f:
+            f.write(student_readme(ROOT, chosen, names))
+        with open(os.path.join(tmp, "kit", "handout.json"), "w") as f:
+            json.dump({"chapters": chosen, "stubbed": [f"{e.id} {e.file}:{e.name}" for e in stubbed]}, f, indent=1)
+        if os.path.isdir(out):
+            os.rmdir(out)  # empty (checked in main)
+        os.rename(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return files, stubbed, chosen
+
+
+def main(argv):
+    if not argv or argv[0] in ("-h", "--help"):
+        print(__doc__.strip())
+        sys.exit(0 if argv else 2)
+    out, chosen = os.path.abspath(argv[0]), argv[1:]
+    if os.path.exists(out) and (not os.path.isdir(out) or os.listdir(out)):
+        fail(f"{argv[0]}: exists and is not an empty directory")
+    if out == ROOT or out.startswith(ROOT + os.sep) and not out.startswith(os.path.join(ROOT, "out") + os.sep):
+        fail(f"{argv[0]}: inside the project (use a directory outside it, or under out/)")
+    try:
+        files, stubbed, chosen = build(out, chosen)
+    except Refused as e:
+        fail(str(e))
     print(f"handout in {out}: {len(files)} files, {len(stubbed)} functions stubbed in {' '.join(chosen)}")
 
 

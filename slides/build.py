@@ -1,7 +1,14 @@
 #!/usr/bin/python3
 """Build the lecture decks: slides/*.md -> out/slides/*.html (+ .pdf).
 
-usage: slides/build.py [--build DIR] [--out DIR] [--work DIR] [--no-pdf] [--only DECK]
+usage: slides/build.py [--build DIR] [--out DIR] [--work DIR] [--no-pdf] [--only DECK] [--student]
+
+--student builds the decks students may have while the assignment is open:
+every function marked [exercise N.M] (kit/markers.py) that a {{code}} slide
+quotes shows its comment and signature only, its body one line
+`/* exercise N.M: your code */` (nocomment, from= and to= are ignored for it:
+an excerpt would be the answer).  In a student handout (kit/handout.json
+exists) the decks are always student decks.
 
 Standard-library Python plus node and gnuplot. The Markdown is CommonMark
 with pipe tables and raw HTML, rendered by markdown-it (npm, pinned in
@@ -222,9 +229,13 @@ def code_block(where, spec, narrow=False):
         fail(where, f"{file_name}: no function named '{function}' (the slide shows it: "
                     f"rename it here or restore it there)")
     first, last, comment_first = found
-    start = first if "nocomment" in options or "from" in options else comment_first
     with open(path) as f:
         lines = f.read().split("\n")
+    exercise = STUDENT.get((file_name, function)) if STUDENT is not None else None
+    if exercise is not None:
+        return student_code_block(file_name, function, exercise, lines, first, comment_first, narrow,
+                                  options.get("height"), where)
+    start = first if "nocomment" in options or "from" in options else comment_first
     end = last
     if "from" in options:
         hits = [k for k in range(first, last + 1) if options["from"] in lines[k - 1]]
@@ -239,6 +250,42 @@ def code_block(where, spec, narrow=False):
                         f"'{options['to']}' after line {start}")
         end = hits[0]
     shown = lines[start - 1:end]
+    return figure_block(file_name, function, shown, start, end, first, last, narrow, options.get("height"), where)
+
+
+# The exercises a student deck hides: {(file, function): exercise}, or None for the instructor's decks.
+STUDENT = None
+
+
+def student_exercises():
+    """{(file, function): Exercise} of every [exercise N.M] marker (kit/markers.py)."""
+    sys.path.insert(0, os.path.join(ROOT, "kit"))
+    import markers
+    try:
+        return {(e.file, e.name): e for e in markers.all_exercises(ROOT)}
+    except ValueError as e:
+        raise BuildError(str(e))
+
+
+def student_code_block(file_name, function, exercise, lines, first, comment_first, narrow, height, where):
+    """An exercise function as a student deck shows it: comment, signature, no body."""
+    k = first
+    while k <= len(lines) and "{" not in lines[k - 1]:
+        k += 1
+    signature = lines[comment_first - 1:k]
+    brace_line = signature.pop()
+    head = brace_line[:brace_line.index("{")]
+    if head.strip():
+        signature.append(head.rstrip())
+    shown = signature + ["{", f"    /* exercise {exercise.id}: your code */", "}"]
+    end = comment_first + len(shown) - 1
+    return figure_block(file_name, function, shown, comment_first, end, first, end, narrow, height, where,
+                        numbers=list(range(comment_first, comment_first + len(signature))) + ["", "", ""],
+                        note=f" (exercise {exercise.id}: the body is yours to write)")
+
+
+def figure_block(file_name, function, shown, start, end, first, last, narrow, height, where, numbers=None,
+                 note=""):
     indent = min((len(s) - len(s.lstrip()) for s in shown if s.strip()), default=0)
     shown = [s[indent:] for s in shown]
     code = "\n".join(shown)
@@ -246,13 +293,15 @@ def code_block(where, spec, narrow=False):
     width = 590 if narrow else 1220
     longest = max((len(s.expandtabs(4)) for s in shown), default=1) + len(str(end)) + 3
     try:
-        height = float(options.get("height", 600))
+        height = float(height or 600)
     except ValueError:
-        fail(where, f"height={options['height']}: wants pixels")
+        fail(where, f"height={height}: wants pixels")
     font_px = max(10.0, min(19.0, height / (len(shown) * 1.36 + 2), width / (longest * 0.61)))
-    numbers = "\n".join(str(k) for k in range(start, end + 1))
+    numbers = "\n".join(str(k) for k in (numbers if numbers is not None else range(start, end + 1)))
     caption = f'{html.escape(file_name)}:{start}&ndash;{end} &nbsp;<b>{html.escape(function)}()</b>'
-    if start > first or end < last:
+    if note:
+        caption = f'{html.escape(file_name)}:{first} &nbsp;<b>{html.escape(function)}()</b>{html.escape(note)}'
+    elif start > first or end < last:
         caption += " (excerpt)"
     block = (f'<figure class="code" style="font-size: {font_px:.1f}px"><figcaption>{caption}</figcaption>'
              f'<div class="code-scroll"><pre class="ln">{numbers}</pre>'
@@ -971,8 +1020,17 @@ def main():
     parser.add_argument("--only", help="build only the deck whose name contains this")
     parser.add_argument("--deck", action="append", help="build this Markdown file instead of slides/NN[a]_*.md "
                                                          "(may be repeated; the tests use it)")
+    parser.add_argument("--student", action="store_true",
+                        help="student decks: exercise functions show their signature and comment only")
     args = parser.parse_args()
     start = time.time()
+    global STUDENT
+    if args.student or os.path.exists(os.path.join(ROOT, "kit", "handout.json")):
+        try:
+            STUDENT = student_exercises()
+        except BuildError as e:
+            print(f"{e}", file=sys.stderr)
+            sys.exit(1)
     ctx = Context(args)
     try:
         node = shutil.which("node") or shutil.which("nodejs")
