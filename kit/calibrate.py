@@ -28,6 +28,22 @@ mutants: each tests/mutants/NAME.patch applied alone to a copy of this tree
   criteria of the chapters the patch names ("# chapters: ...") are run as
   kit/grade.py runs them; writes out/calibration/mutants.csv and prints,
   per mutant, the criteria that failed (a survivor fails none).
+exercises [--only 4.5 ...] [--commit REV] [--build DIR] [--jobs N] [--out FILE]:
+  which criteria each exercise's stub alone fails.  A copy of the tree (the
+  working tree's tracked files, or REV's with --commit) is built (from DIR,
+  a build directory of this tree, when given: only what differs compiles)
+  and graded unstubbed, recording what each criterion runs; then each
+  exercise marked in it is stubbed alone (kit/markers.py stub_file), the
+  programs that changes are found with make -n -W (chapter 2 links chapter
+  1's object, common/optics.h is in chapters 2, 4 and 5) and rebuilt, and
+  every criterion that runs one of them is graded as kit/grade.py grades
+  (seed 1).  Writes kit/exercise-matrix.json (or FILE): per criterion the
+  exercises whose stub alone fails it and the commands it ran, the criteria
+  no single stub fails, the date, commit and seed.  --only re-measures those
+  exercises and merges them into the existing file.  About 30 s per
+  exercise outside chapters 4 and 5, minutes inside (chapter 5 links 4).
+sync-rubric: kit/rubric.json's "exercises" lists set to the matrix's
+  (tests/grade_matrix.py fails while they differ).
 """
 import csv
 import glob
@@ -35,6 +51,7 @@ import hashlib
 import importlib.util
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -46,6 +63,7 @@ ROOT = os.path.dirname(KIT)
 sys.path.insert(0, KIT)
 import compare  # noqa: E402
 import grade  # noqa: E402
+import markers  # noqa: E402
 import rubric as rubric_module  # noqa: E402
 
 OUT = os.path.join(ROOT, "out", "calibration")
@@ -275,7 +293,7 @@ def mutants(names, jobs):
                     if error:
                         ok, message = False, "does not compile"
                     elif c["kind"] == "unit":
-                        ok, message = grade.run_unit(src, c, opts)
+                        ok, message = grade.run_unit(src, c, opts)[:2]
                     else:
                         res = grade.run_criterion(src, c, opts, "")
                         ok, message = res["passed"], res["message"]
@@ -292,15 +310,383 @@ def mutants(names, jobs):
     print(f"mutants killed: {killed} of {len(patches)} ({100.0 * killed / max(1, len(patches)):.0f} %)")
 
 
+# ---- exercises: which criteria each exercise's stub alone fails --------------------------------------
+
+MATRIX = os.path.join(KIT, "exercise-matrix.json")
+UNIT_TARGET = "build/tests/{}"
+
+
+def copy_tracked_tree(dst, commit=None):
+    """The project's tracked files into dst: as committed at `commit`, else as they are in the working
+    tree (mtimes kept, so a copied build directory stays up to date)."""
+    os.makedirs(dst, exist_ok=True)
+    if commit:
+        archive = subprocess.run(["git", "archive", commit], cwd=ROOT, capture_output=True, check=True).stdout
+        subprocess.run(["tar", "-x", "-C", dst], input=archive, check=True)
+        return
+    files = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout
+    for rel in (f for f in files.decode().split("\0") if f):
+        if not os.path.isfile(os.path.join(ROOT, rel)):
+            continue  # deleted in the working tree, not yet in git
+        os.makedirs(os.path.dirname(os.path.join(dst, rel)) or dst, exist_ok=True)
+        shutil.copy2(os.path.join(ROOT, rel), os.path.join(dst, rel))
+
+
+def tree_state(commit=None):
+    """(commit hash, tracked files that differ from it in the working tree; [] for --commit)."""
+    head = subprocess.run(["git", "rev-parse", commit or "HEAD"], cwd=ROOT, capture_output=True,
+                          text=True).stdout.strip()
+    if commit:
+        return head, []
+    status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                            capture_output=True, text=True).stdout
+    return head, sorted(line[3:] for line in status.splitlines() if line.strip())
+
+
+def build_targets(src, rub):
+    """(chapters, unit tests): every chapter program of the tree and every unit test the rubric runs."""
+    chapters = sorted(os.path.splitext(f)[0] for f in os.listdir(os.path.join(src, "chapters"))
+                      if f.endswith(".c") and f[:2].isdigit())
+    units = sorted({c["test"] for c in rub["criteria"] if c["kind"] == "unit"})
+    return chapters, units
+
+
+def target_names(chapters, units):
+    return [f"build/{c}" for c in chapters] + [UNIT_TARGET.format(u) for u in units]
+
+
+def affected_targets(src, rel, targets):
+    """The programs make would relink if `rel` changed (make -n -W: from the Makefile and the
+    compiler's dependency files, so chapter 2 linking chapter 1's object, or a header in common/
+    used by three chapters, is found without being written down here).  src must be up to date."""
+    r = subprocess.run(["make", "-n", "-W", rel, "BUILD=build", *targets], cwd=src, capture_output=True,
+                       text=True, env=dict(os.environ, MAKEFLAGS=""))
+    if r.returncode != 0:
+        raise RuntimeError(f"make -n -W {rel} failed: {r.stderr.strip()[-500:]}")
+    words = r.stdout.split()
+    outputs = {words[i + 1] for i, w in enumerate(words[:-1]) if w == "-o"}
+    return sorted(t for t in targets if t in outputs)
+
+
+def command_programs(commands):
+    """The programs ("build/04_pathtrace") that recorded commands ("build/04_pathtrace scene ...") ran."""
+    return {text.split()[0] for text in commands if text.strip()}
+
+
+def criterion_programs(c, commands, all_programs):
+    """The programs criterion c depends on: the unit test it runs, or its chapter's and every chapter
+    a grade test ran (grade tests of chapter 5 run chapters 3 and 4).  A grade criterion whose runs
+    were not recorded depends on every program (it is always rerun)."""
+    if c["kind"] == "unit":
+        return {UNIT_TARGET.format(c["test"])}
+    if c["kind"] == "grade" and not commands:
+        return set(all_programs)
+    return {f"build/{c['chapter']}"} | command_programs(commands)
+
+
+def grade_one(src, c, built, opts):
+    """(passed, message, commands, seconds) of criterion c in the built tree src, as kit/grade.py
+    grades it (a chapter that does not compile fails all its criteria)."""
+    start = time.time()
+    error = built.get(f"build/{c['chapter']}")
+    if error:
+        return False, f"{c['chapter']} does not compile: {error[:300]}", [], time.time() - start
+    if c["kind"] == "unit":
+        error = built.get(UNIT_TARGET.format(c["test"]))
+        if error:
+            return False, f"tests/{c['test']}.c does not compile: {error[:300]}", [], time.time() - start
+        result = grade.run_unit(src, c, opts)
+        return result[0], result[1], [], time.time() - start
+    res = grade.run_criterion(src, c, opts, "")
+    commands = res.get("commands") or []
+    if c["kind"] in ("compare", "surfaces"):
+        commands = [rubric_module.row_command(c)]
+    return res["passed"], res["message"], commands, time.time() - start
+
+
+def prepare_base(work, rub, opts, commit=None, build_from=None):
+    """A copy of the tree in work/base, built (chapters and the rubric's unit tests): the solution every
+    exercise's stub is applied to.  build_from: a build directory of this tree to start from (only
+    what differs is recompiled)."""
+    base = os.path.join(work, "base")
+    copy_tracked_tree(base, commit)
+    if build_from:
+        shutil.copytree(build_from, os.path.join(base, "build"), symlinks=True,
+                        ignore=shutil.ignore_patterns("asan", "dev", "slides", "viewer*", "glad", "fuzz"))
+        name = os.path.relpath(build_from, ROOT)
+        if name != "build":  # the dependency files name their targets under the old directory
+            for top, _, files in os.walk(os.path.join(base, "build")):
+                for f in files:
+                    if f.endswith(".d"):
+                        path = os.path.join(top, f)
+                        with open(path) as fh:
+                            text = fh.read()
+                        with open(path, "w") as fh:
+                            fh.write(text.replace(name + "/", "build/"))
+    chapters, units = build_targets(base, rub)
+    built = grade.build(base, chapters, units, opts)
+    broken = {t: e for t, e in built.items() if e}
+    if broken:
+        raise RuntimeError("the solution does not build: " + "; ".join(f"{t}: {e[:300]}" for t, e in broken.items()))
+    return base, chapters, units
+
+
+def stubbed_copy(base, work, ex):
+    """work/stub-N.M: the base tree (its build directory too) with exercise ex alone stubbed."""
+    src = os.path.join(work, f"stub-{ex.id}")
+    shutil.copytree(base, src, symlinks=True)
+    path = os.path.join(src, ex.file)
+    with open(path) as f:
+        text = f.read()
+    with open(path, "w") as f:
+        f.write(markers.stub_file(text, [ex]))
+    later = max(os.path.getmtime(path), time.time()) + 1  # newer than every copied object
+    os.utime(path, (later, later))
+    return src
+
+
+def first_line(message):
+    """The line of a message that says what failed (a traceback's last line, not its first)."""
+    lines = [ln.strip() for ln in (message or "").splitlines() if ln.strip()]
+    if not lines:
+        return ""
+    return (lines[-1] if lines[0].startswith("Traceback") else lines[0])[:300]
+
+
+def measure_exercise(base, work, ex, rub, programs_of, targets, opts, timeouts=None, log=print):
+    """Stub exercise ex alone in a copy of base, build what that changes and grade every criterion
+    that runs a changed program.  Returns {"file", "function", "affects", "ran", "failed",
+    "messages", "seconds"}; failed and ran are criterion keys ("chapter: name")."""
+    start = time.time()
+    affected = affected_targets(base, ex.file, targets)
+    src = stubbed_copy(base, work, ex)
+    try:
+        chapters = [t[len("build/"):] for t in affected if not t.startswith("build/tests/")]
+        units = [t[len("build/tests/"):] for t in affected if t.startswith("build/tests/")]
+        built = grade.build(src, chapters, units, opts) if affected else {}
+        ran, failed, messages = [], [], {}
+        for c in rub["criteria"]:
+            key = rubric_module.key(c)
+            # kit/grade.py fails every criterion of a chapter that does not compile
+            if not programs_of[key] & set(affected) and not built.get(f"build/{c['chapter']}"):
+                continue
+            timeout = (timeouts or {}).get(key, opts["timeout"])
+            passed, message, _, seconds = grade_one(src, c, built, dict(opts, timeout=timeout))
+            ran.append(key)
+            if not passed:
+                failed.append(key)
+                messages[key] = first_line(message)
+            log(f"  {ex.id}: {'FAIL' if not passed else 'pass'} {key} ({seconds:.0f} s)"
+                + (f": {messages[key][:150]}" if not passed else ""))
+    finally:
+        shutil.rmtree(src, ignore_errors=True)
+    return {"file": ex.file, "function": ex.name, "affects": affected, "ran": ran, "failed": failed,
+            "messages": messages, "seconds": round(time.time() - start, 1)}
+
+
+def baseline(base, rub, chapters, units, opts, log=print):
+    """Every criterion on the unstubbed solution: {key: {"passed", "message", "commands", "seconds"}}."""
+    built = {t: None for t in target_names(chapters, units)}
+    found = {}
+    for c in rub["criteria"]:
+        passed, message, commands, seconds = grade_one(base, c, built, opts)
+        found[rubric_module.key(c)] = {"passed": passed, "message": first_line(message),
+                                       "commands": commands, "seconds": round(seconds, 1)}
+        log(f"  solution: {'pass' if passed else 'FAIL'} {rubric_module.key(c)} ({seconds:.0f} s)")
+    return found
+
+
+def matrix_rows(rub, base_results, per_exercise, order):
+    rows = []
+    for c in rub["criteria"]:
+        key = rubric_module.key(c)
+        b = base_results[key]
+        rows.append({"chapter": c["chapter"], "name": c["name"], "kind": c["kind"],
+                     "exercises": [x for x in order if key in per_exercise.get(x, {}).get("failed", [])],
+                     "commands": b["commands"], "solution_passed": b["passed"], "seconds": b["seconds"]})
+    return rows
+
+
+def write_matrix(path, matrix):
+    with open(path + ".tmp", "w") as f:
+        json.dump(matrix, f, indent=1)
+        f.write("\n")
+    os.replace(path + ".tmp", path)
+
+
+MATRIX_ABOUT = ("Measured by kit/calibrate.py exercises: each exercise marked in the solution stubbed alone "
+                "(kit/markers.py stub_file), the programs that changes (make -n -W) rebuilt, and every criterion "
+                "that runs one of them graded with the grading seed below. criteria[].exercises: the exercises "
+                "whose stub alone fails that criterion (kit/rubric.json's lists must equal them: "
+                "tests/grade_matrix.py); commands: what the criterion ran on the solution; no_single_stub_fails: "
+                "criteria that no single stub fails (they fail only for a wrong answer, or for two stubs "
+                "together); exercises: per exercise the programs its stub rebuilt and the criteria it failed.")
+
+
+def exercises(only, jobs, commit=None, build_from=None, out_path=MATRIX):
+    """kit/calibrate.py exercises: measure the matrix (all exercises, or --only some, merged into the
+    existing file) and write it."""
+    rub = rubric_module.load(ROOT)
+    opts = {"seed": 1, "jobs": jobs, "timeout": 300.0, "memory": 4096}
+    head, dirty = tree_state(commit)
+    old = rubric_module.load_matrix(ROOT) if only else None
+    if only and old is None:
+        print(f"kit/calibrate.py: --only needs an existing {os.path.relpath(out_path, ROOT)} (measure all first)",
+              file=sys.stderr)
+        sys.exit(2)
+    work = tempfile.mkdtemp(prefix="gi-exercises-")
+    start = time.time()
+    try:
+        base, chapters, units = prepare_base(work, rub, opts, commit, build_from)
+        marked = markers.all_exercises(base)
+        order = [e.id for e in marked]
+        unknown = [x for x in only if x not in order]
+        if unknown:
+            print(f"kit/calibrate.py: no exercise {', '.join(unknown)} is marked (marked: {' '.join(order)})",
+                  file=sys.stderr)
+            sys.exit(2)
+        chosen = [e for e in marked if not only or e.id in only]
+        targets = target_names(chapters, units)
+        if old is None:
+            print(f"the solution, every criterion (seed {opts['seed']}):", flush=True)
+            base_results = baseline(base, rub, chapters, units, opts, log=lambda s: print(s, flush=True))
+        else:
+            base_results = {rubric_module.key(r): {"passed": r["solution_passed"], "commands": r["commands"],
+                                                   "seconds": r["seconds"], "message": ""}
+                            for r in old["criteria"]}
+            missing = [rubric_module.key(c) for c in rub["criteria"] if rubric_module.key(c) not in base_results]
+            if missing:
+                print(f"kit/calibrate.py: criteria not in the matrix yet (measure all): {'; '.join(missing)}",
+                      file=sys.stderr)
+                sys.exit(2)
+        programs_of = {rubric_module.key(c): criterion_programs(c, base_results[rubric_module.key(c)]["commands"],
+                                                                [t for t in targets if "/tests/" not in t])
+                       for c in rub["criteria"]}
+        timeouts = {k: min(opts["timeout"], max(60.0, 5 * v["seconds"])) for k, v in base_results.items()}
+        per_exercise = dict(old["exercises"]) if old else {}
+        for ex in chosen:
+            print(f"exercise {ex.id} ({ex.file}: {ex.name}):", flush=True)
+            per_exercise[ex.id] = measure_exercise(base, work, ex, rub, programs_of, targets, opts, timeouts,
+                                                   log=lambda s: print(s, flush=True))
+            m = per_exercise[ex.id]
+            print(f"exercise {ex.id}: rebuilt {' '.join(m['affects']) or 'nothing'}; fails {len(m['failed'])} of "
+                  f"{len(m['ran'])} criteria run ({m['seconds']:.0f} s)", flush=True)
+        per_exercise = {x: per_exercise[x] for x in order if x in per_exercise}
+        rows = matrix_rows(rub, base_results, per_exercise, order)
+        matrix = {"_about": MATRIX_ABOUT,
+                  "date": time.strftime("%Y-%m-%d %H:%M:%S %z"),
+                  "commit": head, "uncommitted_changes": dirty, "seed": opts["seed"],
+                  "command": "kit/calibrate.py exercises" + (f" --commit {commit}" if commit else "")
+                             + (f" --only {' '.join(only)}" if only else ""),
+                  "measured": sorted(set(old["measured"]) | set(only), key=rubric_module.exercise_order)
+                              if old else order,
+                  "seconds": round(time.time() - start),
+                  "criteria": rows,
+                  "no_single_stub_fails": [rubric_module.key(r) for r in rows if not r["exercises"]],
+                  "solution_fails": [rubric_module.key(r) for r in rows if not r["solution_passed"]],
+                  "exercises": per_exercise}
+        write_matrix(out_path, matrix)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    print(f"wrote {os.path.relpath(out_path, ROOT)} in {time.time() - start:.0f} s")
+    if matrix["solution_fails"]:
+        print("the solution itself fails (every exercise then seems to fail them): "
+              + "; ".join(matrix["solution_fails"]))
+    print("no single stub fails: " + ("; ".join(matrix["no_single_stub_fails"]) or "none"))
+    differ = rubric_disagreements(rub, matrix)
+    print("kit/rubric.json agrees with the matrix" if not differ else
+          "kit/rubric.json disagrees (kit/calibrate.py sync-rubric writes the measured lists):\n  " + "\n  ".join(differ))
+
+
+def rubric_disagreements(rub, matrix):
+    """Sentences: where kit/rubric.json's exercises lists differ from the matrix."""
+    measured = {rubric_module.key(r): r["exercises"] for r in matrix["criteria"]}
+    out = []
+    for i, c in enumerate(rub["criteria"]):
+        key = rubric_module.key(c)
+        if key not in measured:
+            out.append(f"kit/rubric.json: criterion {i + 1} '{c['name']}' ({c['chapter']}): not in the matrix")
+        elif sorted(c["exercises"], key=rubric_module.exercise_order) != measured[key]:
+            out.append(f"kit/rubric.json: criterion {i + 1} '{c['name']}' ({c['chapter']}): exercises "
+                       f"{c['exercises']}, measured {measured[key]}")
+    in_rubric = {rubric_module.key(c) for c in rub["criteria"]}
+    out += [f"{os.path.relpath(MATRIX, ROOT)}: '{k}' is not a criterion of kit/rubric.json"
+            for k in measured if k not in in_rubric]
+    return out
+
+
+def sync_rubric():
+    """Write the matrix's measured exercise lists into kit/rubric.json: only each row's "exercises"
+    list changes (a small edit of the text, so rows others add meanwhile are kept)."""
+    path = os.path.join(KIT, "rubric.json")
+    matrix = rubric_module.load_matrix(ROOT)
+    if matrix is None:
+        print("kit/calibrate.py: no kit/exercise-matrix.json (kit/calibrate.py exercises first)", file=sys.stderr)
+        sys.exit(2)
+    measured = {rubric_module.key(r): r["exercises"] for r in matrix["criteria"]}
+    with open(path) as f:
+        text = f.read()
+    rows = json.loads(text)["criteria"]
+    changed, unmeasured = 0, []
+    row_starts = [m.start() for m in re.finditer(r'^  \{\s*$', text, re.M)]
+    if len(row_starts) != len(rows):
+        print(f"kit/calibrate.py: kit/rubric.json: expected one row per '  {{' line ({len(rows)} rows, "
+              f"{len(row_starts)} lines)", file=sys.stderr)
+        sys.exit(2)
+    for i in reversed(range(len(rows))):
+        key = rubric_module.key(rows[i])
+        if key not in measured:
+            unmeasured.append(key)
+            continue
+        if rows[i]["exercises"] == measured[key]:
+            continue
+        end = row_starts[i + 1] if i + 1 < len(rows) else len(text)
+        block = text[row_starts[i]:end]
+        m = re.search(r'^(\s*)"exercises": \[[^\]]*\]', block, re.M)
+        indent = m.group(1)
+        items = "".join(f'\n{indent} "{x}",' for x in measured[key]).rstrip(",")
+        new = f'{indent}"exercises": [' + (items + f"\n{indent}]" if items else "]")
+        text = text[:row_starts[i]] + block[:m.start()] + new + block[m.end():] + text[end:]
+        changed += 1
+    json.loads(text)  # still JSON
+    with open(path, "w") as f:
+        f.write(text)
+    print(f"kit/rubric.json: {changed} exercise lists changed to the measured ones"
+          + (f"; not measured yet: {'; '.join(unmeasured)}" if unmeasured else ""))
+
+
 def main(argv):
     if not argv or argv[0] in ("-h", "--help"):
         print(__doc__.strip())
         sys.exit(0 if argv else 2)
     mode, rest = argv[0], argv[1:]
+    try:
+        rubric_module.load(ROOT)
+    except ValueError as e:  # a row naming an unknown exercise or test: nothing is measured
+        print(f"kit/calibrate.py: {e}", file=sys.stderr)
+        sys.exit(2)
     jobs, seeds, names, kinds, out_file, chapters = 2, list(range(1, 101)), [], None, None, None
+    only, commit, build_from = [], None, None
     i = 0
     while i < len(rest):
-        if rest[i] == "--jobs" and i + 1 < len(rest) and rest[i + 1].isdigit():
+        if rest[i] == "--only":
+            i += 1
+            while i < len(rest) and not rest[i].startswith("-"):
+                only.append(rest[i])
+                i += 1
+            if not only:
+                print("kit/calibrate.py: --only needs exercise ids (e.g. --only 4.5 4.7)", file=sys.stderr)
+                sys.exit(2)
+        elif rest[i] == "--commit" and i + 1 < len(rest):
+            commit = rest[i + 1]
+            i += 2
+        elif rest[i] == "--build" and i + 1 < len(rest):
+            build_from = os.path.abspath(rest[i + 1])
+            if not os.path.isdir(build_from):
+                print(f"kit/calibrate.py: --build {rest[i + 1]}: not a directory", file=sys.stderr)
+                sys.exit(2)
+            i += 2
+        elif rest[i] == "--jobs" and i + 1 < len(rest) and rest[i + 1].isdigit():
             jobs = int(rest[i + 1])
             i += 2
         elif rest[i] == "--seeds" and i + 1 < len(rest) and "-" in rest[i + 1]:
@@ -338,6 +724,17 @@ def main(argv):
         combine(names)
     elif mode == "mutants":
         mutants(names, jobs)
+    elif mode == "exercises":
+        if names:
+            print(f"kit/calibrate.py: exercises takes no argument {names[0]} (--only {names[0]}?)", file=sys.stderr)
+            sys.exit(2)
+        if commit and subprocess.run(["git", "rev-parse", "--verify", "--quiet", commit + "^{commit}"], cwd=ROOT,
+                                     capture_output=True).returncode != 0:
+            print(f"kit/calibrate.py: --commit {commit}: not a commit", file=sys.stderr)
+            sys.exit(2)
+        exercises(only, jobs, commit, build_from, out_file or MATRIX)
+    elif mode == "sync-rubric":
+        sync_rubric()
     else:
         print(f"kit/calibrate.py: unknown mode {mode} (see --help)", file=sys.stderr)
         sys.exit(2)
