@@ -85,7 +85,7 @@ def _budget_names(function):
     own_alpha = set()
     for node in ast.walk(function):
         if isinstance(node, ast.Call) and any(k.arg == "alpha" for k in node.keywords):
-            own_alpha.add(id(node))
+            own_alpha.update(id(x) for x in ast.walk(node.func))
             for k in node.keywords:
                 own_alpha.update(id(x) for x in ast.walk(k.value))
     names = set()
@@ -155,16 +155,13 @@ def criterion_command(root, c):
         commands = rubric_module.criterion_commands(root, c)
         if commands or c["kind"] == "grade":
             return [x["text"] if isinstance(x, dict) else x for x in commands]
-    import compare  # kit/compare.py: the same argument lists the grader runs
-    import lib  # tests/lib.py (compare put it on the path): command_text drops --out, --threads ...
+    # without it, the row's own fields (as kit/compare.py passes them, minus --out, --seed and the like)
     if c["kind"] == "compare":
-        argv = compare.render_command(f"build/{c['chapter']}", c, "S", "out.pfm")[1:]
-        return [lib.command_text(c["chapter"], argv)]
+        return [" ".join([f"build/{c['chapter']}", c["scene"], "--size", c.get("size", "32x32"),
+                          "--spp", str(c.get("spp", 1)), *c.get("args", [])])]
     if c["kind"] == "surfaces":
-        argv = [c["scene"], "--size", "8x8", "--spp", "1", "--patch-size", str(c.get("patch_size", 50)),
-                "--tol", str(c.get("tol", 1e-6)), "--iterations", str(c.get("iterations", 500)),
-                *c.get("args", [])]
-        return [lib.command_text(c["chapter"], argv)]
+        return [" ".join([f"build/{c['chapter']}", c["scene"], "--patch-size", str(c.get("patch_size", 50)),
+                          "--tol", str(c.get("tol", 1e-6)), *c.get("args", [])])]
     if c["kind"] == "unit":
         return [f"build/tests/{c['test']}"]
     return []
