@@ -788,7 +788,7 @@ class Deck:
         return f'<span class="fact">{self.ctx.facts[key]:.2f}</span>'
 
     def tradeoff(self, where):
-        """The plots of `make tradeoff` (issue 7) when out/tradeoff.csv exists, else our own quick sweep."""
+        """The plots of `make tradeoff` when out/tradeoff.csv exists, else our own quick sweep."""
         out_dir = self.ctx.tradeoff_dir
         stems = []
         if os.path.exists(os.path.join(out_dir, "tradeoff.csv")):

@@ -1,4 +1,4 @@
-# slides/slides.mk — the lecture decks (issue 9), included by the Makefile.
+# slides/slides.mk — the lecture decks, included by the Makefile.
 #
 #   make slides        out/slides/*.html (self-contained, offline) and *.pdf (when chromium is installed)
 #   make slides-html   the HTML decks only
