@@ -60,15 +60,17 @@ $(BUILD)/chapters/support/%.o: chapters/support/%.c
 $(foreach c,$(CHAPTER_PROGRAMS),$(eval $(c): $(patsubst chapters/support/%.c,$(BUILD)/chapters/support/%.o,\
   $(wildcard chapters/support/$(notdir $(c))_*.c))))
 
-# Chapter 2 shades with chapter 1's local model (chapters/local_model.h):
-# it links chapter 1's object with that chapter's main renamed, so neither
-# chapter includes the other.
-$(BUILD)/chapters/01_local_model.o: chapters/01_local.c
+# A chapter that builds on an earlier one links that chapter's object with
+# its main renamed, so neither includes the other and each answer is written
+# once: chapter 2 shades with chapter 1's local model (chapters/local_model.h),
+# chapter 5 scatters and samples lights as chapter 4 (chapters/pathtrace_model.h).
+$(BUILD)/chapters/%_model.o: chapters/%.c
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) -Icommon -c $< -o $@.tmp.o
-	objcopy --redefine-sym main=local_chapter_main $@.tmp.o $@
+	objcopy --redefine-sym main=chapter_$*_main $@.tmp.o $@
 	rm -f $@.tmp.o
 $(BUILD)/02_whitted: $(BUILD)/chapters/01_local_model.o
+$(BUILD)/05_photonmap: $(BUILD)/chapters/04_pathtrace_model.o
 
 $(BUILD)/bench/%: bench/%.c $(COMMON_OBJ)
 	@mkdir -p $(dir $@)

@@ -18,6 +18,7 @@
 #include <stdlib.h>
 
 #include "optics.h"
+#include "pathtrace_model.h" /* what chapter 5 uses of this chapter: vertex, bsdf_f, ..., next_event */
 #include "render.h"
 #include "sampling.h"
 #include "sphere_light.h"
@@ -48,22 +49,13 @@ static int warned_truncation, warned_rr_depth, warned_no_light;
 
 /* ---- materials --------------------------------------------------------------------------------- */
 
-/* A vertex of a walk: light leaves x toward w_o (unit, toward the eye or the
- * last vertex); n is the unit normal on the side of w_o (surfaces are
- * two-sided), `front` says if that is the side the scene file faces. */
-typedef struct {
-    vec3 x, n, w_o;
-    bool front;
-    const material *m;
-} vertex;
-
-static vertex vertex_at(vec3 x, vec3 n_geometric, vec3 w_o, const material *m)
+/* A vertex of a walk (pathtrace_model.h): light leaves x toward w_o; n is the
+ * unit normal on the side of w_o (surfaces are two-sided). */
+vertex vertex_at(vec3 x, vec3 n_geometric, vec3 w_o, const material *m)
 {
     bool front = v3_dot(n_geometric, w_o) > 0.0;
     return (vertex){.x = x, .n = front ? n_geometric : v3_neg(n_geometric), .w_o = w_o, .front = front, .m = m};
 }
-
-static const material *material_of(const scene *s, int i) { return &s->materials[s->surfaces[i].material]; }
 
 /* Unit mirror direction of w about n: 2 (n.w) n - w. */
 static vec3 mirror_of(vec3 w, vec3 n) { return v3_reflect(v3_neg(w), n); }
@@ -73,7 +65,7 @@ static vec3 mirror_of(vec3 w, vec3 n) { return v3_reflect(v3_neg(w), n); }
  * alpha the angle between w_i and the mirror direction of w_o.  (n + 2)/(2 pi)
  * makes the lobe reflect at most ks of the incident energy, so rho + ks <= 1
  * conserves energy (the classic Phong lobe does not). */
-static vec3 bsdf_f(const vertex *v, vec3 w_i)
+vec3 bsdf_f(const vertex *v, vec3 w_i)
 {
     const material *m = v->m;
     vec3 f = v3_scale(m->albedo, 1.0 / M_PI);
@@ -88,9 +80,9 @@ static vec3 bsdf_f(const vertex *v, vec3 w_i)
  * f cos / p = the reflectance.  Glass reflects with probability F (exact
  * Fresnel, optics.h), else refracts (the choice is the weight); radiance
  * entering a medium changes by (n_i / n_t)^2, undone on the way out. */
-static bool is_specular(const material *m) { return m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS; }
+bool is_specular(const material *m) { return m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS; }
 
-static vec3 specular_scatter(const vertex *v, rng *g, vec3 *w_i)
+vec3 specular_scatter(const vertex *v, rng *g, vec3 *w_i)
 {
     *w_i = mirror_of(v->w_o, v->n);
     if (v->m->kind == MATERIAL_MIRROR)
@@ -127,13 +119,11 @@ static bool may_scatter(const pathtrace_state *st, int k)
     return false;
 }
 
-/* Russian roulette (from --rr-depth bounces on): go on with probability p,
- * weighted by 1/p, so the expectation is unchanged.  p follows the throughput:
- * a dim walk ends early, a bright one (a furnace, rho = 0.99) goes on. [exercise 4.3] */
-static bool survives_roulette(const pathtrace_state *st, int k, rng *g, vec3 *throughput)
+/* Russian roulette: go on with probability p, weighted by 1/p, so the
+ * expectation is unchanged.  p follows the throughput: a dim walk ends early,
+ * a bright one (a furnace, rho = 0.99) goes on. [exercise 4.3] */
+bool survives_roulette(vec3 *throughput, rng *g)
 {
-    if (k < st->rr_depth)
-        return true;
     double p = min_ignoring_nan(1.0, v3_max_component(*throughput));
     if (!(p > 0.0) || rng_uniform(g) >= p)
         return false;
@@ -148,10 +138,8 @@ static vec3 emitted(const scene *s, const hit *h, vec3 w)
     return m->kind == MATERIAL_EMITTER && v3_dot(h->normal, w) < 0.0 ? m->emission : v3_splat(0.0);
 }
 
-/* A density over directions draws w_i at v and returns its pdf per steradian.
- * Rung 1's: every direction above the surface alike, 1/(2 pi). */
-typedef double direction_sampler(const vertex *v, rng *g, vec3 *w_i);
-
+/* A density over directions (direction_sampler) draws w_i at v and returns its
+ * pdf per steradian.  Rung 1's: every direction above the surface alike, 1/(2 pi). */
 static double sample_uniform(const vertex *v, rng *g, vec3 *w_i)
 {
     double u1 = rng_uniform(g), u2 = rng_uniform(g);
@@ -161,7 +149,7 @@ static double sample_uniform(const vertex *v, rng *g, vec3 *w_i)
 
 /* Scatter: choose the next direction w_i at v (its pdf in *pdf, 0 for a
  * delta) and return the factor of the walk's throughput, f cos(theta_i) / p. [exercise 4.2] */
-static vec3 scatter(const vertex *v, direction_sampler *sample, rng *g, vec3 *w_i, double *pdf)
+vec3 scatter(const vertex *v, direction_sampler *sample, rng *g, vec3 *w_i, double *pdf)
 {
     *pdf = 0.0;
     if (is_specular(v->m))
@@ -182,7 +170,7 @@ static vec3 walk(const pathtrace_state *st, const scene *s, vertex v, int k, dir
         vec3 w_i;
         double pdf;
         throughput = v3_mul(throughput, scatter(&v, sample, g, &w_i, &pdf));
-        if (!(v3_max_component(throughput) > 0.0) || !survives_roulette(st, k, g, &throughput))
+        if (!(v3_max_component(throughput) > 0.0) || (k >= st->rr_depth && !survives_roulette(&throughput, g)))
             break;
         counters->value[COUNT_BOUNCE_RAYS]++;
         hit h;
@@ -209,7 +197,7 @@ static double glossy_share(const material *m)
 }
 
 /* The density per steradian of sample_bsdf: the mixture of cosine and lobe. [exercise 4.4] */
-static double bsdf_pdf(const vertex *v, vec3 w_i)
+double bsdf_pdf(const vertex *v, vec3 w_i)
 {
     double share = glossy_share(v->m), pdf = (1.0 - share) * cosine_hemisphere_pdf(v3_dot(v->n, w_i));
     double cos_alpha = share > 0.0 ? v3_dot(w_i, mirror_of(v->w_o, v->n)) : 0.0;
@@ -219,7 +207,7 @@ static double bsdf_pdf(const vertex *v, vec3 w_i)
 }
 
 /* Draws w_i like f cos: the lobe with probability share, else cosine; returns its pdf. [exercise 4.5] */
-static double sample_bsdf(const vertex *v, rng *g, vec3 *w_i)
+double sample_bsdf(const vertex *v, rng *g, vec3 *w_i)
 {
     double u1 = rng_uniform(g), u2 = rng_uniform(g), share = glossy_share(v->m);
     if (share == 0.0 || rng_uniform(g) >= share) {
@@ -252,13 +240,21 @@ static double light_power(const scene *s, int i) /* 4 pi I for a point light */
                                 : 4.0 * M_PI * v3_average(s->lights[i - s->emitter_count].intensity);
 }
 
+double total_light_power(const scene *s)
+{
+    double total = 0.0;
+    for (int i = 0; i < s->emitter_count + s->light_count; i++)
+        total += light_power(s, i);
+    return total;
+}
+
 /* The density per steradian of sample_light at x picking y (normal n_y) on
  * emitting surface i (also for MIS): the pick times that of y, uniform in the
  * cone a sphere subtends (sphere_light.h), else uniform by area, p_A = 1 / A. */
-static double light_pdf(const pathtrace_state *st, const scene *s, int i, vec3 x, vec3 y, vec3 n_y)
+static double light_pdf(const scene *s, double total_power, int i, vec3 x, vec3 y, vec3 n_y)
 {
     const surface *surf = &s->surfaces[i];
-    double pick = emitter_power(s, i) / st->total_power;
+    double pick = emitter_power(s, i) / total_power;
     if (surf->kind == SURFACE_SPHERE)
         return pick * sphere_light_pdf(surf->center, surf->radius, x, y, n_y);
     return pick * area_pdf_to_solid_angle(1.0 / surf->area, x, y, n_y);
@@ -271,14 +267,14 @@ typedef struct {
 } light_sample;
 
 /* Picks a light by power and a point y on it (R9); false when nothing shines toward x. [exercise 4.6] */
-static bool sample_light(const pathtrace_state *st, const scene *s, vec3 x, rng *g, light_sample *out)
+static bool sample_light(const scene *s, double total_power, vec3 x, rng *g, light_sample *out)
 {
-    if (!(st->total_power > 0.0)) /* no light shines */
+    if (!(total_power > 0.0)) /* no light shines */
         return false;
     int i = 0, last = s->emitter_count + s->light_count - 1; /* pick light i with probability power / total */
-    for (double u = rng_uniform(g) * st->total_power; i < last && u >= light_power(s, i); i++)
+    for (double u = rng_uniform(g) * total_power; i < last && u >= light_power(s, i); i++)
         u -= light_power(s, i);
-    double pick = light_power(s, i) / st->total_power;
+    double pick = light_power(s, i) / total_power;
     if (i >= s->emitter_count) {
         const point_light *p = &s->lights[i - s->emitter_count];
         vec3 d = v3_sub(p->position, x);
@@ -295,15 +291,13 @@ static bool sample_light(const pathtrace_state *st, const scene *s, vec3 x, rng 
     else if (!sphere_light_sample(surf->center, surf->radius, x, u1, u2, &y, &n_y, &pdf_unused))
         return false;
     vec3 w_i = v3_normalize(v3_sub(y, x));
-    *out = (light_sample){y, w_i, material_of(s, e)->emission, light_pdf(st, s, e, x, y, n_y)};
+    *out = (light_sample){y, w_i, material_of(s, e)->emission, light_pdf(s, total_power, e, x, y, n_y)};
     return out->pdf > 0.0 && v3_dot(n_y, w_i) < 0.0; /* emitters shine from their front only */
 }
 
-/* The share of a path to a light that the light sample counts (the walk that
- * finds it by itself counts the rest).  Next-event estimation alone: all. */
-typedef double light_share(double pdf_light, double pdf_bsdf);
-
-static double light_sample_only(double pdf_light, double pdf_bsdf)
+/* The share of a path to a light that the light sample counts (light_share:
+ * the walk that finds it by itself counts the rest).  Next-event estimation alone: all. */
+double light_sample_only(double pdf_light, double pdf_bsdf)
 {
     (void)pdf_light, (void)pdf_bsdf;
     return 1.0;
@@ -311,17 +305,16 @@ static double light_sample_only(double pdf_light, double pdf_bsdf)
 
 /* One light sample's contribution to the radiance reflected at v toward w_o:
  * f L_e cos(theta_i) V / p (R9), times the light sample's share. [exercise 4.7] */
-static vec3 next_event(const pathtrace_state *st, const scene *s, const vertex *v, light_share *share, rng *g,
-                       render_counters *counters)
+vec3 next_event(const scene *s, double total_power, const vertex *v, light_share *share, rng *g, uint64_t *shadow_rays)
 {
     light_sample ls;
-    if (!sample_light(st, s, v->x, g, &ls))
+    if (!sample_light(s, total_power, v->x, g, &ls))
         return v3_splat(0.0);
     double cos_i = v3_dot(v->n, ls.w_i);
     vec3 f = cos_i > 0.0 ? bsdf_f(v, ls.w_i) : v3_splat(0.0);
     if (!(v3_max_component(f) > 0.0)) /* nothing reflected toward w_o: no need to look */
         return v3_splat(0.0);
-    counters->value[COUNT_SHADOW_RAYS]++;
+    ++*shadow_rays;
     if (scene_occluded(s, v->x, ls.point)) /* V(x, y) */
         return v3_splat(0.0);
     if (ls.pdf == 0.0) /* a point light: nothing else can find it */
@@ -338,11 +331,12 @@ static vec3 walk_with_light_samples(const pathtrace_state *st, const scene *s, v
     vec3 L = v3_splat(0.0), throughput = v3_splat(1.0);
     for (; may_scatter(st, k); k++) {
         if (!is_specular(v.m) && keep(st, k))
-            L = v3_add(L, v3_mul(throughput, next_event(st, s, &v, share, g, counters)));
+            L = v3_add(L, v3_mul(throughput,
+                                 next_event(s, st->total_power, &v, share, g, &counters->value[COUNT_SHADOW_RAYS])));
         vec3 w_i;
         double pdf_bsdf;
         throughput = v3_mul(throughput, scatter(&v, sample_bsdf, g, &w_i, &pdf_bsdf));
-        if (!(v3_max_component(throughput) > 0.0) || !survives_roulette(st, k, g, &throughput))
+        if (!(v3_max_component(throughput) > 0.0) || (k >= st->rr_depth && !survives_roulette(&throughput, g)))
             break;
         counters->value[COUNT_BOUNCE_RAYS]++;
         hit h;
@@ -351,7 +345,7 @@ static vec3 walk_with_light_samples(const pathtrace_state *st, const scene *s, v
         if (keep(st, k) && v3_max_component(Le) > 0.0) {
             double counted = 1.0; /* the background, or after a specular vertex: no light sample found it */
             if (!escaped && !is_specular(v.m))
-                counted -= share(light_pdf(st, s, h.surface, v.x, h.point, h.normal), pdf_bsdf);
+                counted -= share(light_pdf(s, st->total_power, h.surface, v.x, h.point, h.normal), pdf_bsdf);
             L = v3_add(L, v3_mul(throughput, v3_scale(Le, counted)));
         }
         if (escaped)
@@ -418,8 +412,7 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
     pathtrace_state *st = state_pointer;
     st->bounce_min = o->bounce_min, st->bounce_max = o->bounce_max, st->seed = o->seed, st->scene = s;
     truncated_walks = 0;
-    for (int i = 0; i < s->emitter_count + s->light_count; i++)
-        st->total_power += light_power(s, i);
+    st->total_power = total_light_power(s);
     if (s->light_count > 0 && (st->estimator == ESTIMATOR_HEMISPHERE || st->estimator == ESTIMATOR_COSINE)) {
         bool only = s->emitter_count == 0;
         fprintf(stderr,

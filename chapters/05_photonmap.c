@@ -38,15 +38,19 @@
  * blur vanishes: the average of the passes converges to the true image.
  * (alpha = 1 keeps the radius: classic photon mapping, whose bias stays.)
  *
+ * The materials (f, drawing a direction like f cos, mirrors and glass),
+ * Russian roulette and direct light by light sampling (R9) are chapter 4's,
+ * through chapters/pathtrace_model.h: the same functions, written once.
+ *
  * Sections: state, options · lights, photon emission · the photon pass · density
- * estimation (R11) · direct light (R9) · eye pass · probes · passes (R12), main.
+ * estimation (R11) · eye pass · probes · passes (R12), main.
  */
 #include <stdlib.h>
 
+#include "pathtrace_model.h" /* chapter 4's: vertex, bsdf_f, scatter, survives_roulette, next_event */
 #include "photon_map.h"
 #include "render.h"
 #include "sampling.h"
-#include "scatter.h" /* the materials: diffuse, Phong, mirror, glass */
 
 /* ---- state and options ------------------------------------------------------------ */
 
@@ -69,7 +73,7 @@ typedef struct {
     int bounce_min, bounce_max, light_count;
     uint64_t seed, photon_rays;
     light_source *lights;
-    vec3 emitted_power;
+    vec3 emitted_power; /* of all lights; its mean channel is what next_event picks lights by */
     double initial_radius, current_radius, *radius_per_pass;
     photon_map global, caustic; /* this pass's photons (photon_map.h: what a photon holds) */
     photon_tally tally;         /* stored power over all passes, for the stats */
@@ -133,6 +137,17 @@ static ray emit_photon(const photonmap_state *st, const scene *s, rng *g, int ph
 
 /* ---- the photon pass -------------------------------------------------------------------------- */
 
+/* A photon carries flux, not radiance.  Radiance refracted into glass is
+ * squeezed into a smaller solid angle, and chapter 4's weight multiplies it
+ * by (n_i / n_t)^2; the flux through the surface is not: undo that factor. */
+static vec3 as_flux(const vertex *v, vec3 radiance_weight, vec3 w_i)
+{
+    if (v->m->kind != MATERIAL_GLASS || v3_dot(w_i, v->n) > 0.0) /* not refracted */
+        return radiance_weight;
+    double n_t_over_n_i = v->front ? v->m->ior : 1.0 / v->m->ior;
+    return v3_scale(radiance_weight, n_t_over_n_i * n_t_over_n_i);
+}
+
 /* Follow one photon from a light until Russian roulette absorbs it or it leaves the scene, storing
  * it (into `out`) at every non-specular surface it lands on, caustic while it met only mirrors and
  * glass (L S+ D); each bounce multiplies its power by f cos / p (R2).  A probe's estimate passes a
@@ -153,22 +168,18 @@ static int trace_photon(const photonmap_state *st, const scene *s, int photons, 
             *crossed = v3_add(*crossed, power);
         if (!found)
             break;
-        const material *m = &s->materials[s->surfaces[h.surface].material];
-        vec3 from = v3_neg(r.direction), w_i, weight;
-        bool front = v3_dot(h.normal, from) > 0.0;
-        vec3 n = front ? h.normal : v3_neg(h.normal);
-        if (is_specular(m)) {
-            weight = scatter_specular(m, h.normal, from, false, g, &w_i);
-        } else {
-            photon p = {h.point, from, n, power, bounces, caustic && bounces > 0, front, h.surface, path};
+        vertex v = vertex_at(h.point, h.normal, v3_neg(r.direction), material_of(s, h.surface));
+        if (!is_specular(v.m)) {
+            photon p = {v.x, v.w_o, v.n, power, bounces, caustic && bounces > 0, v.front, h.surface, path};
             if (out && photon_map_add(out, &p))
                 return -1;
-            if (!sample_bsdf(m, n, from, g, &w_i, &weight))
-                break; /* absorbed */
             caustic = false;
         }
-        if (!survives_roulette(&weight, g))
-            break;
+        vec3 w_i;
+        double pdf;
+        vec3 weight = as_flux(&v, scatter(&v, sample_bsdf, g, &w_i, &pdf), w_i); /* f cos / p (R2) */
+        if (!(v3_max_component(weight) > 0.0) || !survives_roulette(&weight, g))
+            break; /* absorbed */
         power = v3_mul(power, weight);
         r = (ray){scene_offset_origin(s, h.point, h.normal, w_i), w_i};
     }
@@ -209,7 +220,8 @@ typedef enum { ALL_PHOTONS, INDIRECT_PHOTONS } photon_filter;
 static bool photon_counts(const photonmap_state *st, const photon *p, vec3 n, int before, photon_filter filter)
 {
     bool counted_elsewhere = filter == INDIRECT_PHOTONS && (p->bounces == 0 || p->caustic); /* direct, caustic */
-    return v3_dot(p->normal, n) >= 0.9 && !counted_elsewhere && keeps(st, before + p->bounces + 1);
+    bool from_above = v3_dot(p->from, n) > 0.0; /* f is zero below the surface */
+    return v3_dot(p->normal, n) >= 0.9 && from_above && !counted_elsewhere && keeps(st, before + p->bounces + 1);
 }
 
 /* (R11): the sum of f Phi_p over the photons in a disc of radius r around x,
@@ -218,6 +230,7 @@ static bool photon_counts(const photonmap_state *st, const photon *p, vec3 n, in
 static vec3 photon_estimate(const photonmap_state *st, const photon_map *map, vec3 x, vec3 n, vec3 w_o,
                             const material *m, int before, photon_filter filter, render_counters *counters)
 {
+    vertex v = vertex_at(x, n, w_o, m);
     double r2 = st->current_radius * st->current_radius, d2;
     if (st->nearest > 0)
         r2 = photon_grid_nearest_radius2(&map->grid, x, st->current_radius, st->nearest);
@@ -228,43 +241,10 @@ static vec3 photon_estimate(const photonmap_state *st, const photon_map *map, ve
     for (photon_grid_search(&map->grid, x, sqrt(r2), &c); photon_grid_next(&map->grid, &c, &i, &d2);) {
         const photon *p = &map->photons[i];
         if (photon_counts(st, p, n, before, filter))
-            sum = v3_add(sum, v3_mul(bsdf(m, n, p->from, w_o), p->power));
+            sum = v3_add(sum, v3_mul(bsdf_f(&v, p->from), p->power));
         counters->value[COUNT_PHOTONS_VISITED]++;
     }
     return v3_scale(sum, 1.0 / (M_PI * r2)); /* (R11) */
-}
-
-/* ---- direct light by light sampling (R9) ---------------------------------------------------- */
-
-/* One point y on a light picked by power, as in chapter 4's next-event
- * estimation: L_e f cos(theta_i) cos(theta_y) / |x - y|^2 V / (p_A p_pick)  (R8, R9),
- * or f I cos(theta_i) / r^2 V / p_pick for a point light (R1). */
-static vec3 direct_light(const photonmap_state *st, const scene *s, vec3 x, vec3 n, vec3 w_o, const material *m, rng *g,
-                         render_counters *counters)
-{
-    if (st->light_count == 0)
-        return v3_splat(0.0);
-    const light_source *light = pick_light(st, g);
-    vec3 y, n_y = v3_splat(0.0), intensity;
-    double u1 = rng_uniform(g), u2 = rng_uniform(g), u3 = rng_uniform(g);
-    if (light->point_light >= 0) {
-        y = s->lights[light->point_light].position;
-        intensity = s->lights[light->point_light].intensity;
-    } else {
-        surface_sample_point(s, light->surface, u1, u2, u3, &y, &n_y);
-        intensity = v3_scale(light->power, 1.0 / M_PI); /* L_e A: pi L_e A / pi */
-    }
-    vec3 to_y = v3_sub(y, x);
-    double r2 = v3_dot(to_y, to_y);
-    vec3 w_i = v3_scale(to_y, 1.0 / sqrt(r2));
-    double cos_y = light->point_light >= 0 ? 1.0 : -v3_dot(n_y, w_i); /* the emitter's front faces x */
-    vec3 f = bsdf(m, n, w_i, w_o);
-    if (!(cos_y > 0.0) || !(r2 > 0.0) || v3_max_component(f) <= 0.0)
-        return v3_splat(0.0);
-    counters->value[COUNT_SHADOW_RAYS]++;
-    if (scene_occluded(s, x, y)) /* V(x, y) */
-        return v3_splat(0.0);
-    return v3_scale(v3_mul(f, intensity), v3_dot(n, w_i) * cos_y / (r2 * light->probability)); /* (R9) */
 }
 
 /* ---- the eye pass ------------------------------------------------------------------------------ */
@@ -279,11 +259,11 @@ static bool next_diffuse_hit(const scene *s, ray *r, vec3 *weight, int *bounces,
         counters->value[COUNT_WALK_RAYS]++;
         if (!scene_intersect(s, *r, INFINITY, h))
             return !(*escaped = true);
-        const material *m = &s->materials[s->surfaces[h->surface].material];
-        if (!is_specular(m))
+        vertex v = vertex_at(h->point, h->normal, v3_neg(r->direction), material_of(s, h->surface));
+        if (!is_specular(v.m))
             return true;
         vec3 w_i;
-        *weight = v3_mul(*weight, scatter_specular(m, h->normal, v3_neg(r->direction), true, g, &w_i));
+        *weight = v3_mul(*weight, specular_scatter(&v, g, &w_i));
         if (!survives_roulette(weight, g))
             return false;
         *r = (ray){scene_offset_origin(s, h->point, h->normal, w_i), w_i};
@@ -293,13 +273,18 @@ static bool next_diffuse_hit(const scene *s, ray *r, vec3 *weight, int *bounces,
 
 /* At the non-specular point x (normal n on the side of w_o, `before`
  * scatterings from the eye): the light the maps need not blur, direct light
- * by light sampling (R9), and the caustics from the caustic map (R11). */
+ * by light sampling (R9: chapter 4's next_event), and the caustics from the
+ * caustic map (R11). */
 static vec3 direct_and_caustic(const photonmap_state *st, const scene *s, hit x, vec3 n, vec3 w_o, int before, rng *g,
                                render_counters *counters)
 {
-    const material *m = &s->materials[s->surfaces[x.surface].material];
+    const material *m = material_of(s, x.surface);
     vec3 L = photon_estimate(st, &st->caustic, x.point, n, w_o, m, before, ALL_PHOTONS, counters);
-    return keeps(st, before + 1) ? v3_add(L, direct_light(st, s, x.point, n, w_o, m, g, counters)) : L;
+    if (!keeps(st, before + 1))
+        return L;
+    vertex v = vertex_at(x.point, n, w_o, m);
+    double total_power = v3_average(st->emitted_power);
+    return v3_add(L, next_event(s, total_power, &v, light_sample_only, g, &counters->value[COUNT_SHADOW_RAYS]));
 }
 
 /* The rest of the light at x by one walk (weight 1/walks): --maps both reads the global map where
@@ -308,12 +293,13 @@ static vec3 direct_and_caustic(const photonmap_state *st, const scene *s, hit x,
 static vec3 indirect_walk(const photonmap_state *st, const scene *s, hit at, vec3 normal, vec3 out, int k, vec3 weight,
                           rng *g, render_counters *counters)
 {
-    vec3 L = v3_splat(0.0), w_i, scatter;
+    vec3 L = v3_splat(0.0), w_i;
     while (k < st->bounce_max) {
-        const material *m = &s->materials[s->surfaces[at.surface].material];
-        if (!sample_bsdf(m, normal, out, g, &w_i, &scatter))
+        vertex v = vertex_at(at.point, normal, out, material_of(s, at.surface));
+        double pdf;
+        weight = v3_mul(weight, scatter(&v, sample_bsdf, g, &w_i, &pdf)); /* f cos / p (R2) */
+        if (!(v3_max_component(weight) > 0.0))
             break;
-        weight = v3_mul(weight, scatter); /* f cos / p (R2) */
         ray r = {scene_offset_origin(s, at.point, at.normal, w_i), w_i};
         bool escaped = false;
         k++;
@@ -326,8 +312,7 @@ static vec3 indirect_walk(const photonmap_state *st, const scene *s, hit at, vec
         normal = v3_dot(at.normal, out) > 0.0 ? at.normal : v3_neg(at.normal);
         if (st->maps == MAPS_BOTH) /* final gathering: the global map one bounce on */
             return v3_add(L, v3_mul(weight, photon_estimate(st, &st->global, at.point, normal, out,
-                                                            &s->materials[s->surfaces[at.surface].material], k,
-                                                            ALL_PHOTONS, counters)));
+                                                            material_of(s, at.surface), k, ALL_PHOTONS, counters)));
         L = v3_add(L, v3_mul(weight, direct_and_caustic(st, s, at, normal, out, k, g, counters)));
     }
     return L;
@@ -340,7 +325,7 @@ static vec3 indirect_walk(const photonmap_state *st, const scene *s, hit at, vec
 static vec3 reflected_radiance(const photonmap_state *st, const scene *s, hit x, vec3 w_o, int before, rng *g,
                                render_counters *counters)
 {
-    const material *m = &s->materials[s->surfaces[x.surface].material];
+    const material *m = material_of(s, x.surface);
     vec3 n = v3_dot(x.normal, w_o) > 0.0 ? x.normal : v3_neg(x.normal);
     if (st->maps == MAPS_GLOBAL)
         return photon_estimate(st, &st->global, x.point, n, w_o, m, before, ALL_PHOTONS, counters);
@@ -365,7 +350,7 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
     bool escaped;
     if (!next_diffuse_hit(s, &r, &weight, &k, g, counters, &x, &escaped))
         return escaped && keeps(st, k) ? v3_mul(weight, s->background) : v3_splat(0.0);
-    const material *m = &s->materials[s->surfaces[x.surface].material];
+    const material *m = material_of(s, x.surface);
     vec3 w_o = v3_neg(r.direction);
     vec3 L = m->kind == MATERIAL_EMITTER && v3_dot(x.normal, w_o) > 0.0 && keeps(st, k) ? m->emission : v3_splat(0.0);
     return v3_mul(weight, v3_add(L, reflected_radiance(st, s, x, w_o, k, g, counters)));
