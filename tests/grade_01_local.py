@@ -11,6 +11,7 @@ import os
 
 from lib import (CRITERION_ALPHA, ROOT, check_bad_input, check_probes_match_lambert, check_thread_independence,
                  finite_image, kit_stats, lambert_polygon_irradiance, probe)
+from lib import BATCH_DF, t_bound
 
 CHAPTER = "01_local"
 
@@ -222,3 +223,39 @@ def test_failed_render_keeps_existing_output(ctx):
         assert f.read() == "previous contents"
     r = ctx.run(CHAPTER, "scenes/cornell.scene", "--size", "8x8", "--out", "/nonexistent-dir/x.pfm")
     assert r.returncode == 2 and r.stderr.startswith("/nonexistent-dir/x.pfm:"), r.stderr
+
+
+def test_two_point_lights_and_an_area_light_add_at_probes(ctx):
+    """(R1) summed over every light: two point lights of different power and colour beside a
+    square emitter.  At each probe E = Lambert's polygon formula for the square plus
+    I_k cos / r_k^2 for each point light k (none is shadowed), within t_bound(31, 9)
+    standard errors of the area light's estimate (the point lights are exact), and that
+    standard error positive and below 0.5 % of the answer so the tolerance stays tight."""
+    radiance = (1.0, 2.0, 3.0)
+    square = [(-0.5, 1, -0.5), (0.5, 1, -0.5), (0.5, 1, 0.5), (-0.5, 1, 0.5)]
+    lights = {"bright": ((2.0, 0.5, 0.0), (8.0, 6.0, 4.0)), "dim": ((-1.5, 0.4, 1.0), (0.5, 1.0, 2.0))}
+    probes = {"centre": ((0, 0, 0), (0, 1, 0)), "offset": ((0.7, 0.2, -0.3), (-0.28, 0.96, 0.0)),
+              "left": ((-1.0, 0.0, 0.5), (0.0, 1.0, 0.0))}
+    text = open(area_light_scene(ctx, radiance, probes)).read()
+    for name, (p, intensity) in lights.items():
+        text += "light %s point %g %g %g  %g %g %g\n" % (name, *p, *intensity)
+    scene = ctx.write("lights.scene", text)
+    _, stats = ctx.render(CHAPTER, scene, "--probe-samples", 262144)
+    bound = t_bound(BATCH_DF, 3 * len(probes))
+    for name, (p, n) in probes.items():
+        length = math.sqrt(sum(c * c for c in n))
+        n = [c / length for c in n]
+        got = probe(stats, name)
+        for c in range(3):
+            area = lambert_polygon_irradiance(radiance[c], square, p, n)
+            points = 0.0
+            for position, intensity in lights.values():
+                d = [position[k] - p[k] for k in range(3)]
+                r2 = sum(x * x for x in d)
+                points += intensity[c] * max(sum(d[k] * n[k] for k in range(3)) / math.sqrt(r2), 0.0) / r2
+            expected = area + points
+            se = got["standard_error"][c]
+            assert 0 < se < 0.005 * expected, f"probe {name}: standard error {se} not in (0, 0.5 % of {expected})"
+            assert abs(got["irradiance"][c] - expected) <= bound * se, \
+                f"probe {name} channel {c}: {got['irradiance'][c]:.6f}, expected {expected:.6f} = area light " \
+                f"{area:.6f} + point lights {points:.6f} ({bound:.2f} standard errors = {bound * se:.2g})"
