@@ -214,9 +214,9 @@ _TOKEN = re.compile(r"""
 MIN_TOKENS_INSIDE = 24
 # A near copy: a function that has, statement for statement, this share of the answer's tokens
 # (an answer with one guard added or dropped, a renamed helper, fmin for min_ignoring_nan).
-# Measured on the solution tree before chapter 5 took chapter 4's code through a header: common/
-# scatter.h's survives_roulette had 0.84 of exercise 4.3; the highest share of any other pair of
-# an exercise and a function that is not one was 0.44 (exercise 2.3 in shadow_transmittance).
+# Measured on the solution: a copy of chapter 4's survives_roulette that common/ once held (one
+# guard fewer) had 0.84 of exercise 4.3; of every other function that is not an exercise, the most
+# any has of an exercise is 0.44 (chapter 2's shadow_transmittance of exercise 2.3).
 NEAR_COPY_SHARE = 0.75
 
 
