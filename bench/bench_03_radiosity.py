@@ -47,7 +47,7 @@ for size, solvers in ((50, ("jacobi", "gauss-seidel", "shooting")), (16, ("jacob
               f"{s['iterations']:>10} {s['residual']:>9.2g} {peak:>7.0f} MiB"
               f"{'   total %.1f s (target < 30 s)' % total if s['patches'] > 5000 else ''}")
 
-# ---- hierarchical radiosity (issue 17) ----------------------------------------------------------
+# ---- hierarchical radiosity ----------------------------------------------------------------------
 # Targets: the Cornell box with 1e5 leaf elements in under 60 s and 1 GiB on 2 cores; the error of
 # the uniform 9,063-patch solve (16 mm) reached in at most 1/5 of its time.  The error: each
 # surface's mean radiance against path tracing (--surface-samples), RMS of the relative error over

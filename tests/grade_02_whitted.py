@@ -29,7 +29,7 @@ def unit(a): return scale(a, 1.0 / math.sqrt(dot(a, a)))
 
 
 def camera_ray(eye, look, up, fov, width, height, px, py):
-    """The pinhole camera of DESIGN.md / common/scene.c: vertical fov, image y down."""
+    """The pinhole camera of common/scene.c: vertical fov, image y down."""
     forward = unit(sub(look, eye))
     right = unit(cross(forward, up))
     true_up = cross(right, forward)

@@ -1,4 +1,4 @@
-"""Numerical extremes, for every chapter (issue 8).
+"""Numerical extremes, for every chapter.
 
 Scale (the Cornell box in kilometres and in tenths of a micrometre), grazing
 views, albedo 0 and 0.999, a tiny very bright light, IOR 1 and 4, zero-area

@@ -1,4 +1,4 @@
-"""Grading of the speed-accuracy sweep (issue 7, tradeoff/tradeoff.py).
+"""Grading of the speed-accuracy sweep (tradeoff/tradeoff.py).
 
 The first test runs the whole pipeline in QUICK mode (what `make tradeoff
 QUICK=1` runs, minus `make all`, which `make test` has done) with this build's
@@ -23,7 +23,7 @@ How the tolerances are derived (a quick run: 32x32 pixels, spp 2, 8, ..., 512):
 - Radiosity is deterministic (one common seed, no Monte Carlo in its image
   beyond the identical pixel jitter), so its comparisons need no noise margin.
 - Times are never compared where the work ratio is small: tests do not depend
-  on the machine's speed (DESIGN.md); the only time check is 1 spp-equivalent
+  on the machine's speed (benchmarks measure speed); the only time check is 1 spp-equivalent
   against 256 times the samples.
 """
 import csv

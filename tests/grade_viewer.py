@@ -1,8 +1,8 @@
-"""Grading tests of the viewer (issue 6): build/viewer.
+"""Grading tests of the viewer: build/viewer.
 
 Truth comes from outside the viewer:
   * a compare panel must equal the input PFM tone-mapped by the formula of
-    DESIGN.md / common/image.c (2^exposure, clamp, IEC 61966-2-1 sRGB curve,
+    common/image.c (2^exposure, clamp, IEC 61966-2-1 sRGB curve,
     8 bits), recomputed here in Python, within 1/255;
   * the GLSL Blinn-Phong raster must agree with chapter 1's ray-cast image
     (another program: C, double precision, ray casting) away from silhouettes,
@@ -118,7 +118,7 @@ def rgb_at(png, x, y):
 
 
 def tonemap(linear, exposure=0.0):
-    """DESIGN.md's tone map (common/image.c tonemap_srgb8), recomputed."""
+    """The chapters' tone map (common/image.c tonemap_srgb8), recomputed."""
     v = linear * 2.0 ** exposure
     if not v > 0.0:
         return 0
@@ -977,7 +977,7 @@ def parse_scene_surfaces(path):
 
 def surface_ids(path, width, height):
     """Which surface each pixel centre sees: an independent ray caster
-    (camera rays as DESIGN.md's camera: vertical fov, pixel centres)."""
+    (camera rays as common/scene.c's camera: vertical fov, pixel centres)."""
     tris, (eye, look, up, fov) = parse_scene_surfaces(path)
     def sub(a, b): return [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
     def dot(a, b): return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
@@ -1182,7 +1182,7 @@ def reference_inputs(ctx, w, h, rmse_of_panel_2=None):
     paths = []
     for k, (body, grey) in enumerate(stats, 1):
         if k == 2 and rmse_of_panel_2 is not None:
-            body += f', "rmse": {rmse_of_panel_2}'
+            body += f', "relmse": {rmse_of_panel_2}'
         path = ctx.path(f"ref{k}-{rmse_of_panel_2}.pfm")
         write_pfm(path, w, h, lambda x, y, g=grey: (g, g, g))
         ctx.write(f"ref{k}-{rmse_of_panel_2}.json", "{" + body + "}\n")
@@ -1211,12 +1211,12 @@ def test_heat_map_default_reference_is_the_best_image(ctx):
     """D / --heat compare against the best image on screen, not panel 1: an
     unbiased path tracer over all bounces with the most samples beats a
     chapter-1 image and a biased one with more samples; a measured error
-    (stats rmse) beats everything; --reference N names one."""
+    (stats relmse) beats everything; --reference N names one."""
     w, h = 192, 24
     plain, _ = heat_reference_shown(ctx, reference_inputs(ctx, w, h), w, h)
     assert plain == [3], f"the reference (plain tone map) must be panel 3 (mis, 1024 spp, all bounces), not {plain}"
     plain, _ = heat_reference_shown(ctx, reference_inputs(ctx, w, h, rmse_of_panel_2=0.01), w, h)
-    assert plain == [2], f"panel 2 has the only measured error (rmse): it must be the reference, not {plain}"
+    assert plain == [2], f"panel 2 has the only measured error (relmse): it must be the reference, not {plain}"
     plain, _ = heat_reference_shown(ctx, reference_inputs(ctx, w, h), w, h, "--reference", "4")
     assert plain == [4], f"--reference 4 must make panel 4 the reference, not {plain}"
 

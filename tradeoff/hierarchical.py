@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Hierarchical against uniform radiosity on the Cornell box (issue 17), after tradeoff.py.
+"""Hierarchical against uniform radiosity on the Cornell box, after tradeoff.py.
 
     make tradeoff            # runs this after the main sweep (its reference image is reused)
     make tradeoff QUICK=1

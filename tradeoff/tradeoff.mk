@@ -1,4 +1,4 @@
-# tradeoff/tradeoff.mk — the speed-accuracy sweep (issue 7), included by the Makefile.
+# tradeoff/tradeoff.mk — the speed-accuracy sweep, included by the Makefile.
 #
 #   make tradeoff           full sweep: 128x128, reference 2 x 8192 spp MIS, path tracing
 #                           2..2048 spp per estimator, radiosity patch size x iterations per

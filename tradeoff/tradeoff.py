@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""The price of accuracy: error against time for every chapter (issue 7).
+"""The price of accuracy: error against time for every chapter.
 
     make tradeoff            # full sweep, 128x128, about 20 minutes on 2 cores
     make tradeoff QUICK=1    # the whole pipeline on a tiny budget (32x32, < 1 minute)
@@ -17,7 +17,7 @@ Every number comes from the chapters' own --stats:
              the median over the repeats of the identical render
   rmse, relmse, ssim, psnr = the chapter's "metrics" against the reference
 The reference is a long MIS path trace rendered as two independent halves
-(different --seeds); the second half is rendered with --ref first-half.pfm,
+(different --seed values); the second half is rendered with --ref first-half.pfm,
 so the chapter itself reports RMSE(a - b), and the reference's own error is
 RMSE((a + b)/2 - truth) ~= RMSE(a - b) / 2 (independent, unbiased halves).
 

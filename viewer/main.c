@@ -413,7 +413,7 @@ static void usage(void)
            "that make panel 1's image the largest in the nominal cell (width / columns x height / rows, rounded\n"
            "down); ties keep fewer columns and the label above.  The image is scaled to fit the rest of its\n"
            "cell (zoom 1), centred, its corner on a whole pixel, nearest-neighbour sampled.\n"
-           "Default reference: the lowest stats rmse; else a path tracer over all bounces with the most\n"
+           "Default reference: the lowest stats relmse; else a path tracer over all bounces with the most\n"
            "samples (then mis > light > cosine > hemisphere); else the most samples; else panel 1.\n"
            "Exit status: 0, 2 bad input or shader error (file:line: message), 3 no such backend here.\n",
            STATUS_BAND, LABEL_BAND, LABEL_COLUMN);
@@ -615,17 +615,18 @@ static const float WHITE[4] = {0.95f, 0.95f, 0.95f, 1.0f}, GREY[4] = {0.7f, 0.7f
                    YELLOW[4] = {1.0f, 0.85f, 0.3f, 1.0f}, BAND[4] = {0.08f, 0.08f, 0.1f, 1.0f},
                    ORANGE[4] = {1.0f, 0.45f, 0.2f, 1.0f}, DIM[4] = {0.0f, 0.0f, 0.0f, 0.65f};
 
-static double rmse_against(const panel *a, const panel *b)
+/* The relative MSE of a against b, as the chapters' --ref computes it (common/image.c). */
+static double relmse_against(const panel *a, const panel *b)
 {
     if (!a->img.pixels || !b->img.pixels || a->img.width != b->img.width || a->img.height != b->img.height)
         return NAN;
     size_t n = (size_t)a->img.width * (size_t)a->img.height * 3;
     double sum = 0.0;
     for (size_t k = 0; k < n; k++) {
-        double d = (double)a->img.pixels[k] - b->img.pixels[k];
-        sum += d * d;
+        double d = (double)a->img.pixels[k] - b->img.pixels[k], r = b->img.pixels[k];
+        sum += d * d / (r * r + 0.01);
     }
-    return sqrt(sum / (double)n);
+    return sum / (double)n;
 }
 
 /* What a panel is, in its label: line 1 "[N] chapter  variant" (the
@@ -658,7 +659,8 @@ static void readout_line(int index, char *line, size_t line_size)
         vec3 c = image_get(&p->img, x, y);
         snprintf(line, line_size, "(%d,%d) %.4g %.4g %.4g", x, y, c.x, c.y, c.z);
     } else if (V.diff && !V.split && index != V.reference && V.reference < V.panel_count) {
-        snprintf(line, line_size, "heat vs [%d]  rmse %.4g", V.reference + 1, rmse_against(p, &V.panels[V.reference]));
+        snprintf(line, line_size, "heat vs [%d]  rel.MSE %.3g", V.reference + 1,
+                 relmse_against(p, &V.panels[V.reference]));
     }
 }
 
@@ -819,14 +821,14 @@ static bool children_running(void)
 }
 
 /* Is panel a a better reference than panel b: closer to the true solution?
- * A measured error (stats rmse) first, the lowest; then a path tracer over
+ * A measured error (stats relmse) first, the lowest; then a path tracer over
  * all bounces (unbiased), the most samples, then the better estimator;
  * then the most samples; panels without stats last. */
 static int reference_tier(const panel *p)
 {
     if (!p->has_stats || !p->img.pixels)
         return 0;
-    if (isfinite(p->rmse))
+    if (isfinite(p->relmse))
         return 3;
     if (p->estimator_rank > 0 && p->all_bounces && isfinite(p->spp))
         return 2;
@@ -839,7 +841,7 @@ static bool better_reference(const panel *a, const panel *b)
     if (ta != tb)
         return ta > tb;
     if (ta == 3)
-        return a->rmse < b->rmse;
+        return a->relmse < b->relmse;
     if (ta >= 1 && a->spp != b->spp)
         return a->spp > b->spp;
     return ta == 2 && a->estimator_rank > b->estimator_rank;

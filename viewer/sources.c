@@ -152,20 +152,23 @@ void panel_read_stats(panel *p, const char *json_path)
         p->estimator_rank = strcmp(estimator, ranked[k]) ? p->estimator_rank : k + 1;
     json_bounces(json, bounces, sizeof bounces);
     p->all_bounces = !bounces[0] && strstr(json, "\"bounces\": [");
-    p->spp = json_number_of(json, "spp"), p->rmse = json_number_of(json, "rmse");
+    p->spp = json_number_of(json, "spp"), p->relmse = json_number_of(json, "relmse");
     p->has_stats = true;
     char detail[160] = "";
     size_t used = 0;
     double patches = json_number_of(json, "patches"), spp = json_number_of(json, "spp");
-    double time_s = json_number_of(json, "time_s"), rmse = json_number_of(json, "rmse");
+    double time_s = json_number_of(json, "time_s"), relmse = p->relmse;
     if (isfinite(patches))
         used += (size_t)snprintf(detail + used, sizeof detail - used, "patches %.0f  ", patches);
     else if (isfinite(spp))
         used += (size_t)snprintf(detail + used, sizeof detail - used, "spp %.0f  ", spp);
     if (isfinite(time_s) && used < sizeof detail)
         used += (size_t)snprintf(detail + used, sizeof detail - used, "%.2f s  ", time_s);
-    if (isfinite(rmse) && used < sizeof detail)
-        snprintf(detail + used, sizeof detail - used, "rmse %.4g", rmse);
+    /* The relative error, (t - r)^2 / (r^2 + 0.01): an absolute one (RMSE) is
+     * ruled by the few pixels on the light's edge, where radiance is 100 x
+     * the walls', and would rank a method by how it draws the light's edge. */
+    if (isfinite(relmse) && used < sizeof detail)
+        snprintf(detail + used, sizeof detail - used, "rel.MSE %.3g", relmse);
     for (size_t end = strlen(detail); end > 0 && detail[end - 1] == ' ';)
         detail[--end] = '\0';
     snprintf(p->detail, sizeof p->detail, "%s", detail);

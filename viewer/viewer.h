@@ -30,7 +30,7 @@ typedef struct {
     char file[128];   /* label line 2 after the detail: the PFM's file name (compare mode) */
     /* from the stats JSON, to pick the default reference (NAN: not given) */
     bool has_stats;
-    double spp, rmse;
+    double spp, relmse; /* relmse: the stats' relative MSE against --ref (NAN: none) */
     int estimator_rank; /* 0 none, 1 hemisphere, 2 cosine, 3 light, 4 mis */
     bool all_bounces;   /* "bounces": [0, 1000000] */
     image img;          /* linear radiance, top row first */

@@ -1,4 +1,4 @@
-# viewer/viewer.mk — the OpenGL viewer (issue 6), included by the Makefile.
+# viewer/viewer.mk — the OpenGL viewer, included by the Makefile.
 #
 #   build/viewer            one binary, three context backends (--backend glfw|egl|osmesa)
 #   build/glad/             the GL 3.3 core loader, generated here by Debian's python3-glad
