@@ -217,13 +217,14 @@ def assignment_text(root, chapter, exercises, criteria, rub):
 
 # ---- README.md --------------------------------------------------------------------------------------
 
-def student_readme(root, chosen, names):
+def student_readme(root, chosen, names, stubbed):
     with open(os.path.join(root, STUDENT_README)) as f:
         template = f.read()
     rows = []
     for chapter in chosen:
+        files = sorted({e.file for e in stubbed if names[e.lecture] == chapter})
         rows.append(f"| `{chapter}` | [assignments/{chapter}/ASSIGNMENT.md](assignments/{chapter}/ASSIGNMENT.md) "
-                    f"| `chapters/{chapter}.c` | `make grade CHAPTERS={chapter}` |")
+                    f"| {', '.join(f'`{x}`' for x in files)} | `make grade CHAPTERS={chapter}` |")
     others = sorted(set(names.values()) - set(chosen))
     return (template.replace("{{assignments}}", "\n".join(rows))
             .replace("{{chapters}}", " ".join(chosen))
@@ -307,7 +308,7 @@ def build(out, chosen_args):
             with open(os.path.join(tmp, "assignments", chapter, "ASSIGNMENT.md"), "w") as f:
                 f.write(assignment_text(ROOT, chapter, ex, crit, rub))
         with open(os.path.join(tmp, "README.md"), "w") as f:
-            f.write(student_readme(ROOT, chosen, names))
+            f.write(student_readme(ROOT, chosen, names, stubbed))
         with open(os.path.join(tmp, "kit", "handout.json"), "w") as f:
             json.dump({"chapters": chosen, "stubbed": [f"{e.id} {e.file}:{e.name}" for e in stubbed]}, f, indent=1)
         if os.path.isdir(out):
