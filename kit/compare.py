@@ -25,6 +25,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import png  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "tests"))
+import lib  # noqa: E402  (tests/lib.py: the report's record of commands, stubs and measured values)
 import pfm  # noqa: E402  (tests/pfm.py)
 import stats  # noqa: E402
 
@@ -72,16 +73,21 @@ def run_chapter(root, c, cmd, what=""):
                            stdin=subprocess.DEVNULL, errors="replace")
     except subprocess.TimeoutExpired:
         raise CriterionFailed(f"{what}timed out after {RENDER_TIMEOUT} s")
+    lib.record_todos(r.stderr)
     if r.returncode != 0:
         raise CriterionFailed(f"{c['chapter']} {' '.join(cmd[1:])}: " + describe_exit(r.returncode, r.stderr))
+
+
+def render_command(exe, c, seed, out, threads=1):
+    return [exe, c["scene"], "--quiet", "--size", c.get("size", "32x32"), "--spp", str(c.get("spp", 1)),
+            "--seed", str(seed), "--threads", str(threads), "--out", out, *c.get("args", [])]
 
 
 def render(root, build, c, seed, out, threads=1):
     exe = os.path.join(root, build, c["chapter"])
     if not os.path.exists(exe):
         raise CriterionFailed(f"{build}/{c['chapter']} is missing (did not compile)")
-    cmd = [exe, c["scene"], "--quiet", "--size", c.get("size", "32x32"), "--spp", str(c.get("spp", 1)),
-           "--seed", str(seed), "--threads", str(threads), "--out", out, *c.get("args", [])]
+    cmd = render_command(exe, c, seed, out, threads)
     run_chapter(root, c, cmd, f"seed {seed}: ")
     if not os.path.exists(out):
         raise CriterionFailed(f"seed {seed}: exit 0 but no output image {os.path.basename(out)}")
@@ -95,6 +101,7 @@ def render(root, build, c, seed, out, threads=1):
 def batch_renders(root, build, c, seeds, jobs):
     """[(w, h, pixels)] for each seed, rendered jobs at a time."""
     scratch = tempfile.mkdtemp(prefix="gi-kit-")
+    lib.record_command(c["chapter"], render_command("", c, seeds[0], "")[1:])  # the first batch's, for the report
     with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
         futures = [pool.submit(render, root, build, c, s, os.path.join(scratch, f"b{s}.pfm")) for s in seeds]
         images = [f.result() for f in futures]
@@ -143,8 +150,26 @@ def alpha_per_criterion(rub):
     return rub["family_alpha"] / max(1, k)
 
 
+def where_in_image(tiles, tiles_x, tiles_y):
+    """"almost everywhere" or "mostly in the top left" etc. for a set of tile indices."""
+    if len(tiles) >= 0.6 * tiles_x * tiles_y:
+        return "almost everywhere"
+    cx = sum(t % tiles_x + 0.5 for t in tiles) / len(tiles) / tiles_x
+    cy = sum(t // tiles_x + 0.5 for t in tiles) / len(tiles) / tiles_y
+    row = "top" if cy < 1 / 3 else "bottom" if cy > 2 / 3 else "middle"
+    col = "left" if cx < 1 / 3 else "right" if cx > 2 / 3 else "centre"
+    return "mostly in the " + ("centre" if (row, col) == ("middle", "centre") else f"{row} {col}"
+                               if row != "middle" else f"middle {col}" if col != "centre" else "centre")
+
+
+def luminance(rgb):
+    return 0.2126 * rgb[0] + 0.7152 * rgb[1] + 0.0722 * rgb[2]
+
+
 def run_compare(root, build, c, rub, seed, jobs, images_dir):
-    """Returns (passed, p_value, message, images{student, reference, heat})."""
+    """Returns (passed, p_value, message, images{student, reference, tiles}).  The message is a
+    sentence for the student (how many tiles differ and which way, how far off the image mean is,
+    the command); each tested quantity also goes into lib.MEASURED."""
     try:
         with open(reference_path(c)) as f:
             ref = json.load(f)
@@ -152,60 +177,124 @@ def run_compare(root, build, c, rub, seed, jobs, images_dir):
         raise CriterionFailed(f"no reference {os.path.relpath(reference_path(c), KIT)}: run kit/grade.py "
                               "--make-reference in the instructor's tree")
     seeds = [seed * 1000 + b for b in range(rub["batches"])]
+    command = lib.command_text(c["chapter"], render_command("", c, seeds[0], "")[1:])
     sub = summarise(batch_renders(root, build, c, seeds, jobs), ref["tile"])
     if (sub["width"], sub["height"]) != (ref["width"], ref["height"]):
         raise CriterionFailed(f"image is {sub['width']}x{sub['height']}, expected {ref['width']}x{ref['height']}")
-    tests = []  # (label, p, detail)
+    tests = []  # (label, p, detail, kind, index, t, measured, expected, se)
     nt = ref["tiles_x"] * ref["tiles_y"]
-    channel = "RGB"
     for k in range(nt * 3):
         a = [row[k] for row in sub["tile_means"]]
         b = [row[k] for row in ref["tile_means"]]
         floor = (1e-6 * abs(sum(b) / len(b))) ** 2  # float rounding of exact tiles (PFM is single precision)
         t, df, p, d, se = stats.welch(a, b, floor)
         tile = k // 3
-        tests.append((f"tile ({tile % ref['tiles_x']}, {tile // ref['tiles_x']}) {channel[k % 3]}", p,
-                      f"mean {sum(a) / len(a):.5g} vs reference {sum(b) / len(b):.5g}, t = {t:.2f}, df = {df:.0f}"))
+        tests.append((f"tile ({tile % ref['tiles_x']}, {tile // ref['tiles_x']}) {lib.CHANNELS[k % 3]}", p,
+                      f"t = {t:.2f}, df = {df:.0f}", "tile", k, t, sum(a) / len(a), sum(b) / len(b), se))
     for ch in range(3):
         a = [sum(row[3 * t + ch] for t in range(nt)) / nt for row in sub["tile_means"]]
         b = [sum(row[3 * t + ch] for t in range(nt)) / nt for row in ref["tile_means"]]
         t, df, p, d, se = stats.welch(a, b, (1e-6 * abs(sum(b) / len(b))) ** 2)
-        tests.append((f"image mean {channel[ch]}", p, f"{sum(a) / len(a):.5g} vs reference {sum(b) / len(b):.5g}, "
-                      f"t = {t:.2f}, df = {df:.0f}"))
+        tests.append((f"image mean {lib.CHANNELS[ch]}", p, f"t = {t:.2f}, df = {df:.0f}", "mean", ch, t,
+                      sum(a) / len(a), sum(b) / len(b), se))
         ratio, p = stats.variance_ratio(a, b)
-        tests.append((f"noise of the image mean {channel[ch]}", p, f"variance {ratio:.3g} x the reference's "
-                      f"at the same spp (F test, one-sided)"))
-    adjusted = stats.holm([p for _, p, _ in tests])
+        tests.append((f"noise of the image mean {lib.CHANNELS[ch]}", p, f"F = {ratio:.3g}", "noise", ch, ratio,
+                      ratio, 1.0, None))
+    adjusted = stats.holm([test[1] for test in tests])
     alpha = alpha_per_criterion(rub)
     worst = min(range(len(tests)), key=lambda i: adjusted[i])
     failing = [i for i in range(len(tests)) if adjusted[i] < alpha]
     p_value = adjusted[worst]
-    if failing:
-        shown = "; ".join(f"{tests[i][0]}: {tests[i][2]} (Holm p = {adjusted[i]:.2g})" for i in failing[:4])
-        message = f"{len(failing)} of {len(tests)} tests below alpha = {alpha:.2g}: {shown}"
-    else:
-        message = f"{len(tests)} tests, smallest Holm-adjusted p = {p_value:.3g} ({tests[worst][0]}) >= {alpha:.2g}"
+    marks, strength = failing_tiles(tests, adjusted, alpha, sub, ref)
+    message = compare_sentence(c, tests, adjusted, alpha, marks, ref, sub, command, seeds)
+    record_compare(tests, adjusted, alpha, marks, nt, command)
     images = {}
     if images_dir:
         os.makedirs(images_dir, exist_ok=True)
-        w, h = ref["width"], ref["height"]
+        w, h, tile = ref["width"], ref["height"], ref["tile"]
         name = slug(c)
-        images["student"] = name + "-student.png"
-        images["reference"] = name + "-reference.png"
-        images["heat"] = name + "-error.png"
-        png.write_image(os.path.join(images_dir, images["student"]), w, h, sub["pixel_mean"])
-        png.write_image(os.path.join(images_dir, images["reference"]), w, h, [tuple(p) for p in ref["pixel_mean"]])
-        z = []
-        for k in range(w * h):
-            worst_z = 0.0
-            for ch in range(3):
-                se2 = sub["pixel_var"][k][ch] / sub["batches"] + ref["pixel_var"][k][ch] / ref["batches"]
-                d = sub["pixel_mean"][k][ch] - ref["pixel_mean"][k][ch]
-                zz = abs(d) / math.sqrt(se2) if se2 > 0 else (0.0 if abs(d) < 1e-6 else 99.0)
-                worst_z = max(worst_z, zz)
-            z.append(worst_z / 2.0)
-        png.write_heat(os.path.join(images_dir, images["heat"]), w, h, z)
+        images = {"student": name + "-student.png", "reference": name + "-reference.png",
+                  "tiles": name + "-tiles.png"}
+        png.write_image(os.path.join(images_dir, images["student"]), w, h, sub["pixel_mean"], tile=tile, marks=marks)
+        png.write_image(os.path.join(images_dir, images["reference"]), w, h, [tuple(p) for p in ref["pixel_mean"]],
+                        tile=tile)
+        png.write_tile_map(os.path.join(images_dir, images["tiles"]), w, h, tile,
+                           [tuple(p) for p in ref["pixel_mean"]], marks, strength)
     return not failing, p_value, message, images
+
+
+def failing_tiles(tests, adjusted, alpha, sub, ref):
+    """({tile: +1 brighter / -1 darker}, {tile: relative difference of its luminance, capped at 1})
+    for the tiles with a failing channel; the sign is the sign of that tile's most significant
+    failing channel."""
+    marks, best = {}, {}
+    for i, test in enumerate(tests):
+        if test[3] != "tile" or adjusted[i] >= alpha:
+            continue
+        tile = test[4] // 3
+        if tile not in best or adjusted[i] < best[tile]:
+            best[tile] = adjusted[i]
+            marks[tile] = 1 if test[5] > 0 else -1
+    strength = {}
+    for tile in marks:
+        a = luminance([sum(row[3 * tile + ch] for row in sub["tile_means"]) / sub["batches"] for ch in range(3)])
+        b = luminance([sum(row[3 * tile + ch] for row in ref["tile_means"]) / ref["batches"] for ch in range(3)])
+        strength[tile] = min(1.0, abs(a - b) / abs(b)) if b else 1.0
+    return marks, strength
+
+
+def compare_sentence(c, tests, adjusted, alpha, marks, ref, sub, command, seeds):
+    """"12 of 16 tiles too dark (mostly in the top left), the image mean 23 % too dark (...)"."""
+    nt = ref["tiles_x"] * ref["tiles_y"]
+    dark = [t for t, s in marks.items() if s < 0]
+    bright = [t for t, s in marks.items() if s > 0]
+    parts = []
+    for tiles, word in ((dark, "too dark"), (bright, "too bright")):
+        if tiles:
+            parts.append(f"{len(tiles)} of {nt} tiles {word} ({where_in_image(tiles, ref['tiles_x'], ref['tiles_y'])}, "
+                         f"marked {'blue' if word == 'too dark' else 'orange'} in the picture)")
+    means = [(i, test) for i, test in enumerate(tests) if test[3] == "mean"]
+    a = luminance([test[6] for _, test in means])
+    b = luminance([test[7] for _, test in means])
+    failed_means = [i for i, _ in means if adjusted[i] < alpha]
+    per_channel = ", ".join(f"{lib.CHANNELS[test[4]]} {lib.number(test[6])} vs {lib.number(test[7])} "
+                            f"± {test[8]:.2g} ({t_text(test[5])})" for _, test in means)
+    mean_text = lib.deviation("image mean", a, b) or "equal"
+    if failed_means:
+        parts.append(f"the image mean is {mean_text}: {per_channel}")
+    noisy = [test for i, test in enumerate(tests) if test[3] == "noise" and adjusted[i] < alpha]
+    if noisy:
+        parts.append(f"the image mean is noisier than the solution's: its variance over the batches is "
+                     f"{max(test[6] for test in noisy):.3g} x the solution's at the same samples (F test)")
+    ran = (f"Ran {command} with {len(seeds)} seeds ({seeds[0]}-{seeds[-1]}) against the solution's "
+           f"{ref['batches']} renders")
+    statistic = (f"{len(tests)} tests: Welch's t per tile and channel and on the image mean, F on its noise, "
+                 f"Holm-adjusted, alpha = {alpha:.2g}")
+    if parts:
+        text = "; ".join(parts)
+        return (text[0].upper() + text[1:] + f". {ran}. ({statistic}; smallest adjusted p = {min(adjusted):.2g})")
+    return (f"All {nt} tiles and the image mean agree with the solution's (the image mean is {mean_text}: "
+            f"{per_channel}). {ran}. ({statistic}; smallest adjusted p = {min(adjusted):.3g})")
+
+
+def t_text(t):
+    """Welch's t as a student reads it; exact renders (no noise) give huge values."""
+    return f"t = {t:.1f}" if abs(t) < 1000 else ("t > 1000" if t > 0 else "t < -1000")
+
+
+def record_compare(tests, adjusted, alpha, marks, nt, command):
+    """The image means per channel and the number of differing tiles, into lib.MEASURED."""
+    for i, test in enumerate(tests):
+        if test[3] == "mean":
+            lib.measurement("image mean", test[6], test[7], adjusted[i] >= alpha,
+                            f"Welch's t, Holm-adjusted p >= {alpha:.2g} (p = {adjusted[i]:.2g})",
+                            where=lib.CHANNELS[test[4]], se=test[8], by="the solution's renders", command=command)
+        elif test[3] == "noise":
+            lib.measurement("variance of the image mean / the solution's", test[6], 1.0, adjusted[i] >= alpha,
+                            f"not larger by the F test, Holm-adjusted p >= {alpha:.2g}", where=lib.CHANNELS[test[4]],
+                            command=command, words=("too noisy", "less noisy"))
+    lib.measurement("tiles that differ from the solution's", len(marks), 0, not marks, "none", command=command,
+                    words=("too many", "too few"))
 
 
 # ---- radiosity's surfaces ---------------------------------------------------------------------------
@@ -220,6 +309,7 @@ def surfaces_of(root, build, c):
            "--iterations", str(c.get("iterations", 500)), "--out", os.path.join(out, "s.pfm"),
            "--stats", os.path.join(out, "s.json"),
            *c.get("args", [])]
+    lib.record_command(c["chapter"], cmd[1:], out)
     run_chapter(root, c, cmd)
     try:
         with open(os.path.join(out, "s.json")) as f:
@@ -241,19 +331,30 @@ def make_surfaces_reference(root, build, c):
 
 
 def run_surfaces(root, build, c, rub):
+    """Each surface's radiance (R, G, B) within surface_tolerance (relative) of the solution's;
+    the message names the surfaces that are off, which way and by how much."""
     with open(reference_path(c)) as f:
         ref = json.load(f)["surfaces"]
     got = surfaces_of(root, build, c)
+    command = lib.COMMANDS[-1] if lib.COMMANDS else None
     tol = rub["surface_tolerance"]
-    bad = []
+    off = []
     for name, r in ref.items():
         if name not in got:
-            bad.append(f"{name}: missing")
+            off.append(f"{name}: missing from the stats")
+            lib.expect(False, f"surface {name}: missing from the stats' surfaces", command=command)
             continue
-        for ch in range(3):
-            v = got[name][ch]
-            if not (math.isfinite(v) and abs(v - r[ch]) <= tol * abs(r[ch]) + 1e-6):
-                bad.append(f"{name} {'RGB'[ch]}: {v:.5g} vs solution {r[ch]:.5g}")
-    if bad:
-        return False, None, f"{len(bad)} surface channels off by more than {tol:.1%}: " + "; ".join(bad[:4]), {}
-    return True, None, f"{len(ref)} surfaces within {tol:.1%} of the solution", {}
+        bad = [ch for ch in range(3) if not (math.isfinite(got[name][ch]) and
+                                             abs(got[name][ch] - r[ch]) <= tol * abs(r[ch]) + 1e-6)]
+        a, b = luminance(got[name]), luminance(r)
+        channels = ", ".join(f"{lib.CHANNELS[ch]} {lib.number(got[name][ch])} vs {lib.number(r[ch])}"
+                             for ch in (bad or range(3)))
+        lib.measurement("radiance", a, b, not bad, f"± {tol:.1%} per channel", where=f"of surface {name}",
+                               by="the solution's", command=command)
+        if bad:
+            off.append(f"{name} {lib.deviation('radiance', a, b) or 'off in colour'} ({channels})")
+    ran = f"ran {command}" if command else ""
+    if off:
+        return (False, None, f"{len(off)} of {len(ref)} surfaces off by more than {tol:.1%}: " + "; ".join(off[:6]) +
+                ("; ..." if len(off) > 6 else "") + f". {ran}.", {})
+    return True, None, f"All {len(ref)} surfaces within {tol:.1%} of the solution's radiance; {ran}.", {}

@@ -23,9 +23,12 @@ scores 0).  Every criterion runs in its own process group under the limits;
 a crash, hang, NaN pixel or missing output fails that criterion with a
 message.  Exit status 0 whenever grading ran, 2 on bad arguments.
 """
+import datetime
+import hashlib
 import html
 import json
 import os
+import re
 import resource
 import shutil
 import signal
@@ -150,17 +153,77 @@ def build(src, chapters, units, opts):
 
 
 def run_unit(src, c, opts):
+    """(passed, message, measured): every case of the C unit test, against the submission's common/."""
     exe = os.path.join(src, "build", "tests", c["test"])
     code, out, err = run_limited([exe], src, opts["timeout"], opts["memory"])
     if code is None:
-        return False, f"timed out after {opts['timeout']:.0f} s"
+        return False, f"timed out after {opts['timeout']:.0f} s", []
     failed = [ln[5:] for ln in out.splitlines() if ln.startswith("FAIL ")]
     passed = [ln for ln in out.splitlines() if ln.startswith("ok   ")]
+    measured = [{"quantity": "cases passed", "measured": len(passed), "expected": len(passed) + len(failed),
+                 "passed": not failed, "text": f"{len(passed)} of {len(passed) + len(failed)} cases passed"}]
     if failed:
-        return False, f"{len(failed)} of {len(failed) + len(passed)} cases failed: " + "; ".join(failed[:5])
+        return False, f"{len(failed)} of {len(failed) + len(passed)} cases failed: " + "; ".join(failed[:5]), measured
     if code != 0 or not passed:
-        return False, compare.describe_exit(code, err) + f" after {len(passed)} cases passed"
-    return True, f"{len(passed)} cases passed"
+        return False, compare.describe_exit(code, err) + f" after {len(passed)} cases passed", measured
+    return True, f"{len(passed)} cases passed", measured
+
+
+def submission_hash(submission):
+    """(sha256 hex, number of files) over the submission's files as graded (the same files prepare()
+    copies): each file's path relative to the submission and its bytes, in sorted order.  Two
+    gradings of one hash graded the same code."""
+    digest, count = hashlib.sha256(), 0
+    skip_dirs = {"build", "out", ".git", "__pycache__", "node_modules"}
+    for top, dirs, files in os.walk(submission):
+        dirs[:] = sorted(d for d in dirs if d not in skip_dirs)
+        for name in sorted(files):
+            path = os.path.join(top, name)
+            if name.endswith(".o") or not os.path.isfile(path) or os.path.islink(path):
+                continue
+            rel = os.path.relpath(path, submission)
+            digest.update(rel.encode() + b"\0")
+            with open(path, "rb") as f:
+                digest.update(hashlib.sha256(f.read()).digest())
+            count += 1
+    return digest.hexdigest(), count
+
+
+TODO_CALL = re.compile(r'\bTODO_ONCE\(\s*"(\w+)"\s*\)')
+
+
+def stubs_in_source(src):
+    """{(file, line, name)} of every TODO_ONCE("name") call in the submission's C sources: the
+    stubs a handout starts with that are still there, even those no run reached (a stub that
+    calls another)."""
+    found = set()
+    for folder in ("chapters", "common"):
+        top = os.path.join(src, folder)
+        for name in sorted(os.listdir(top)) if os.path.isdir(top) else []:
+            if not name.endswith((".c", ".h")):
+                continue
+            try:
+                with open(os.path.join(top, name), errors="replace") as f:
+                    for number, line in enumerate(f, 1):
+                        if line.lstrip().startswith(("*", "/*", "//")):  # a comment about stubs (common/todo.h)
+                            continue
+                        for m in TODO_CALL.finditer(line):
+                            found.add((f"{folder}/{name}", number, m[1]))
+            except OSError:
+                continue
+    return found
+
+
+def still_to_write(results, in_source=()):
+    """The stubs the runs reported and those still in the source, once each, sorted by file and
+    line, each with the criteria that reached it: [{"name", "file", "line", "criteria": [...]}]."""
+    found = {key: {"name": key[2], "file": key[0], "line": key[1], "criteria": []} for key in in_source}
+    for r in results:
+        for t in r.get("todos", []):
+            key = (t["file"], t["line"], t["name"])
+            found.setdefault(key, {"name": t["name"], "file": t["file"], "line": t["line"], "criteria": []})
+            found[key]["criteria"].append(r["name"])
+    return [found[k] for k in sorted(found)]
 
 
 def run_criterion(src, c, opts, images_dir):
@@ -207,39 +270,101 @@ def make_reference(opts, rub):
         print(f"reference: {compare.reference_path(c)}", flush=True)
 
 
+STYLE = """
+body{font-family:sans-serif;margin:2em;max-width:80em;line-height:1.35}
+table{border-collapse:collapse;width:100%}
+td,th{border:1px solid #ccc;padding:6px 8px;vertical-align:top;text-align:left}
+.pass{color:#070}.fail{color:#b00}.todo{background:#fff4d6;border:1px solid #e0b040;padding:8px 14px;margin:1em 0}
+.todo li{margin:2px 0}code{background:#f2f2f2;padding:0 3px}pre{white-space:pre-wrap;background:#f6f6f6;padding:6px}
+.sentence{margin:0 0 4px 0}details{margin:4px 0;font-size:92%}details li{margin:2px 0}
+figure{display:inline-block;margin:4px 14px 4px 0;vertical-align:top}figcaption{font-size:85%;max-width:192px}
+img{image-rendering:pixelated;border:1px solid #999}.swatch{display:inline-block;width:12px;height:12px;
+vertical-align:middle;border:1px solid #555;margin:0 3px 0 8px}.meta{color:#555;font-size:90%}
+"""
+
+IMAGE_CAPTIONS = (("student", "your submission (mean of the batches)"), ("reference", "the solution"),
+                  ("tiles", "tiles that differ: filled where they fail, stronger = larger difference"),
+                  ("heat", "|difference| / standard error"))
+
+
+def html_todos(report):
+    h = html.escape
+    todos = report.get("still_to_write", [])
+    if not todos:
+        return []
+    items = "".join(f"<li><code>{h(t['name'])}</code> ({h(t['file'])}:{t['line']}): " +
+                    (f"reached by {h(', '.join(t['criteria']))}" if t["criteria"] else
+                     "no run reached it yet (a function that calls it is still to write too)") + "</li>"
+                    for t in todos)
+    return [f"<div class=todo><b>Still to write:</b> " +
+            ", ".join(f"<code>{h(t['name'])}</code> ({h(t['file'])}:{t['line']})" for t in todos) +
+            f"<details><summary>which criteria reached each stub</summary><ul>{items}</ul></details>"
+            "<small>These functions are still the handout's stubs (<code>TODO_ONCE</code>; a run that reaches one "
+            "prints <code>TODO name is not implemented</code>). Criteria that reach them cannot pass yet.</small>"
+            "</div>"]
+
+
+def html_images(c):
+    h = html.escape
+    im = c.get("images") or {}
+    if not im:
+        return ""
+    figures = "".join(f"<figure><img src='{h(im[k])}' alt='{h(label)}'><figcaption>{h(label)}</figcaption></figure>"
+                      for k, label in IMAGE_CAPTIONS if k in im)
+    legend = ("<div class=meta>Grid: the 4x4-pixel tiles the test compares. Outlined / filled:"
+              f"<span class=swatch style='background:rgb{compare.png.BRIGHTER}'></span>brighter than the "
+              "solution"
+              f"<span class=swatch style='background:rgb{compare.png.DARKER}'></span>darker than the solution; "
+              "tiles without a mark agree.</div>")
+    return f"<div>{figures}</div>{legend}"
+
+
+def html_criterion(c):
+    h = html.escape
+    cls = "pass" if c["passed"] else "fail"
+    p = "" if c["p_value"] is None else f"<br><small>p = {c['p_value']:.3g}</small>"
+    measured = c.get("measured") or []
+    details = ""
+    if len(measured) > 1:
+        details += (f"<details><summary>all {len(measured)} measured values</summary><ul>" +
+                    "".join(f"<li class={'pass' if m.get('passed') else 'fail'}>{h(m['text'])}</li>" for m in measured)
+                    + "</ul></details>")
+    if c.get("commands"):
+        details += (f"<details><summary>commands it ran ({len(c['commands'])})</summary><ul>" +
+                    "".join(f"<li><code>{h(x)}</code></li>" for x in c["commands"]) + "</ul></details>")
+    if c.get("todos"):
+        details += ("<div class=meta>reached the stubs " +
+                    ", ".join(f"<code>{h(t['name'])}</code>" for t in c["todos"]) + "</div>")
+    message = c["message"]
+    body = f"<pre>{h(message)}</pre>" if "\n" in message else f"<p class=sentence>{h(message)}</p>"
+    test = f"<br><small>{h(c['test'])}</small>" if c.get("test") else ""
+    images = html_images(c)
+    return (f"<tr><td{' rowspan=2' if images else ''}>{h(c['name'])}<br><small>exercises "
+            f"{h(', '.join(c['exercises']))}; {h(c.get('kind', ''))}</small>{test}</td><td>{c['points']} / {c['max']}"
+            f"</td><td class={cls}>{'pass' if c['passed'] else 'FAIL'}{p}</td><td>{body}{details}</td></tr>" +
+            (f"<tr><td colspan=3>{images}</td></tr>" if images else ""))
+
+
 def write_html(path, report, name):
     h = html.escape
-    out = ["<!doctype html><meta charset=utf-8><title>grading report</title><style>",
-           "body{font-family:sans-serif;margin:2em}table{border-collapse:collapse}td,th{border:1px solid #ccc;"
-           "padding:4px 8px;vertical-align:top}.pass{color:#070}.fail{color:#b00}pre{white-space:pre-wrap;"
-           "max-width:70em;background:#f6f6f6;padding:6px}img{image-rendering:pixelated;margin-right:6px}</style>",
+    out = ["<!doctype html><meta charset=utf-8><title>grading report</title><style>" + STYLE + "</style>",
            f"<h1>Grading report{': ' + h(name) if name else ''}</h1>",
-           f"<p><b>{report['total']} / {report['max']}</b> points; seed {report['seed']}; family-wise alpha "
-           f"{report['family_alpha']} over the statistical criteria ({h(report['statistics'])}).</p>"]
+           f"<p><b>{report['total']} / {report['max']}</b> points.</p>"]
+    out += html_todos(report)
     for chapter in report["chapters"]:
         rows = [c for c in report["criteria"] if c["chapter"] == chapter]
         got = sum(c["points"] for c in rows)
         out.append(f"<h2>{h(chapter)}: {got} / {sum(c['max'] for c in rows)}</h2>")
         if report["build_errors"].get(chapter):
             out.append(f"<p class=fail>does not compile:</p><pre>{h(report['build_errors'][chapter])}</pre>")
-        out.append("<table><tr><th>criterion</th><th>points</th><th>result</th><th>p-value</th><th>message</th></tr>")
-        for c in rows:
-            p = "" if c["p_value"] is None else f"{c['p_value']:.3g}"
-            cls = "pass" if c["passed"] else "fail"
-            out.append(f"<tr><td>{h(c['name'])}<br><small>exercises {h(', '.join(c['exercises']))}</small></td>"
-                       f"<td>{c['points']} / {c['max']}</td><td class={cls}>{'pass' if c['passed'] else 'FAIL'}</td>"
-                       f"<td>{p}</td><td><pre>{h(c['message'])}</pre>")
-            if c.get("images"):
-                im = c["images"]
-                out.append("<div>" + "".join(f"<figure style='display:inline-block'><img src='{h(im[k])}'>"
-                                             f"<figcaption>{label}</figcaption></figure>"
-                                             for k, label in (("student", "submission (mean of the batches)"),
-                                                              ("reference", "solution"),
-                                                              ("heat", "|difference| / standard error "
-                                                                       "(red 2, yellow 4, white 6)"))
-                                             if k in im) + "</div>")
-            out.append("</td></tr>")
+        out.append("<table><tr><th>criterion</th><th>points</th><th>result</th><th>what was measured</th></tr>")
+        out += [html_criterion(c) for c in rows]
         out.append("</table>")
+    out.append(f"<p class=meta>Graded {h(report.get('date', ''))} with seed {report['seed']}; submission sha256 "
+               f"{h(report.get('submission_sha256', ''))} ({report.get('submission_files', '?')} files); "
+               f"{report.get('seconds', '?')} s. Family-wise alpha {report['family_alpha']} over the statistical "
+               f"criteria ({h(report['statistics'])}): a correct solution fails a grading by chance at most that "
+               f"often.</p>")
     with open(path, "w") as f:
         f.write("\n".join(out) + "\n")
 
@@ -264,6 +389,8 @@ def main(argv):
     criteria = [c for c in rub["criteria"] if c["chapter"] in chapters and
                 (not opts["statistical_only"] or rubric_module.statistical(c))]
     start = time.time()
+    date = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+    digest, files = submission_hash(submission)
     work = tempfile.mkdtemp(prefix="gi-grade-")
     try:
         src = prepare(submission, work)
@@ -277,6 +404,8 @@ def main(argv):
         for c in criteria:
             row = {"chapter": c["chapter"], "name": c["name"], "points": 0, "max": c["points"], "passed": False,
                    "p_value": None, "message": "", "exercises": c["exercises"], "kind": c["kind"]}
+            if c["kind"] == "grade":
+                row["test"] = f"tests/{c['module']}.py {c['test']}"
             error = built.get(f"build/{c['chapter']}")
             t0 = time.time()
             if c["chapter"] not in present:
@@ -288,11 +417,13 @@ def main(argv):
                     row["message"] = f"tests/{c['test']}.c does not compile against the submission's common/:\n" + \
                         built[f"build/tests/{c['test']}"][:1500]
                 else:
-                    row["passed"], row["message"] = run_unit(src, c, opts)
+                    row["passed"], row["message"], row["measured"] = run_unit(src, c, opts)
+                    row["commands"] = [f"build/tests/{c['test']}"]
             else:
                 r = run_criterion(src, c, opts, report_dir)
                 row.update({k: r[k] for k in ("passed", "p_value", "message")})
                 row["images"] = r.get("images", {})
+                row.update({k: r.get(k, []) for k in ("measured", "commands", "todos")})
             row["points"] = c["points"] if row["passed"] else 0
             row["seconds"] = round(time.time() - t0, 2)
             results.append(row)
@@ -301,6 +432,8 @@ def main(argv):
                   flush=True)
         report = {"submission": submission, "total": sum(r["points"] for r in results),
                   "max": sum(r["max"] for r in results), "criteria": results, "chapters": chapters,
+                  "still_to_write": still_to_write(results, stubs_in_source(src)), "date": date,
+                  "submission_sha256": digest, "submission_files": files,
                   "seed": opts["seed"], "family_alpha": rub["family_alpha"],
                   "statistics": "Welch's t per tile and channel and on the image mean, one-sided F on the noise, "
                                 "Holm within a criterion, Bonferroni over the compare criteria",

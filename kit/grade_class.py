@@ -6,7 +6,7 @@ usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE] [--cha
 
   SUBMISSION   a student's directory; @LIST.txt: one directory per line (# comments)
   --report DIR class reports (default out/class): DIR/<student>/report.{json,html}, DIR/summary.{csv,html},
-               DIR/joblog.tsv (GNU parallel's log: exit status and time of every grading)
+               DIR/criteria.csv, DIR/joblog.tsv (GNU parallel's log: exit status and time of every grading)
   --jobs N     gradings at once (default: the number of cores); each grading uses one core
   --sshloginfile FILE   spread the gradings over the machines in FILE (GNU parallel's format, e.g.
                "4/user@host"); every machine must see this project and the submissions at the same
@@ -14,6 +14,11 @@ usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE] [--cha
 
 A grading that fails (crash of the grader, a killed machine) leaves a row
 "not graded" with its exit status; the other students' reports are kept.
+
+summary.csv: one row per student: total, points per chapter, points per criterion (columns
+"chapter: criterion"), the grading seed, the date, and the sha256 of the submission's files (so a
+regrade or an appeal can show it graded the same code).  criteria.csv: one row per student and
+criterion, with its measured value (the report's sentence) and p-value.
 """
 import csv
 import html
@@ -31,6 +36,54 @@ ROOT = os.path.dirname(KIT)
 def fail(message):
     print(f"kit/grade_class.py: {message}", file=sys.stderr)
     sys.exit(2)
+
+
+def points_by_criterion(r):
+    return {f"{c['chapter']}: {c['name']}": c for c in r["criteria"]}
+
+
+def first_measured(c):
+    """The sentence of the criterion's first failed comparison, else its first one ("" if none)."""
+    measured = c.get("measured") or []
+    failed = [m for m in measured if not m.get("passed")]
+    return (failed or measured or [{"text": ""}])[0].get("text", "")
+
+
+def write_csv(report, rows, chapter_names, criterion_names):
+    with open(os.path.join(report, "summary.csv"), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["student", "directory", "total", "max", *chapter_names, *criterion_names, "seed", "date",
+                    "submission_sha256", "seconds", "status"])
+        for r in rows:
+            by = points_by_criterion(r)
+            w.writerow([r["student"], r["directory"], r["total"], r["max"],
+                        *[r["chapters"].get(c, ("", ""))[0] for c in chapter_names],
+                        *[by[k]["points"] if k in by else "" for k in criterion_names],
+                        r["seed"], r["date"], r["sha256"], r["seconds"], r["status"]])
+    with open(os.path.join(report, "criteria.csv"), "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["student", "chapter", "criterion", "points", "max", "passed", "p_value", "measured", "message",
+                    "seed", "date", "submission_sha256"])
+        for r in rows:
+            for c in r["criteria"]:
+                w.writerow([r["student"], c["chapter"], c["name"], c["points"], c["max"], c["passed"],
+                            "" if c.get("p_value") is None else c["p_value"], first_measured(c),
+                            c["message"][:500], r["seed"], r["date"], r["sha256"]])
+
+
+def criteria_table(rows, criterion_names):
+    """How the class did on each criterion: how many passed (for the instructor: a criterion most
+    fail may be a hard exercise, or a lecture that did not land)."""
+    h = html.escape
+    graded = [r for r in rows if r["status"] == "graded"]
+    if not graded:
+        return []
+    out = ["<h2>Per criterion</h2><table><tr><th>criterion</th><th>passed</th></tr>"]
+    for k in criterion_names:
+        passed = sum(1 for r in graded if points_by_criterion(r).get(k, {}).get("passed"))
+        out.append(f"<tr><td>{h(k)}</td><td>{passed} of {len(graded)}</td></tr>")
+    out.append("</table>")
+    return out
 
 
 def main(argv):
@@ -116,31 +169,38 @@ def main(argv):
                 got, top = chapters.get(c["chapter"], (0, 0))
                 chapters[c["chapter"]] = (got + c["points"], top + c["max"])
             rows.append({"student": n, "directory": os.path.abspath(d), "total": r["total"], "max": r["max"],
-                         "chapters": chapters, "seconds": r.get("seconds"), "status": "graded"})
+                         "chapters": chapters, "seconds": r.get("seconds"), "status": "graded",
+                         "criteria": r["criteria"], "seed": r.get("seed", ""), "date": r.get("date", ""),
+                         "sha256": r.get("submission_sha256", "")})
         except (OSError, ValueError, KeyError):
             code, seconds = status.get(n, ("?", "?"))
             rows.append({"student": n, "directory": os.path.abspath(d), "total": "", "max": "", "chapters": {},
-                         "seconds": seconds, "status": f"not graded (exit status {code}; see {n}.log)"})
+                         "seconds": seconds, "status": f"not graded (exit status {code}; see {n}.log)",
+                         "criteria": [], "seed": "", "date": "", "sha256": ""})
     chapter_names = sorted({c for r in rows for c in r["chapters"]})
-    with open(os.path.join(report, "summary.csv"), "w", newline="") as f:
-        w = csv.writer(f)
-        w.writerow(["student", "directory", "total", "max", *chapter_names, "seconds", "status"])
-        for r in rows:
-            w.writerow([r["student"], r["directory"], r["total"], r["max"],
-                        *[r["chapters"].get(c, ("", ""))[0] for c in chapter_names], r["seconds"], r["status"]])
+    criterion_names = []  # "chapter: name", in rubric order as the reports list them
+    for r in rows:
+        for c in r["criteria"]:
+            key = f"{c['chapter']}: {c['name']}"
+            if key not in criterion_names:
+                criterion_names.append(key)
+    write_csv(report, rows, chapter_names, criterion_names)
     h = html.escape
     out = ["<!doctype html><meta charset=utf-8><title>class summary</title><style>body{font-family:sans-serif}"
            "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:4px 8px}</style>",
            f"<h1>Class summary ({len(rows)} submissions)</h1><table><tr><th>student</th><th>total</th>" +
-           "".join(f"<th>{h(c)}</th>" for c in chapter_names) + "<th>seconds</th><th>status</th></tr>"]
+           "".join(f"<th>{h(c)}</th>" for c in chapter_names) +
+           "<th>seed</th><th>date</th><th>sha256</th><th>seconds</th><th>status</th></tr>"]
     for r in rows:
         link = f"<a href='{h(r['student'])}/report.html'>{h(r['student'])}</a>" if r["status"] == "graded" \
             else h(r["student"])
         cells = "".join(f"<td>{r['chapters'][c][0]} / {r['chapters'][c][1]}</td>" if c in r["chapters"]
                         else "<td></td>" for c in chapter_names)
-        out.append(f"<tr><td>{link}</td><td>{r['total']} / {r['max']}</td>{cells}<td>{r['seconds']}</td>"
-                   f"<td>{h(r['status'])}</td></tr>")
+        out.append(f"<tr><td>{link}</td><td>{r['total']} / {r['max']}</td>{cells}<td>{h(str(r['seed']))}</td>"
+                   f"<td>{h(r['date'])}</td><td title='{h(r['sha256'])}'><code>{h(r['sha256'][:12])}</code></td>"
+                   f"<td>{r['seconds']}</td><td>{h(r['status'])}</td></tr>")
     out.append("</table>")
+    out += criteria_table(rows, criterion_names)
     with open(os.path.join(report, "summary.html"), "w") as f:
         f.write("\n".join(out) + "\n")
     graded = sum(1 for r in rows if r["status"] == "graded")

@@ -9,8 +9,9 @@ import glob
 import math
 import os
 
-from lib import (CRITERION_ALPHA, ROOT, check_bad_input, check_probes_match_lambert, check_thread_independence,
-                 finite_image, kit_stats, lambert_polygon_irradiance, probe)
+from lib import (CHANNELS, CRITERION_ALPHA, ROOT, check_bad_input, check_probes_match_lambert,
+                 check_thread_independence, expect, expect_between, expect_close, finite_image, kit_stats,
+                 lambert_polygon_irradiance, probe)
 from lib import BATCH_DF, t_bound
 
 CHAPTER = "01_local"
@@ -42,9 +43,10 @@ def test_point_light_probe_inverse_square_cosine(ctx):
         got = probe(stats, name)
         for c in range(3):
             expected = intensity[c] * max(cos_theta, 0.0) / r2
-            assert abs(got["irradiance"][c] - expected) <= 1e-12 * expected, \
-                f"probe {name} channel {c}: {got['irradiance'][c]} vs I cos/r^2 = {expected}"
-            assert got["standard_error"][c] == 0.0, "a point light alone is exact"
+            expect_close("irradiance", got["irradiance"][c], expected, rel=1e-12,
+                         where=f"at probe {name}, {CHANNELS[c]}", by="I cos/r^2 (R1)")
+            expect_close("standard error of the irradiance", got["standard_error"][c], 0.0, tol=0.0,
+                         where=f"at probe {name} (a point light alone is exact)")
 
 
 def test_point_light_pixel_is_R1(ctx):
@@ -58,7 +60,8 @@ def test_point_light_pixel_is_R1(ctx):
     r2 = sum(c * c for c in light)
     expected = rho / math.pi * intensity * light[1] / math.sqrt(r2) / r2
     got = img.at(4, 4)[0]
-    assert abs(got - expected) <= 1e-6 * expected, f"centre pixel {got} vs rho/pi I cos/r^2 = {expected}"
+    expect_close("radiance of the centre pixel", got, expected, rel=1e-6, where="(the floor under a point light)",
+                 by="rho/pi I cos/r^2 (R1)")
 
 
 def test_shadow_ray_blocks_point_light(ctx):
@@ -67,9 +70,11 @@ def test_shadow_ray_blocks_point_light(ctx):
              "light lamp point 0 2 0  8 8 8\nprobe under 0 0 0  0 1 0\n")
     scene = ctx.write("shadow.scene", FLOOR_SCENE.format(floor_material="diffuse 0.5 0.5 0.5", extra=extra))
     _, stats = ctx.render(CHAPTER, scene)
-    assert probe(stats, "under")["irradiance"] == [0.0, 0.0, 0.0], "shadowed probe must get no direct light"
+    expect_close("irradiance", max(probe(stats, "under")["irradiance"]), 0.0, tol=0.0,
+                 where="at a probe under an opaque square", by="its shadow ray is blocked")
     _, stats = ctx.render(CHAPTER, scene, "--no-shadows", name="noshadow")
-    assert abs(probe(stats, "under")["irradiance"][0] - 8.0 / 4.0) < 1e-12
+    expect_close("irradiance", probe(stats, "under")["irradiance"][0], 8.0 / 4.0, tol=1e-12,
+                 where="at the same probe with --no-shadows, red", by="I cos/r^2 (R1)")
 
 
 def area_light_scene(ctx, radiance, probes):
@@ -118,10 +123,12 @@ def test_area_light_error_shrinks_with_samples(ctx):
         variances.append(sum(probe(stats, name)["standard_error"][0] ** 2 for name in probes))
     df = 31 * len(probes)
     upper = kit_stats.f_quantile(CRITERION_ALPHA / 2, df, df)  # F(d, d): the lower quantile is 1 / upper
+    expect(variances[1] > 0, f"the standard errors at 65536 samples are {math.sqrt(variances[1]):.3g}: a Monte Carlo "
+           "estimate of an area light's irradiance must have a positive standard error", measured=variances[1])
     f = variances[0] / variances[1] / 16
-    assert 1 / upper <= f <= upper, \
-        f"standard error ratio {4 * math.sqrt(f):.2f} for 16x samples (N^-1/2: 4, between " \
-        f"{4 / math.sqrt(upper):.2f} and {4 * math.sqrt(upper):.2f} at alpha {CRITERION_ALPHA})"
+    expect_between("ratio of the standard errors at 4096 and 65536 samples", 4 * math.sqrt(f),
+                   4 / math.sqrt(upper), 4 * math.sqrt(upper), expected=4.0,
+                   by=f"N^-1/2: 16x the samples, 1/4 the error (band: F test at alpha {CRITERION_ALPHA})")
 
 
 def blinn_phong_expected(normalised, kd, ks, exponent, n, w_i, w_o, irradiance_perp):
@@ -148,7 +155,9 @@ def test_blinn_phong_pixel_classic_and_normalised(ctx):
         img, _ = ctx.render(CHAPTER, scene, *args, name=f"n{normalised}")
         expected = blinn_phong_expected(normalised, kd, ks, exponent, (0, 1, 0), w_i, (0, 1, 0), intensity / r2)
         got = img.at(4, 4)[0]
-        assert abs(got - expected) <= 1e-6 * expected, f"normalised={normalised}: {got} vs {expected}"
+        expect_close("radiance of the centre pixel", got, expected, rel=1e-6,
+                     where=f"({'normalised' if normalised else 'classic'} Blinn-Phong)",
+                     by="the chapter's Blinn-Phong formula, recomputed")
 
 
 def test_ambient_term_is_albedo_times_ambient(ctx):
@@ -186,13 +195,25 @@ def test_bounces_window_splits_the_neumann_terms(ctx):
     windows = {w: ctx.render(CHAPTER, scene, "--ambient", 2.0, "--bounces", w, name=w.replace(":", "_"))[0]
                for w in ("0:", "0:0", "1:1", "2:", "2:2")}
     centre, edge = windows["0:"].at(4, 4), (4, 0)  # the emitter's centre; the floor beside it
-    assert windows["0:0"].at(4, 4) == (2.0, 3.0, 4.0), "0:0 must be exactly the emitter's radiance"
-    assert windows["0:0"].at(*edge) == (0.0, 0.0, 0.0), "0:0: the floor emits nothing"
+    for c in range(3):
+        expect_close("radiance", windows["0:0"].at(4, 4)[c], (2.0, 3.0, 4.0)[c], tol=0.0,
+                     where=f"of the emitter with --bounces 0:0, {CHANNELS[c]}", by="its emission E exactly",
+                     command=windows["0:0"].command)
+        expect_close("radiance", windows["0:0"].at(*edge)[c], 0.0, tol=0.0,
+                     where=f"of the floor with --bounces 0:0, {CHANNELS[c]}", by="the floor emits nothing",
+                     command=windows["0:0"].command)
     direct = windows["1:1"].at(*edge)
-    assert direct[0] > 0 and abs(direct[0] / direct[2] - 0.25 / 0.75) < 1e-6, f"1:1: no direct light, or not rho-coloured: {direct}"
-    assert all(abs(windows["2:"].at(*edge)[c] - 2.0 * rho) < 1e-6 for c, rho in enumerate((0.25, 0.5, 0.75))), \
-        "2: must be the ambient term rho La alone"
-    assert all(p == (0.0, 0.0, 0.0) for p in windows["2:2"].pixels), "2:2 must be black (ambient stands for 2 and up)"
+    expect(direct[0] > 0, f"radiance of the floor with --bounces 1:1 (direct light KE), red: measured {direct[0]:.5g}, "
+           "expected > 0 (the point light shines on it): too dark", measured=direct[0], command=windows["1:1"].command)
+    expect_close("red / blue of the floor's direct light", direct[0] / direct[2], 0.25 / 0.75, tol=1e-6,
+                 where="with --bounces 1:1", by="the albedo's ratio 0.25 / 0.75", command=windows["1:1"].command)
+    for c, rho in enumerate((0.25, 0.5, 0.75)):
+        expect_close("radiance", windows["2:"].at(*edge)[c], 2.0 * rho, tol=1e-6,
+                     where=f"of the floor with --bounces 2:, {CHANNELS[c]}", by="the ambient term rho La alone",
+                     command=windows["2:"].command)
+    brightest = max(max(p) for p in windows["2:2"].pixels)
+    expect_close("brightest pixel radiance", brightest, 0.0, tol=0.0, where="with --bounces 2:2",
+                 by="black: the ambient term stands for bounces 2 and up", command=windows["2:2"].command)
     for k in range(len(windows["0:"].pixels)):
         parts = [windows[w].pixels[k] for w in ("0:0", "1:1", "2:")]
         assert all(abs(sum(p[c] for p in parts) - windows["0:"].pixels[k][c]) <= 1e-5 * (1 + abs(centre[c]))
@@ -255,7 +276,8 @@ def test_two_point_lights_and_an_area_light_add_at_probes(ctx):
                 points += intensity[c] * max(sum(d[k] * n[k] for k in range(3)) / math.sqrt(r2), 0.0) / r2
             expected = area + points
             se = got["standard_error"][c]
-            assert 0 < se < 0.005 * expected, f"probe {name}: standard error {se} not in (0, 0.5 % of {expected})"
-            assert abs(got["irradiance"][c] - expected) <= bound * se, \
-                f"probe {name} channel {c}: {got['irradiance'][c]:.6f}, expected {expected:.6f} = area light " \
-                f"{area:.6f} + point lights {points:.6f} ({bound:.2f} standard errors = {bound * se:.2g})"
+            expect_close("irradiance", got["irradiance"][c], expected, se=se, bound=bound,
+                         where=f"at probe {name}, {CHANNELS[c]}",
+                         by=f"area light {area:.5g} (Lambert) + point lights {points:.5g} (I cos/r^2)")
+            expect(0 < se < 0.005 * expected, f"standard error of the irradiance at probe {name}: {se:.3g}, expected "
+                   f"positive and below 0.5 % of {expected:.5g} so the tolerance stays tight", measured=se)

@@ -6,6 +6,7 @@ Python packages.
 import json
 import math
 import os
+import re
 import subprocess
 import tempfile
 
@@ -52,6 +53,193 @@ def shifted_seed(chapter_seed, grading_seed):
     return (chapter_seed + (grading_seed - 1) * SEED_STRIDE) % SEED_LIMIT
 
 
+# ---- What a test measured and ran, for the grading report ------------------------------------------
+# kit/criterion.py empties these lists before a criterion's test and returns them with its result, so
+# the report shows a passed criterion's measured values too, the commands to rerun it, and the stubs
+# ("TODO name is not implemented", common/todo.h) its runs reached.
+COMMANDS = []   # "build/04_pathtrace scenes/cornell.scene --estimator mis --spp 16", in the order run
+MEASURED = []   # one dict per comparison of expect_close / expect_between / expect (see measurement())
+TODOS = []      # {"name", "file", "line"} of every stub a run reported, once each
+CHANNELS = ("red", "green", "blue")
+
+# Options that only say where the output goes or how fast it comes: left out of a recorded command.
+PLUMBING = {"--quiet": 0, "--out": 1, "--stats": 1, "--threads": 1}
+TODO_LINE = re.compile(r"^(?P<file>[^\s:]+):(?P<line>\d+): TODO (?P<name>\S+) is not implemented\s*$")
+
+
+def reset_record():
+    """Forget what earlier tests recorded (kit/criterion.py calls it before each criterion)."""
+    del COMMANDS[:], MEASURED[:], TODOS[:]
+
+
+def command_text(chapter, argv, scratch=None):
+    """The command a student types to rerun this: "build/CHAPTER ARG ...", without the plumbing
+    options (PLUMBING) and with a test's scratch files written "scratch/NAME" (the test function,
+    named in the report, writes them)."""
+    words, i = [f"build/{chapter}"], 0
+    while i < len(argv):
+        if argv[i] in PLUMBING:
+            i += 1 + PLUMBING[argv[i]]
+            continue
+        word = argv[i]
+        if scratch and word.startswith(scratch + os.sep):
+            word = "scratch/" + word[len(scratch) + 1:]
+        words.append(word)
+        i += 1
+    return " ".join(words)
+
+
+def record_command(chapter, argv, scratch=None):
+    text = command_text(chapter, argv, scratch)
+    if text not in COMMANDS:
+        COMMANDS.append(text)
+    record_command.last = text
+
+
+record_command.last = None
+
+
+def record_todos(stderr):
+    """Note the stubs a run reported on stderr ("file:line: TODO name is not implemented")."""
+    for line in (stderr or "").splitlines():
+        m = TODO_LINE.match(line.strip())
+        if m:
+            todo = {"name": m["name"], "file": m["file"], "line": int(m["line"])}
+            if todo not in TODOS:
+                TODOS.append(todo)
+
+
+def number(x):
+    """A value as a student reads it: 5 significant digits, no float noise."""
+    if isinstance(x, float) and not math.isfinite(x):
+        return str(x)
+    return f"{x:.5g}"
+
+
+def percent(fraction):
+    p = abs(fraction) * 100
+    return f"{p:.2g} %" if p < 10 else f"{p:.0f} %"
+
+
+BRIGHT_WORDS = ("radiance", "irradiance", "pixel", "image", "brightness", "light", "emission", "power", "flux")
+
+
+def direction_words(quantity, words=None):
+    """("too bright", "too dark") for light, else ("too large", "too small")."""
+    if words:
+        return words
+    q = quantity.lower()
+    if any(w in q for w in BRIGHT_WORDS):
+        return ("too bright", "too dark")
+    return ("too large", "too small")
+
+
+def deviation(quantity, measured, expected, words=None):
+    """"too bright by 49 %" (or "too dark by 100 %: it is 0, as a stub returns"); "" when equal."""
+    high, low = direction_words(quantity, words)
+    if not math.isfinite(measured):
+        return f"not a number ({measured})"
+    d = measured - expected
+    if d == 0:
+        return ""
+    side = high if d > 0 else low
+    if expected == 0:
+        return f"{side} by {number(abs(d))} (expected exactly 0)"
+    text = f"{side} by {percent(d / abs(expected))}"
+    if measured == 0:
+        text += " (0: what a stub returns)"
+    return text
+
+
+def measurement(quantity, measured, expected, passed, allowed, where="", se=None, by="", command=None, words=None,
+                limit=None):
+    """Record one comparison in MEASURED and return its sentence, e.g.
+    "irradiance at probe centre, red: measured 0.7412 ± 0.0021 (standard error), expected 0.75227
+    (Lambert's polygon formula), allowed ± 0.0086 (4.1 standard errors): too dark by 1.5 %;
+    ran build/01_local scratch/area.scene --probe-samples 262144"."""
+    command = command if command is not None else record_command.last
+    what = quantity + (f" {where}" if where else "")
+    text = f"{what[:1].upper()}{what[1:]}: measured {number(measured)}"
+    if se is not None:
+        text += f" ± {se:.2g} (standard error)"
+    text += f", expected {number(expected)}" + (f" ({by})" if by else "")
+    if allowed:
+        text += f", allowed {allowed}"
+    off = deviation(quantity, measured, expected, words)
+    text += (": " + off if off and not passed else ": agrees" + (f" ({off})" if off else ""))
+    if command:
+        text += f"; ran {command}"
+    MEASURED.append({"quantity": quantity, "where": where, "measured": measured, "expected": expected,
+                     "standard_error": se, "allowed": allowed, "limit": limit, "passed": passed,
+                     "command": command, "text": text})
+    return text
+
+
+def expect_close(quantity, measured, expected, *, rel=None, tol=None, se=None, bound=None, where="", by="",
+                 command=None, words=None):
+    """Check |measured - expected| <= the largest of rel * |expected|, tol, and bound * se (se: the
+    standard error of `measured`, bound: how many of them, e.g. t_bound(...)); record it, and raise
+    AssertionError with a sentence a student can act on when it fails.
+    quantity: what was measured ("centre pixel radiance"); where: which one ("at probe up, red");
+    by: where the expected value comes from ("I cos/r^2"); command: the run that measured it
+    (default: the last one run).  Returns the sentence."""
+    limits, parts = [], []
+    if rel is not None:
+        limits.append(rel * abs(expected))
+        parts.append(f"{rel:.2g} relative")
+    if tol is not None:
+        limits.append(tol)
+        parts.append(f"± {number(tol)}")
+    if se is not None and bound is not None:
+        limits.append(bound * se)
+        parts.append(f"± {number(bound * se)} ({bound:.2f} standard errors)")
+    allowed = max(limits) if limits else 0.0
+    ok = math.isfinite(measured) and abs(measured - expected) <= allowed
+    text = measurement(quantity, measured, expected, ok, " or ".join(parts) if parts else "no difference",
+                       where, se, by, command, words, allowed)
+    if not ok:
+        raise AssertionError(text)
+    return text
+
+
+def expect_estimate(quantity, measured, expected, se, bound, max_se, *, where="", by="", positive=False,
+                    command=None, words=None):
+    """A Monte Carlo estimate `measured` with standard error `se`: within bound * se of expected
+    (expect_close), and se below max_se (and above 0 when positive) so the tolerance cannot grow to
+    hide an error.  The value is checked first: its sentence says which way it is off."""
+    text = expect_close(quantity, measured, expected, se=se, bound=bound, where=where, by=by, command=command,
+                        words=words)
+    expect(se < max_se and (se > 0 or not positive),
+           f"standard error of the {quantity}{' ' + where if where else ''}: {se:.3g}, expected "
+           f"{'positive and ' if positive else ''}below {max_se:.3g} so the tolerance stays tight"
+           f"{': too noisy' if se >= max_se else ''}", measured=se, expected=max_se, command=command)
+    return text
+
+
+def expect_between(quantity, measured, low, high, *, expected=None, where="", by="", command=None, words=None):
+    """Check low <= measured <= high (expected: the value the band is around, for the sentence)."""
+    ok = math.isfinite(measured) and low <= measured <= high
+    centre = expected if expected is not None else (low + high) / 2
+    text = measurement(quantity, measured, centre, ok, f"between {number(low)} and {number(high)}", where,
+                       None, by, command, words, max(high - centre, centre - low))
+    if not ok:
+        raise AssertionError(text)
+    return text
+
+
+def expect(condition, sentence, *, measured=None, expected=None, command=None):
+    """A check that is not a comparison of two numbers: record the sentence (what was expected and
+    what was seen) and raise AssertionError with it when condition is false."""
+    command = command if command is not None else record_command.last
+    text = sentence[:1].upper() + sentence[1:] + (f"; ran {command}" if command else "")
+    MEASURED.append({"quantity": sentence, "where": "", "measured": measured, "expected": expected,
+                     "standard_error": None, "allowed": None, "limit": None, "passed": bool(condition),
+                     "command": command, "text": text})
+    if not condition:
+        raise AssertionError(text)
+    return text
+
+
 class Context:
     """What a test needs: the build directory under test and a scratch dir.
 
@@ -91,10 +279,15 @@ class Context:
         return p
 
     def run(self, chapter, *args, timeout=600):
-        """Run build/<chapter> with args from the repo root; return the CompletedProcess."""
+        """Run build/<chapter> with args from the repo root; return the CompletedProcess.
+        The command goes into COMMANDS, the stubs it reports into TODOS (see record_run)."""
         exe = os.path.join(ROOT, self.build, chapter)
-        return subprocess.run([exe, *self.seeded([str(a) for a in args])], cwd=ROOT, capture_output=True, text=True,
-                              timeout=timeout, stdin=subprocess.DEVNULL)
+        argv = self.seeded([str(a) for a in args])
+        record_command(chapter, argv, self.scratch)
+        result = subprocess.run([exe, *argv], cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+                                stdin=subprocess.DEVNULL, errors="replace")
+        record_todos(result.stderr)
+        return result
 
     def render(self, chapter, scene, *args, name="render", timeout=600):
         """Render to PFM + stats in scratch; return (image, stats). Fails loudly on a non-zero exit."""
@@ -102,12 +295,15 @@ class Context:
         result = self.run(chapter, scene, "--quiet", "--out", pfm, "--stats", stats, *args, timeout=timeout)
         assert result.returncode == 0, f"{chapter} {scene} {' '.join(map(str, args))} exited " \
                                        f"{result.returncode}: {result.stderr.strip()}"
-        return read_pfm(pfm), read_json(stats)
+        image = read_pfm(pfm)
+        image.command = record_command.last  # for expect_close(..., command=image.command)
+        return image, read_json(stats)
 
 
 class Image:
     def __init__(self, width, height, pixels):
         self.width, self.height, self.pixels = width, height, pixels  # pixels: list of (r,g,b), top row first
+        self.command = None  # the chapter command that rendered it (Context.render), for the report
 
     def at(self, x, y):
         return self.pixels[y * self.width + x]
@@ -197,11 +393,13 @@ def check_probes_match_lambert(stats, polygon, radiance, probes, max_relative_se
         for c in range(3):
             expected = lambert_polygon_irradiance(radiance[c], polygon, p, n)
             se = got["standard_error"][c]
-            assert 0 < se < max_relative_se * expected, \
-                f"{label} probe {name}: standard error {se} not in (0, {max_relative_se:.1%} of {expected})"
-            assert abs(got["irradiance"][c] - expected) <= bound * se, \
-                f"{label} probe {name} channel {c}: {got['irradiance'][c]:.6f} vs Lambert {expected:.6f} " \
-                f"({bound:.2f} standard errors = {bound * se:.2g})"
+            where = f"at probe {name}, {CHANNELS[c]}" + (f" ({label.strip()})" if label.strip() else "")
+            expect_close("irradiance", got["irradiance"][c], expected, se=se, bound=bound, where=where,
+                         by="Lambert's polygon formula")
+            expect(0 < se < max_relative_se * expected,
+                   f"standard error of the irradiance {where}: {number(se)}, expected positive (a Monte Carlo "
+                   f"estimate) and below {max_relative_se:.1%} of {number(expected)} so the tolerance stays tight",
+                   measured=se, expected=max_relative_se * expected)
 
 
 def radiosity_surfaces(ctx, scene, patch_sizes=(50, 25)):
