@@ -32,6 +32,15 @@ import stats  # noqa: E402
 KIT = os.path.dirname(os.path.abspath(__file__))
 REFERENCE_SEED = 1_000_000  # reference batch b has seed REFERENCE_SEED + b; a submission's seed * 1000 + b
 RENDER_TIMEOUT = 120
+# The report's pictures: one render of the criterion's scene and options at PREVIEW_SIZE pixels (each
+# tile of the 16 x 16 test image is then 32 x 32 pixels), with the criterion's samples per pixel
+# between 4 and 256 (a few seconds), seed PREVIEW_SEED; the solution's, rendered by the same command,
+# is stored in kit/reference/<criterion>.png (kit/grade.py --make-reference).  A correct submission
+# that draws its random numbers as the solution does gives the same picture.
+PREVIEW_SIZE = 128
+PREVIEW_SEED = 1
+PREVIEW_SPP = (4, 256)
+PREVIEW_TIMEOUT = 60
 
 
 class CriterionFailed(Exception):
@@ -66,13 +75,13 @@ def describe_exit(code, stderr):
     return f"exit status {code}{': ' + tail if tail else ''}"
 
 
-def run_chapter(root, c, cmd, what=""):
+def run_chapter(root, c, cmd, what="", timeout=RENDER_TIMEOUT):
     """Run the chapter command `cmd` of criterion c; CriterionFailed on a time-out or a non-zero exit."""
     try:
-        r = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=RENDER_TIMEOUT,
+        r = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=timeout,
                            stdin=subprocess.DEVNULL, errors="replace")
     except subprocess.TimeoutExpired:
-        raise CriterionFailed(f"{what}timed out after {RENDER_TIMEOUT} s")
+        raise CriterionFailed(f"{what}timed out after {timeout} s")
     lib.record_todos(r.stderr)
     if r.returncode != 0:
         raise CriterionFailed(f"{c['chapter']} {' '.join(cmd[1:])}: " + describe_exit(r.returncode, r.stderr))
@@ -83,12 +92,12 @@ def render_command(exe, c, seed, out, threads=1):
             "--seed", str(seed), "--threads", str(threads), "--out", out, *c.get("args", [])]
 
 
-def render(root, build, c, seed, out, threads=1):
+def render(root, build, c, seed, out, threads=1, timeout=RENDER_TIMEOUT):
     exe = os.path.join(root, build, c["chapter"])
     if not os.path.exists(exe):
         raise CriterionFailed(f"{build}/{c['chapter']} is missing (did not compile)")
     cmd = render_command(exe, c, seed, out, threads)
-    run_chapter(root, c, cmd, f"seed {seed}: ")
+    run_chapter(root, c, cmd, f"seed {seed}: ", timeout)
     if not os.path.exists(out):
         raise CriterionFailed(f"seed {seed}: exit 0 but no output image {os.path.basename(out)}")
     w, h, pixels = read_pfm(out)
@@ -143,6 +152,50 @@ def make_reference(root, build, c, rub, jobs):
     os.makedirs(os.path.dirname(reference_path(c)), exist_ok=True)
     with open(reference_path(c), "w") as f:
         json.dump(data, f, separators=(",", ":"))
+
+
+def preview_criterion(c):
+    """Criterion c as the report's picture renders it: PREVIEW_SIZE square, its samples per pixel
+    clamped to PREVIEW_SPP (enough to recognise the scene)."""
+    low, high = PREVIEW_SPP
+    return dict(c, size=f"{PREVIEW_SIZE}x{PREVIEW_SIZE}", spp=min(high, max(low, c.get("spp", 1))))
+
+
+def preview_path(c):
+    return os.path.join(KIT, "reference", slug(c) + ".png")
+
+
+def preview_command(c):
+    """The command of the report's picture, as a student reruns it."""
+    return lib.command_text(c["chapter"], render_command("", preview_criterion(c), PREVIEW_SEED, "")[1:])
+
+
+def render_preview(root, build, c, threads):
+    """(width, height, 8-bit colours) of one render of criterion c at PREVIEW_SIZE (preview_criterion),
+    at most PREVIEW_TIMEOUT seconds; CriterionFailed when it fails."""
+    out = os.path.join(tempfile.mkdtemp(prefix="gi-kit-"), "preview.pfm")
+    w, h, pixels = render(root, build, preview_criterion(c), PREVIEW_SEED, out, threads, PREVIEW_TIMEOUT)
+    return w, h, png.tone_mapped(pixels)
+
+
+def make_preview(root, build, c, jobs):
+    """kit/reference/<criterion>.png: the solution's picture for the report, its command kept in the
+    file (the report says when the rubric's command has changed since)."""
+    w, h, colours = render_preview(root, build, c, jobs)
+    os.makedirs(os.path.dirname(preview_path(c)), exist_ok=True)
+    png.write_png(preview_path(c), w, h, [colours[y * w:(y + 1) * w] for y in range(h)], preview_command(c))
+
+
+def stored_preview(c):
+    """(width, height, colours, note) of the solution's stored picture, or None when there is none;
+    note says when it was made by another command than the rubric's."""
+    try:
+        w, h, colours = png.read_png(preview_path(c))
+        made_by = png.read_png_comment(preview_path(c))
+    except (OSError, ValueError):
+        return None
+    note = "" if made_by == preview_command(c) else f" (made by an older command: {made_by})"
+    return w, h, colours, note
 
 
 def alpha_per_criterion(rub):
@@ -208,19 +261,48 @@ def run_compare(root, build, c, rub, seed, jobs, images_dir):
     marks, strength = failing_tiles(tests, adjusted, alpha, sub, ref)
     message = compare_sentence(c, tests, adjusted, alpha, marks, ref, sub, command, seeds)
     record_compare(tests, adjusted, alpha, marks, nt, command)
-    images = {}
-    if images_dir:
-        os.makedirs(images_dir, exist_ok=True)
-        w, h, tile = ref["width"], ref["height"], ref["tile"]
-        name = slug(c)
-        images = {"student": name + "-student.png", "reference": name + "-reference.png",
-                  "tiles": name + "-tiles.png"}
-        png.write_image(os.path.join(images_dir, images["student"]), w, h, sub["pixel_mean"], tile=tile, marks=marks)
-        png.write_image(os.path.join(images_dir, images["reference"]), w, h, [tuple(p) for p in ref["pixel_mean"]],
-                        tile=tile)
-        png.write_tile_map(os.path.join(images_dir, images["tiles"]), w, h, tile,
-                           [tuple(p) for p in ref["pixel_mean"]], marks, strength)
+    images = write_pictures(root, build, c, jobs, images_dir, ref, sub, marks, strength) if images_dir else {}
     return not failing, p_value, message, images
+
+
+PREVIEW = {}  # what the last write_pictures showed: {"command", "student", "reference"} (kit/criterion.py)
+
+
+def write_pictures(root, build, c, jobs, images_dir, ref, sub, marks, strength):
+    """The report's pictures of criterion c: the student's render and the solution's (stored) at
+    PREVIEW_SIZE with the test's tile grid and the failing tiles marked, and when a tile fails the
+    tile map.  A
+    picture that cannot be had (the preview render fails, no stored preview) falls back to the test's
+    small mean image, enlarged, and PREVIEW says why."""
+    os.makedirs(images_dir, exist_ok=True)
+    tiles_x, tiles_y = ref["tiles_x"], ref["tiles_y"]
+    PREVIEW.clear()
+    PREVIEW["command"] = preview_command(c)
+    PREVIEW["grid"] = (f"{tiles_x} x {tiles_y} tiles (each {ref['tile']} x {ref['tile']} pixels of the "
+                       f"{ref['width']} x {ref['height']} test renders)")
+    try:
+        student = render_preview(root, build, c, jobs)
+        PREVIEW["student"] = f"one render: {PREVIEW['command']}"
+    except CriterionFailed as e:
+        student = (sub["width"], sub["height"], png.tone_mapped(sub["pixel_mean"]))
+        PREVIEW["student"] = (f"the {sub['width']}x{sub['height']} test renders' mean (the picture's own render "
+                              f"failed: {str(e)[:300]})")
+    solution = stored_preview(c)
+    if solution is None:
+        solution = (ref["width"], ref["height"], png.tone_mapped(ref["pixel_mean"]), "")
+        PREVIEW["reference"] = (f"the {ref['width']}x{ref['height']} reference mean (no "
+                                f"{os.path.relpath(preview_path(c), KIT)}: kit/grade.py --make-reference)")
+    else:
+        PREVIEW["reference"] = f"the same command with the solution{solution[3]}"
+    name = slug(c)
+    images = {"student": name + "-student.png", "reference": name + "-reference.png"}
+    png.write_marked(os.path.join(images_dir, images["student"]), *student[:3], tiles_x, tiles_y, marks)
+    png.write_marked(os.path.join(images_dir, images["reference"]), *solution[:3], tiles_x, tiles_y, marks)
+    if marks:  # a map of nothing says nothing: a passed criterion's pictures carry no mark at all
+        images["tiles"] = name + "-tiles.png"
+        png.write_tile_map(os.path.join(images_dir, images["tiles"]), *solution[:3], tiles_x, tiles_y, marks,
+                           strength)
+    return images
 
 
 def failing_tiles(tests, adjusted, alpha, sub, ref):

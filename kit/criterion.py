@@ -9,7 +9,8 @@ grade criteria get it as lib.Context(build, seed=SEED), which shifts every
 chapter seed the test uses (tests/lib.py shifted_seed; SEED 1 = the tests' own).
 
 Prints {"passed": bool, "p_value": float|null, "message": str, "images": {...},
-         "measured": [...], "commands": [...], "todos": [...]}:
+         "measured": [...], "commands": [...], "todos": [...]} (and "preview" for a compare
+criterion given an IMAGES_DIR: what its pictures show, kit/compare.py write_pictures):
 measured: what the criterion compared, one dict per comparison with its sentence "text"
 (tests/lib.py measurement; compare.py the same for images); commands: the chapter commands it ran
 ("build/01_local scenes/cornell.scene --size 16x16 ..."); todos: the stubs those runs reported
@@ -94,6 +95,7 @@ def main():
         elif c["kind"] == "compare":
             (out["passed"], out["p_value"], out["message"],
              out["images"]) = compare.run_compare(src, build, c, rub, int(seed), int(jobs), images)
+            out["preview"] = dict(compare.PREVIEW)  # what the pictures show, for their captions
         elif c["kind"] == "surfaces":
             out["passed"], out["p_value"], out["message"], out["images"] = compare.run_surfaces(src, build, c, rub)
         else:

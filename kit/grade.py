@@ -3,7 +3,8 @@
 
 usage: kit/grade.py SUBMISSION [--report DIR] [--chapters "01_local ..."] [--seed N] [--jobs N]
                    [--statistical-only] [--timeout S] [--memory MIB] [--name NAME]
-       kit/grade.py --make-reference [--jobs N]     (instructor: render kit/reference/ with this tree's build/)
+       kit/grade.py --make-reference [--jobs N]     (instructor: render kit/reference/ with this tree's build/:
+                                                    the statistics and the report's picture of each criterion)
 
   SUBMISSION          a filled-in handout or any copy of this project (a directory)
   --report DIR        where the report goes (default SUBMISSION/out/grade)
@@ -12,7 +13,7 @@ usage: kit/grade.py SUBMISSION [--report DIR] [--chapters "01_local ..."] [--see
                       grade criteria run with every chapter seed shifted by N (tests/lib.py Context;
                       1 = the tests' own seeds)
   --jobs N            renders run at once and make -j (default 2)
-  --statistical-only  only the criteria of kind compare (for calibration)
+  --statistical-only  only the criteria of kind compare, without their pictures (for calibration)
   --timeout S         per criterion, whole process group killed after S seconds (default 300)
   --memory MIB        address-space limit of every process of the submission (default 4096)
 
@@ -263,6 +264,8 @@ def make_reference(opts, rub):
     for c in rub["criteria"]:
         if c["kind"] == "compare":
             compare.make_reference(ROOT, "build", c, rub, opts["jobs"])
+            compare.make_preview(ROOT, "build", c, opts["jobs"])
+            print(f"picture: {compare.preview_path(c)}", flush=True)
         elif c["kind"] == "surfaces":
             compare.make_surfaces_reference(ROOT, "build", c)
         else:
@@ -277,13 +280,13 @@ td,th{border:1px solid #ccc;padding:6px 8px;vertical-align:top;text-align:left}
 .pass{color:#070}.fail{color:#b00}.todo{background:#fff4d6;border:1px solid #e0b040;padding:8px 14px;margin:1em 0}
 .todo li{margin:2px 0}code{background:#f2f2f2;padding:0 3px}pre{white-space:pre-wrap;background:#f6f6f6;padding:6px}
 .sentence{margin:0 0 4px 0}details{margin:4px 0;font-size:92%}details li{margin:2px 0}
-figure{display:inline-block;margin:4px 14px 4px 0;vertical-align:top}figcaption{font-size:85%;max-width:192px}
-img{image-rendering:pixelated;border:1px solid #999}.swatch{display:inline-block;width:12px;height:12px;
+figure{display:inline-block;margin:4px 14px 4px 0;vertical-align:top}figcaption{font-size:85%;max-width:256px;overflow-wrap:anywhere}
+img{image-rendering:pixelated;border:1px solid #999;width:256px}.swatch{display:inline-block;width:12px;height:12px;
 vertical-align:middle;border:1px solid #555;margin:0 3px 0 8px}.meta{color:#555;font-size:90%}
 """
 
-IMAGE_CAPTIONS = (("student", "your submission (mean of the batches)"), ("reference", "the solution"),
-                  ("tiles", "tiles that differ: filled where they fail, stronger = larger difference"),
+IMAGE_CAPTIONS = (("student", "your submission"), ("reference", "the solution"),
+                  ("tiles", "the tiles that differ, filled: stronger = larger difference"),
                   ("heat", "|difference| / standard error"))
 
 
@@ -309,13 +312,19 @@ def html_images(c):
     im = c.get("images") or {}
     if not im:
         return ""
-    figures = "".join(f"<figure><img src='{h(im[k])}' alt='{h(label)}'><figcaption>{h(label)}</figcaption></figure>"
+    preview = c.get("preview") or {}
+    notes = {"student": preview.get("student", ""), "reference": preview.get("reference", "")}
+    figures = "".join(f"<figure><img src='{h(im[k])}' alt='{h(label)}'><figcaption><b>{h(label)}</b>"
+                      f"{'<br>' + h(notes[k]) if notes.get(k) else ''}</figcaption></figure>"
                       for k, label in IMAGE_CAPTIONS if k in im)
-    legend = ("<div class=meta>Grid: the 4x4-pixel tiles the test compares. Outlined / filled:"
+    marked = sum(1 for m in c.get("measured", []) if m.get("quantity") == "tiles that differ from the solution's"
+                 and m.get("measured"))
+    grid = preview.get("grid", "tiles")
+    legend = (f"<div class=meta>Grid: the {h(grid)} the test compares. Outlined:"
               f"<span class=swatch style='background:rgb{compare.png.BRIGHTER}'></span>brighter than the "
               "solution"
               f"<span class=swatch style='background:rgb{compare.png.DARKER}'></span>darker than the solution; "
-              "tiles without a mark agree.</div>")
+              "tiles without a mark agree." + ("" if marked else " No tile differs.") + "</div>")
     return f"<div>{figures}</div>{legend}"
 
 
@@ -339,10 +348,10 @@ def html_criterion(c):
     body = f"<pre>{h(message)}</pre>" if "\n" in message else f"<p class=sentence>{h(message)}</p>"
     test = f"<br><small>{h(c['test'])}</small>" if c.get("test") else ""
     images = html_images(c)
-    return (f"<tr><td{' rowspan=2' if images else ''}>{h(c['name'])}<br><small>exercises "
+    return (f"<tr><td>{h(c['name'])}<br><small>exercises "
             f"{h(', '.join(c['exercises']))}; {h(c.get('kind', ''))}</small>{test}</td><td>{c['points']} / {c['max']}"
             f"</td><td class={cls}>{'pass' if c['passed'] else 'FAIL'}{p}</td><td>{body}{details}</td></tr>" +
-            (f"<tr><td colspan=3>{images}</td></tr>" if images else ""))
+            (f"<tr><td colspan=4>{images}</td></tr>" if images else ""))
 
 
 def write_html(path, report, name):
@@ -420,9 +429,11 @@ def main(argv):
                     row["passed"], row["message"], row["measured"] = run_unit(src, c, opts)
                     row["commands"] = [f"build/tests/{c['test']}"]
             else:
-                r = run_criterion(src, c, opts, report_dir)
+                r = run_criterion(src, c, opts, "" if opts["statistical_only"] else report_dir)
                 row.update({k: r[k] for k in ("passed", "p_value", "message")})
                 row["images"] = r.get("images", {})
+                if r.get("preview"):
+                    row["preview"] = r["preview"]
                 row.update({k: r.get(k, []) for k in ("measured", "commands", "todos")})
             row["points"] = c["points"] if row["passed"] else 0
             row["seconds"] = round(time.time() - t0, 2)

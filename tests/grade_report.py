@@ -10,6 +10,9 @@ grading of chapter 1 (kit/grade.py, about 30 s) and the report must:
     and the command it ran; the wrong point light's criterion "too dark by 92 %";
   - show measured values on passed criteria too;
   - show the compare criteria's pictures at 128 pixels or more, with failing tiles marked.
+A passed compare criterion of the solution (kit/criterion.py alone, 2 s) shows its pictures at 128
+pixels or more with no tile marked, and no tile map; its render is the stored picture of the solution
+(kit/reference/<criterion>.png, which must be current).
 """
 import json
 import os
@@ -21,6 +24,7 @@ import tempfile
 from lib import ROOT
 
 sys.path.insert(0, os.path.join(ROOT, "kit"))
+import compare  # noqa: E402  (kit/compare.py: the pictures' sizes)
 import grade  # noqa: E402  (kit/grade.py: stubs_in_source)
 import markers  # noqa: E402
 import png  # noqa: E402
@@ -106,9 +110,61 @@ def test_report_names_stubs_and_says_which_way_each_criterion_is_off(ctx):
     compared = [c for c in criteria.values() if c["kind"] == "compare"]
     assert compared and any(not c["passed"] for c in compared)
     for c in compared:
-        assert set(c["images"]) >= {"student", "reference", "tiles"}, c["images"]
-        for name in c["images"].values():
-            width, height = png.png_size(os.path.join(report_dir, name))
-            assert min(width, height) >= 128, f"{name}: {width}x{height}, expected at least 128 pixels"
+        check_pictures(c, report_dir)
         if not c["passed"]:
             assert re.search(r"\d+ of \d+ tiles too (dark|bright)", c["message"]), c["message"]
+            assert c["preview"]["student"].startswith("one render: build/01_local") and \
+                "--size 128x128" in c["preview"]["student"], f"{c['name']}: the picture is not its own render: " \
+                f"{c['preview']}"
+            assert f"<figcaption><b>your submission</b><br>{c['preview']['student']}" in page, \
+                f"{c['name']}: the HTML does not say what the picture ran"
+
+
+def marked_pixels(path):
+    """{colour name: pixels of exactly that colour} for the two marks (png.BRIGHTER, png.DARKER)."""
+    _, _, pixels = png.read_png(path)
+    return {"brighter": pixels.count(png.BRIGHTER), "darker": pixels.count(png.DARKER)}
+
+
+def check_pictures(c, report_dir):
+    """The student's and the solution's pictures at 128 pixels or more; a failed criterion marks its
+    failing tiles (in the colour of their direction) and has a tile map, a passed one marks none."""
+    assert {"student", "reference"} <= set(c["images"]), f"{c['name']}: pictures {c['images']}"
+    for key, name in c["images"].items():
+        width, height = png.png_size(os.path.join(report_dir, name))
+        assert min(width, height) >= 128, f"{name}: {width}x{height}, expected at least 128 pixels"
+    marks = {key: marked_pixels(os.path.join(report_dir, c["images"][key])) for key in ("student", "reference")}
+    tiles = [m["measured"] for m in c["measured"] if m["quantity"] == "tiles that differ from the solution's"]
+    if c["passed"]:
+        assert tiles == [0] and "tiles" not in c["images"], f"{c['name']} passed: tiles {tiles}, {c['images']}"
+        assert all(sum(m.values()) == 0 for m in marks.values()), f"{c['name']} passed but marks tiles: {marks}"
+    else:
+        words = set(re.findall(r"tiles too (dark|bright)", c["message"]))
+        for key, m in marks.items():
+            for word, colour in (("dark", "darker"), ("bright", "brighter")):
+                assert (m[colour] > 0) == (word in words), \
+                    f"{c['name']}: {key} picture has {m[colour]} pixels marked {colour}, the message says {words}"
+        assert "tiles" in c["images"], f"{c['name']} failed without a tile map"
+
+
+def test_passed_compare_criterion_marks_no_tile(ctx):
+    """The solution's own area-light criterion (kit/criterion.py, as kit/grade.py runs it): it
+    passes, its pictures are 128 pixels or more with no tile marked, and its render is the stored
+    picture of the solution (mean difference below one 8-bit level: kit/grade.py --make-reference
+    makes it current)."""
+    rub = json.load(open(os.path.join(ROOT, "kit", "rubric.json")))
+    c = next(c for c in rub["criteria"] if c["name"] == "cornell area light vs reference")
+    images = ctx.path("images")
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "kit", "criterion.py"), ROOT, ctx.build, json.dumps(c),
+                        "1", "2", images], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    result = json.loads(r.stdout[r.stdout.rfind("@@RESULT@@ ") + len("@@RESULT@@ "):])
+    assert result["passed"], result["message"]
+    check_pictures(result, images)
+    width, height, stored = png.read_png(compare.preview_path(c))
+    assert min(width, height) >= 128, f"{compare.preview_path(c)}: {width}x{height}, expected at least 128 pixels"
+    assert result["preview"]["student"] == "one render: " + compare.preview_command(c), result["preview"]
+    rendered = compare.render_preview(ROOT, ctx.build, c, 2)[2]
+    difference = sum(abs(a - b) for p, q in zip(rendered, stored) for a, b in zip(p, q)) / (3 * len(stored))
+    assert len(rendered) == len(stored) and difference < 1, \
+        f"{compare.preview_path(c)} differs from the solution's render by {difference:.2f} levels on average: " \
+        "run kit/grade.py --make-reference"
