@@ -14,7 +14,8 @@ lights only, every pixel is a deterministic sum, compared to float rounding.
 import math
 import os
 
-from lib import check_bad_input, check_thread_independence, finite_image
+from lib import (CHANNELS, check_bad_input, check_thread_independence, expect, expect_at_least, expect_at_most,
+                 expect_between, expect_close, expect_image, finite_image)
 
 CHAPTER = "02_whitted"
 FLOAT = 2e-6  # relative rounding of float32 pixels after a few double operations
@@ -92,20 +93,24 @@ def test_mirror_pixel_is_colour_times_reflected_radiance(ctx):
     for name, (background, extra, seen) in cases.items():
         scene = ctx.write(f"mirror-{name}.scene", MIRROR_SCENE.format(background=background, extra=extra))
         img, stats = ctx.render(CHAPTER, scene, name=name)
-        for px in img.pixels:
-            for c in range(3):
-                expected = colour[c] * seen[c]
-                assert abs(px[c] - expected) <= FLOAT * expected, f"{name}: pixel {px} vs colour x radiance {expected}"
-        assert stats["counters"]["reflected_rays"] == img.width * img.height
+        seeing = f"(the mirror {colour} reflecting the {name} of radiance {seen})"
+        expect_image("radiance of the mirror", img, lambda x, y, c: colour[c] * seen[c], rel=FLOAT, where=seeing,
+                     by="mirror colour x the radiance it reflects")
+        expect_close("reflected rays", stats["counters"]["reflected_rays"], img.width * img.height, tol=0,
+                     by="one per pixel: every pixel sees the mirror", command=img.command)
         img, stats = ctx.render(CHAPTER, scene, "--max-depth", 0, name=name + "-depth0")
-        assert all(px == (0.0, 0.0, 0.0) for px in img.pixels), f"{name}: --max-depth 0 must leave the mirror black"
-        assert stats["counters"]["depth_limited_branches"] == img.width * img.height
+        expect_image("radiance of the mirror with --max-depth 0", img, lambda x, y, c: 0.0, tol=0, where=seeing,
+                     by="black: the reflected ray is not traced")
+        expect_close("branches cut by --max-depth 0", stats["counters"]["depth_limited_branches"],
+                     img.width * img.height, tol=0, by="one per pixel", command=img.command)
         # (R6): light seen in the mirror has been reflected once, the term K^1 E.
         for window, factor in (("1:1", 1.0), ("0:0", 0.0), ("2:", 0.0)):
             img, _ = ctx.render(CHAPTER, scene, "--bounces", window, name=name + "-bounces")
-            px = img.at(7, 5)
-            assert all(abs(px[c] - factor * colour[c] * seen[c]) <= FLOAT * seen[c] for c in range(3)), \
-                f"{name}: --bounces {window}: {px}, expected {factor} x colour x radiance"
+            for c in range(3):
+                expect_close(f"radiance of the mirror with --bounces {window}", img.at(7, 5)[c],
+                             factor * colour[c] * seen[c], tol=FLOAT * seen[c],
+                             where=f"at pixel (7, 5), {CHANNELS[c]} {seeing}", command=img.command,
+                             by=f"{factor:g} x colour x radiance: what a mirror shows is the term K^1 E")
 
 
 # ---- glass: energy and the series of internal reflections ------------------------------
@@ -139,13 +144,18 @@ def test_glass_ball_in_uniform_light_is_invisible(ctx):
             img, stats = ctx.render(CHAPTER, scene, "--max-depth", depth, "--fresnel", formula, name="furnace")
             low = min(min(px) for px in img.pixels)
             high = max(max(px) for px in img.pixels)
-            assert high <= background * (1 + FLOAT), f"n={ior:.4f} {formula}: a pixel {high} brighter than B {background}"
-            assert low >= background * (1 - bound) - FLOAT, \
-                f"n={ior:.4f} {formula}: a pixel {low} darker than B (1 - {bound:.4f}) = {background * (1 - bound):.6f}"
-            centre = img.at(16, 16)
-            assert all(abs(c - background) <= FLOAT * background for c in centre), \
-                f"n={ior:.4f} {formula}: centre pixel {centre} vs B = {background}"
-            assert stats["counters"]["refracted_rays"] > 0
+            ball = f"of the glass ball (n = {ior:.4f}, --fresnel {formula}) under a uniform background"
+            band = dict(expected=background, where=ball, command=img.command,
+                        by=f"the background B: R + T = 1, less at most {bound:.2%} lost at --max-depth {depth}")
+            expect_between("radiance of the brightest pixel", high, background * (1 - bound) - FLOAT,
+                           background * (1 + FLOAT), **band)
+            expect_between("radiance of the darkest pixel", low, background * (1 - bound) - FLOAT,
+                           background * (1 + FLOAT), **band)
+            expect_image("radiance", img, lambda x, y, c: background, rel=FLOAT, pixels=[(16, 16)],
+                         where=f"(the centre) {ball}", by="B: at normal incidence the tree loses less than 1e-50")
+            expect(stats["counters"]["refracted_rays"] > 0,
+                   f"refracted rays: {stats['counters']['refracted_rays']}, expected more than 0 (the ball refracts)",
+                   measured=stats["counters"]["refracted_rays"], expected=1)
 
 
 def test_tinted_ball_centre_pixel_series(ctx):
@@ -166,17 +176,19 @@ def test_tinted_ball_centre_pixel_series(ctx):
     scene = ctx.write("tinted.scene", SPHERE_SCENE.format(fov=12, size=9, background="0 0 0",
                                                           glass=f"1.5 {tint} 1 1", extra=wall))
     img, _ = ctx.render(CHAPTER, scene, "--max-depth", 30, name="filter")
-    expected = [tint * T * T / (1 - R * R), T * T / (1 - R * R)]
-    got = img.at(4, 4)
-    for c, e in ((0, expected[0]), (1, expected[1])):
-        assert abs(got[c] - e) <= FLOAT * e, f"filter tint: channel {c} = {got[c]}, series gives {e}"
+    expected = [tint * T * T / (1 - R * R), T * T / (1 - R * R), None]
+    centre = "(the centre, through the ball tinted 0.6 in red) "
+    expect_image("radiance", img, lambda x, y, c: expected[c], rel=FLOAT, pixels=[(4, 4)],
+                 where=centre + "with the tint as a filter", by="the series t T^2 / (1 - R^2) (red), T^2 / (1 - R^2)")
     img, stats = ctx.render(CHAPTER, scene, "--max-depth", 30, "--absorption", distance, name="beer")
     a = tint ** (2 * radius / distance)
-    expected = T * T * a / (1 - R * R * a * a)
-    got = img.at(4, 4)
-    assert abs(got[0] - expected) <= FLOAT * expected, f"Beer-Lambert: {got[0]} vs T^2 a / (1 - R^2 a^2) = {expected}"
-    assert abs(got[1] - T * T / (1 - R * R)) <= FLOAT, "an untinted channel must not be absorbed"
-    assert stats["absorption_distance"] == distance
+    beer = centre + f"with --absorption {distance} (Beer-Lambert)"
+    expect_close("radiance", img.at(4, 4)[0], T * T * a / (1 - R * R * a * a), rel=FLOAT, where=f"{beer}, red",
+                 by="T^2 a / (1 - R^2 a^2) with a = t^(2r/D)", command=img.command)
+    expect_close("radiance", img.at(4, 4)[1], T * T / (1 - R * R), tol=FLOAT, where=f"{beer}, green",
+                 by="T^2 / (1 - R^2): an untinted channel is not absorbed", command=img.command)
+    expect_close("absorption distance in the stats", stats["absorption_distance"], distance, tol=0,
+                 by="--absorption", command=img.command)
 
 
 def test_bubble_rim_total_internal_reflection(ctx):
@@ -195,7 +207,7 @@ def test_bubble_rim_total_internal_reflection(ctx):
                                                           extra=wall))
     img, stats = ctx.render(CHAPTER, scene, "--max-depth", 30)
     critical = math.degrees(math.asin(n))
-    rim = 0
+    rim = []
     for y in range(size):
         for x in range(size):
             d = camera_ray(eye, look, up, fov, size, size, x + 0.5, y + 0.5)
@@ -208,15 +220,19 @@ def test_bubble_rim_total_internal_reflection(ctx):
             theta = math.degrees(math.acos(min(1.0, cos_i)))
             mirrored = sub(d, scale(p, 2 * dot(d, p)))
             if theta > critical + 0.5 and mirrored[2] > 0.05:
-                rim += 1
-                assert all(abs(c - 1.0) <= FLOAT for c in img.at(x, y)), \
-                    f"pixel ({x},{y}) at {theta:.2f} deg > critical {critical:.2f}: {img.at(x, y)}, expected 1 (TIR)"
-    assert rim >= 20, f"only {rim} rim pixels beyond the critical angle: the test scene is wrong"
+                rim.append((x, y))
+    assert len(rim) >= 20, f"only {len(rim)} rim pixels beyond the critical angle: the test scene is wrong"
+    expect_image("radiance", img, lambda x, y, c: 1.0, tol=FLOAT, pixels=rim,
+                 where=f"on the air bubble's rim (beyond the critical angle {critical:.2f} deg)",
+                 by="the wall's radiance 1: total internal reflection, R = 1")
     R = fresnel_normal(n)
-    expected = (1 - R) / (1 + R)
-    got = img.at(size // 2, size // 2)[0]
-    assert abs(got - expected) <= FLOAT, f"centre pixel {got} vs (1-R)/(1+R) = {expected}"
-    assert stats["counters"]["total_internal_reflections"] > 0
+    expect_image("radiance", img, lambda x, y, c: (1 - R) / (1 + R) if c == 0 else None, tol=FLOAT,
+                 pixels=[(size // 2, size // 2)], where="(the centre of the air bubble)",
+                 by="(1 - R) / (1 + R), R = ((1 - n) / (1 + n))^2")
+    expect(stats["counters"]["total_internal_reflections"] > 0,
+           f"total internal reflections counted: {stats['counters']['total_internal_reflections']}, expected more "
+           "than 0 (the bubble's rim reflects totally)", measured=stats["counters"]["total_internal_reflections"],
+           expected=1, command=img.command)
 
 
 # ---- refraction through a slab ---------------------------------------------------------------
@@ -262,8 +278,9 @@ def test_slab_shifts_the_view_sideways(ctx):
     front_point = scale(front_normal, thickness / 2)
     back_point = scale(front_normal, -thickness / 2)
     y = height // 2
-    edges = {}
+    edges, predicted = {}, {}
     for label, img in (("slab", with_slab), ("no slab", without)):
+        wrong = []
         for x in range(width):
             d = camera_ray(eye, look, up, fov, width, height, x + 0.5, y + 0.5)
             if label == "slab":
@@ -283,15 +300,22 @@ def test_slab_shifts_the_view_sideways(ctx):
                 origin, direction = eye, d
             wall_x = plane_hit(origin, direction, [0, 0, 10], [0, 0, -1])[0]
             value = img.at(x, y)[0]
+            predicted[label] = predicted.get(label, 0) + (wall_x < 0)
             if abs(wall_x) < 0.05:
                 continue
-            if wall_x < 0:
-                assert value > 0.5, f"{label}: column {x} should see the glowing half (wall x = {wall_x:.3f}): {value}"
-            else:
-                assert value < 0.5, f"{label}: column {x} should see the dark half (wall x = {wall_x:.3f}): {value}"
+            if (wall_x < 0) != (value > 0.5):
+                wrong.append(f"column {x} radiance {value:.3g}, expected {'above' if wall_x < 0 else 'below'} 0.5 "
+                             f"(its ray meets the wall at x = {wall_x:.3f}, the {'glowing' if wall_x < 0 else 'dark'} "
+                             "half)")
         edges[label] = sum(1 for x in range(width) if img.at(x, y)[0] > 0.5)  # bright columns, on one side
+        expect(not wrong, f"{len(wrong)} columns of the middle row{' through the slab' if label == 'slab' else ''} "
+               f"see the wrong half of the wall (Snell's law traced in Python): {wrong[0] if wrong else ''}; "
+               f"{edges[label]} bright columns, expected {predicted[label]}: the view is shifted "
+               f"{'too little' if edges[label] > predicted[label] else 'too much'} to the side",
+               measured=edges[label], expected=predicted[label], command=img.command)
     moved = abs(edges["slab"] - edges["no slab"])
-    assert moved >= 3, f"the edge moved by only {moved} pixels (bright columns {edges}): the shift is not visible"
+    expect_at_least("sideways shift of the wall's edge through the slab, in pixels", moved, 3,
+                    by="d sin(theta - theta_t) / cos(theta_t), about 3.8 pixels", command=with_slab.command)
 
 
 # ---- shadow rays through glass -------------------------------------------------------------
@@ -355,13 +379,19 @@ def test_pruning_cuts_rays_and_keeps_the_image(ctx):
      - the rays traced (reflected + refracted + shadow) fall by at least 20 %."""
     scene = point_lit_cornell_spheres(ctx)
     full, full_stats = ctx.render(CHAPTER, scene, "--size", "64x64", "--max-depth", 12, name="full")
-    assert full_stats["counters"]["pruned_branches"] == 0
+    expect_close("branches pruned without --min-weight", full_stats["counters"]["pruned_branches"], 0, tol=0,
+                 command=full.command)
     report = []
     for weight in (0.01, 0.05):
         pruned, stats = ctx.render(CHAPTER, scene, "--size", "64x64", "--max-depth", 12, "--min-weight", weight,
                                    name=f"w{weight}")
         diffs = [f[c] - p[c] for f, p in zip(full.pixels, pruned.pixels) for c in range(3)]
-        assert min(diffs) >= -FLOAT * max(max(px) for px in full.pixels), "pruning made a pixel brighter"
+        brightest = min(range(len(diffs)), key=lambda i: diffs[i])
+        expect_at_most(f"radiance a pixel gained by --min-weight {weight}", -diffs[brightest],
+                       FLOAT * max(max(px) for px in full.pixels),
+                       where=f"(pixel ({brightest // 3 % 64}, {brightest // 3 // 64}), {CHANNELS[brightest % 3]})",
+                       by="none: a pruned branch only removes light, every term of the tree is >= 0",
+                       command=pruned.command)
         mean_error = sum(abs(x) for x in diffs) / len(diffs)
         mean_radiance = sum(sum(px) for px in full.pixels) / len(diffs)
 
@@ -370,9 +400,13 @@ def test_pruning_cuts_rays_and_keeps_the_image(ctx):
         report.append(f"W={weight}: {stats['counters']['pruned_branches']} branches pruned, rays -{saving:.1%}, "
                       f"mean abs error {mean_error:.3g} = {mean_error / mean_radiance:.3%} of the mean radiance "
                       f"{mean_radiance:.3g}, max error {max(diffs):.3g}")
-        assert stats["counters"]["pruned_branches"] > 0, report[-1]
-        assert saving >= 0.2, report[-1]
-        assert mean_error <= weight * mean_radiance, report[-1]
+        expect_at_least(f"branches pruned by --min-weight {weight}", stats["counters"]["pruned_branches"], 1,
+                        command=pruned.command)
+        expect_at_least(f"share of rays saved by --min-weight {weight}", saving, 0.2,
+                        by="reflected + refracted + shadow rays against the full tree", command=pruned.command)
+        expect_at_most(f"mean absolute error of the image pruned by --min-weight {weight}", mean_error,
+                       weight * mean_radiance, by=f"{weight} x the mean radiance {mean_radiance:.3g}",
+                       command=pruned.command, words=("too large", "too small"))
     print("; ".join(report))
 
 
@@ -384,13 +418,21 @@ def test_stats_histogram_and_ray_counts(ctx):
     img, stats = ctx.render(CHAPTER, "scenes/cornell-spheres.scene", "--size", "32x32", "--max-depth", 6,
                             "--light-samples", 2)
     histogram = stats["depth_histogram"]
-    assert len(histogram) == 7, histogram
-    assert sum(histogram) == stats["counters"]["camera_rays"] == 32 * 32, histogram
-    assert histogram[0] > 0 and sum(histogram[1:]) > 0, histogram
+    expect_close("bins of the depth histogram", len(histogram), 7, tol=0, by="--max-depth 6, plus one",
+                 command=img.command)
+    expect_close("camera rays in the depth histogram", sum(histogram), 32 * 32, tol=0, by="one per pixel of 32x32",
+                 command=img.command)
+    expect_close("camera rays counted", stats["counters"]["camera_rays"], 32 * 32, tol=0, by="one per pixel of 32x32",
+                 command=img.command)
+    expect(histogram[0] > 0 and sum(histogram[1:]) > 0,
+           f"depth histogram {histogram}: expected rays that end at depth 0 (the walls) and rays that go deeper "
+           "(the mirror and glass balls)", command=img.command)
     for key in ("shadow_rays", "reflected_rays", "refracted_rays", "pruned_branches", "depth_limited_branches"):
-        assert key in stats["counters"], key
-    assert stats["counters"]["reflected_rays"] > 0 and stats["counters"]["refracted_rays"] > 0
-    assert finite_image(img)
+        expect(key in stats["counters"], f"the stats' counters have no '{key}'", command=img.command)
+    for key in ("reflected_rays", "refracted_rays"):
+        expect_at_least(key.replace("_", " "), stats["counters"][key], 1, by="the balls reflect and refract",
+                        command=img.command)
+    expect(finite_image(img), "every pixel finite (no NaN or infinity)", command=img.command)
 
 
 def test_grazing_incidence_stays_finite(ctx):

@@ -227,6 +227,54 @@ def expect_between(quantity, measured, low, high, *, expected=None, where="", by
     return text
 
 
+def expect_at_least(quantity, measured, low, *, where="", by="", command=None, words=None):
+    """Check measured >= low (a one-sided bound): "expected at least low"; when it fails the sentence
+    says how far below the bound it is ("too small by 40 %")."""
+    ok = math.isfinite(measured) and measured >= low
+    text = measurement(quantity, measured, low, ok, f"at least {number(low)}", where, None, by, command, words,
+                       None)
+    if not ok:
+        raise AssertionError(text)
+    return text
+
+
+def expect_at_most(quantity, measured, high, *, where="", by="", command=None, words=None):
+    """Check measured <= high (a one-sided bound), as expect_at_least."""
+    ok = math.isfinite(measured) and measured <= high
+    text = measurement(quantity, measured, high, ok, f"at most {number(high)}", where, None, by, command, words,
+                       None)
+    if not ok:
+        raise AssertionError(text)
+    return text
+
+
+def expect_image(quantity, image, expected_at, *, rel=None, tol=None, pixels=None, where="", by="", command=None,
+                 words=None):
+    """Every pixel channel of `image` against expected_at(x, y, channel) (None: not checked), each
+    within the larger of rel * |expected| and tol: the pixel channel farthest off for its allowance
+    goes through expect_close, so one sentence names it ("radiance at pixel (3, 5), red ...: too dark
+    by 8 %") and a passed check records the closest call.  pixels: the (x, y) to check (default all)."""
+    worst, worst_share = None, -1.0
+    for x, y in pixels if pixels is not None else ((x, y) for y in range(image.height) for x in range(image.width)):
+        for c in range(3):
+            e = expected_at(x, y, c)
+            if e is None:
+                continue
+            got = image.at(x, y)[c]
+            allowed = max(rel * abs(e) if rel is not None else 0.0, tol or 0.0)
+            share = abs(got - e) / allowed if allowed > 0 else (0.0 if got == e else math.inf)
+            if not math.isfinite(got):
+                share = math.inf
+            if share > worst_share:
+                worst, worst_share = (x, y, c, got, e), share
+    if worst is None:
+        return ""
+    x, y, c, got, e = worst
+    return expect_close(quantity, got, e, rel=rel, tol=tol, where=f"at pixel ({x}, {y}), {CHANNELS[c]}" +
+                        (f" {where}" if where else ""), by=by,
+                        command=command if command is not None else getattr(image, "command", None), words=words)
+
+
 def expect(condition, sentence, *, measured=None, expected=None, command=None):
     """A check that is not a comparison of two numbers: record the sentence (what was expected and
     what was seen) and raise AssertionError with it when condition is false."""
