@@ -33,6 +33,7 @@ from lib import (BATCH_DF, ROOT, check_bad_input, check_probes_match_lambert, ch
                  finite_image, kit_stats, probe, radiosity_surfaces, read_pfm, t_bound)
 
 from lib import expect_estimate  # the report's sentences
+from lib import CHANNELS, expect, expect_close, lambert_polygon_irradiance  # several lights, MIS
 
 CHAPTER = "04_pathtrace"
 ESTIMATORS = ("hemisphere", "cosine", "light", "mis")
@@ -481,3 +482,134 @@ def test_rr_depth_0_is_said_to_act_as_1(ctx):
                 "--out", ctx.path("rr0.pfm"))
     assert r.returncode == 0 and sum("--rr-depth 0" in line for line in r.stderr.splitlines()) == 1, r.stderr
     assert read_pfm(ctx.path("rr0.pfm")).pixels == a.pixels, "--rr-depth 0 and 1 should give the same image"
+
+
+# ---- several lights, picked by power (issue: the choice among lights) ------------------------
+
+SEVERAL_LIGHTS_SCENE = """\
+camera eye 0 -5 0  look 0 0 0  up 0 0 1  fov 30
+image 4 4
+background 0 0 0
+material lamp emitter 1 2 3
+material globe emitter 6 4 2
+quad light lamp  -0.5 1 -0.3  0.5 1 -0.3  0.5 1 0.3  -0.5 1 0.3
+sphere globe globe  -1.2 1.2 0.8  0.15
+light bright point  1.5 0.8 0.6  2 1.5 1
+light dim point  -0.8 0.6 -1.0  0.2 0.4 0.6
+"""
+# name: (position, normal); every light is wholly above each probe's horizon and none shadows another's.
+SEVERAL_LIGHTS_PROBES = {"centre": ((0.0, 0.0, 0.0), (0.0, 1.0, 0.0)),
+                         "offset": ((0.7, 0.2, -0.3), (-0.28, 0.96, 0.0))}
+
+
+def sphere_irradiance(radiance, centre, radius, point, normal):
+    """Irradiance at `point` (unit `normal`) from a Lambertian sphere of constant radiance wholly
+    above the point's horizon: pi L (R / d)^2 cos(theta), theta the angle between the normal and
+    the direction to the centre at distance d (the sphere acts as a point of intensity pi R^2 L)."""
+    d = [centre[k] - point[k] for k in range(3)]
+    dist = math.sqrt(sum(c * c for c in d))
+    cos_theta = sum(normal[k] * d[k] for k in range(3)) / dist
+    assert math.acos(max(-1.0, min(1.0, cos_theta))) + math.asin(radius / dist) < math.pi / 2, "sphere below horizon"
+    return math.pi * radiance * (radius / dist) ** 2 * cos_theta
+
+
+def point_light_irradiance(intensity, position, point, normal):
+    """(R1): I cos(theta) / r^2 (0 below the horizon)."""
+    d = [position[k] - point[k] for k in range(3)]
+    r2 = sum(c * c for c in d)
+    return intensity * max(0.0, sum(normal[k] * d[k] for k in range(3))) / r2 ** 1.5
+
+
+def several_lights_irradiance(point, normal, channel):
+    """The closed form at a probe of SEVERAL_LIGHTS_SCENE: Lambert's polygon formula for the
+    rectangle, the sphere's pi L (R/d)^2 cos, and I cos / r^2 for each point light."""
+    rectangle = [(-0.5, 1, -0.3), (0.5, 1, -0.3), (0.5, 1, 0.3), (-0.5, 1, 0.3)]
+    return (lambert_polygon_irradiance((1.0, 2.0, 3.0)[channel], rectangle, point, normal)
+            + sphere_irradiance((6.0, 4.0, 2.0)[channel], (-1.2, 1.2, 0.8), 0.15, point, normal)
+            + point_light_irradiance((2.0, 1.5, 1.0)[channel], (1.5, 0.8, 0.6), point, normal)
+            + point_light_irradiance((0.2, 0.4, 0.6)[channel], (-0.8, 0.6, -1.0), point, normal))
+
+
+def unit(v):
+    length = math.sqrt(sum(c * c for c in v))
+    return tuple(c / length for c in v)
+
+
+def test_lights_picked_by_power_at_probes(ctx):
+    """Next-event estimation picks one light per sample, with probability its power over the
+    total, and divides by that chance (R9): with two point lights of different power and colour,
+    a rectangular emitter and a spherical one (powers 19, 5, 3.8 and 3.6 W: picked 61, 16, 12 and
+    11 % of the time) the probes' irradiance is the sum of every light's closed form (Lambert's
+    polygon formula, pi L (R/d)^2 cos for the sphere, I cos / r^2 for the point lights), by
+    --estimator light and mis (hemisphere and cosine never find a point light).  --bounces 0:0
+    (the emitters reflect nothing anyway).  Within t_bound(31, 12) standard errors (32 batch
+    means; 2 estimators, 2 probes, 3 channels), each positive and below 1 % of the answer.  A pick
+    that is not the power's share, or a light's contribution not divided by its own chance, moves
+    the sum by tens of per cent."""
+    scene = ctx.write("several-lights.scene", SEVERAL_LIGHTS_SCENE + "".join(
+        "probe %s  %g %g %g  %g %g %g\n" % (name, *p, *n) for name, (p, n) in SEVERAL_LIGHTS_PROBES.items()))
+    bound = t_bound(BATCH_DF, 2 * 3 * len(SEVERAL_LIGHTS_PROBES))
+    for estimator in ("light", "mis"):
+        _, stats = ctx.render(CHAPTER, scene, "--estimator", estimator, "--bounces", "0:0",
+                              "--probe-samples", 1 << 18, name=estimator)
+        for name, (p, n) in SEVERAL_LIGHTS_PROBES.items():
+            got = probe(stats, name)
+            for c in range(3):
+                expected = several_lights_irradiance(p, unit(n), c)
+                expect_estimate("irradiance", got["irradiance"][c], expected, got["standard_error"][c], bound,
+                                0.01 * expected, where=f"at probe {name}, {CHANNELS[c]} (--estimator {estimator})",
+                                by="Lambert's formula, pi L (R/d)^2 cos and I cos / r^2 summed over the four lights",
+                                positive=True)
+
+
+# ---- MIS: its weights add up to one -------------------------------------------------------------
+
+MIS_FLOOR_SCENE = """\
+camera eye 0 1.2 -3  look 0 0 0.5  up 0 1 0  fov 40
+background 0 0 0
+material small emitter 15 15 15
+material large emitter 1 1 1
+material gloss phong kd 0.15 0.15 0.15 ks 0.6 0.6 0.6 exp 50
+quad floor gloss  -3 0 -3  -3 0 4  3 0 4  3 0 -3
+quad large_light large  -2 1.5 1.5  2 1.5 1.5  2 1.5 3.5  -2 1.5 3.5
+quad small_light small  -0.2 1 0.4  0.2 1 0.4  0.2 1 0.8  -0.2 1 0.8
+"""
+
+
+def test_mis_agrees_with_light_and_cosine_on_a_glossy_floor(ctx):
+    """MIS counts a path to a light once in expectation only if its two shares (the light
+    sample's w(p_light, p_bsdf) and the walk's 1 - w of the same two densities) add up to one,
+    with p_bsdf the density sample_bsdf really draws (the cosine and the Phong lobe mixed) and
+    p_light that of sample_light (the pick by power included).  Direct light (--bounces 1:1) on a
+    floor that is mostly glossy (kd 0.15, ks 0.6, exponent 50), under a small bright light and a
+    large dim one (powers 2.5 pi and 10 pi: picked 20 and 80 % of the time), where both shares
+    are far from 0 and 1: --estimator mis against light (no share: every path from a light
+    sample) and against cosine (no light sample: every path the walk finds), each of them
+    unbiased whatever the weights.  16 renders (batches) of each, seeds of their own (cosine
+    directions find the small light rarely: 1024 samples per pixel, the others 256); Welch's t
+    on the 16 + 16 image means (pixels and the three equal channels), Welch-Satterthwaite degrees
+    of freedom, tolerance t_bound(df, 2) standard errors, which must be below 2 % of the image
+    mean."""
+    scene = ctx.write("mis-floor.scene", MIS_FLOOR_SCENE)
+    batches, commands = {}, {}
+    for estimator, first_seed, spp in (("mis", 1, 256), ("light", 101, 256), ("cosine", 201, 1024)):
+        batches[estimator] = []
+        for b in range(16):
+            img, stats = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", spp, "--bounces", "1:1",
+                                    "--estimator", estimator, "--seed", first_seed + b, "--probe-samples", 32,
+                                    "--threads", 1, name=f"{estimator}{b}")
+            assert stats["nonfinite_samples"] == 0 and finite_image(img)
+            batches[estimator].append(sum(image_mean(img, c) for c in range(3)) / 3)
+            commands.setdefault(estimator, img.command)
+    mis = batches["mis"]
+    for other in ("light", "cosine"):
+        t, df, _, d, se = kit_stats.welch(mis, batches[other])
+        bound = t_bound(df, 2)
+        mean = sum(batches[other]) / len(batches[other])
+        expect(mean > 0 and bound * se < 0.02 * mean,
+               f"tolerance of mis against {other}: {bound:.2f} x {se:.3g}, expected below 2 % of the image mean "
+               f"{mean:.4g} so that it stays tight", measured=bound * se, expected=0.02 * mean,
+               command=commands[other])
+        expect_close("image mean", sum(mis) / len(mis), mean, se=se, bound=bound,
+                     where="of direct light on a glossy floor by --estimator mis",
+                     by=f"--estimator {other}, which does not use the MIS weights", command=commands["mis"])

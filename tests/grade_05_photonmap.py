@@ -32,6 +32,7 @@ from lib import BATCH_DF, CRITERION_ALPHA, ROOT, Image, radiosity_surfaces, chec
     check_thread_independence, finite_image, lambert_polygon_irradiance, probe, t_bound
 
 from lib import expect_estimate  # the report's sentences
+from lib import CHANNELS, expect, expect_between  # several lights, probes and the radius
 
 CHAPTER = "05_photonmap"
 # Renders (seeds) behind an image mean: their spread gives its standard error with RENDERS - 1
@@ -357,3 +358,108 @@ def test_threads_give_identical_bytes(ctx):
 def test_sigint_writes_completed_passes(ctx):
     from grade_driver import check_sigint
     check_sigint(ctx, CHAPTER)
+
+
+# ---- several lights, picked by power; probes; the density estimate's radius ----------------------
+
+def disc_mean(function, centre, normal, radius, rings=24, sectors=48):
+    """The mean of function(point, normal) over the disc of the given radius around centre in the
+    plane of normal: what a probe's photon estimate (flux through the disc / its area) expects.
+    Midpoint rule in polar coordinates (area-weighted), as disc_average."""
+    n = normal
+    a = (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 1.0, 0.0)
+    u = [n[1] * a[2] - n[2] * a[1], n[2] * a[0] - n[0] * a[2], n[0] * a[1] - n[1] * a[0]]
+    lu = math.sqrt(sum(c * c for c in u))
+    u = [c / lu for c in u]
+    v = [n[1] * u[2] - n[2] * u[1], n[2] * u[0] - n[0] * u[2], n[0] * u[1] - n[1] * u[0]]
+    total = weight = 0.0
+    for i in range(rings):
+        r = radius * (i + 0.5) / rings
+        for j in range(sectors):
+            phi = 2 * math.pi * (j + 0.5) / sectors
+            p = [centre[k] + r * (math.cos(phi) * u[k] + math.sin(phi) * v[k]) for k in range(3)]
+            total += r * function(p, n)
+            weight += r
+    return total / weight
+
+
+def test_lights_picked_by_power_at_probes(ctx):
+    """A photon leaves light l with probability its power's share P_l and carries Phi_l / (P_l N):
+    with two point lights of different power and colour, a rectangular and a spherical emitter
+    (grade_04's scene: picked 61, 16, 12 and 11 % of the time), the flux crossing each probe's disc
+    (radius 0.25) per unit area is the mean over the disc of the four lights' closed forms (Lambert's
+    polygon formula, pi L (R/d)^2 cos for the sphere, I cos / r^2 for the point lights).  4 passes
+    (the default alpha shrinks the eye pass's radius; a probe's disc stays the first one).  Within
+    t_bound(31, 6) standard errors (32 photon batches; 2 probes, 3 channels), each positive and
+    below 1.5 % of the answer."""
+    from grade_04_pathtrace import SEVERAL_LIGHTS_PROBES, SEVERAL_LIGHTS_SCENE, several_lights_irradiance, unit
+    scene = ctx.write("several-lights.scene", SEVERAL_LIGHTS_SCENE + "".join(
+        "probe %s  %g %g %g  %g %g %g\n" % (name, *p, *n) for name, (p, n) in SEVERAL_LIGHTS_PROBES.items()))
+    bound = t_bound(BATCH_DF, 3 * len(SEVERAL_LIGHTS_PROBES))
+    _, stats = ctx.render(CHAPTER, scene, "--radius", 0.25, "--spp", 4, "--photons", 1000, "--probe-photons", 1 << 21)
+    for name, (p, n) in SEVERAL_LIGHTS_PROBES.items():
+        got = probe(stats, name)
+        for c in range(3):
+            expected = disc_mean(lambda x, normal: several_lights_irradiance(x, normal, c), p, unit(n), 0.25)
+            expect_estimate("irradiance", got["irradiance"][c], expected, got["standard_error"][c], bound,
+                            0.015 * expected, where=f"at probe {name}, {CHANNELS[c]}",
+                            by="the four lights' closed forms averaged over the probe's disc", positive=True)
+
+
+def test_furnace_probe_keeps_the_bounces_window(ctx):
+    """A probe 0.01 above the furnace's floor, facing up, counts the photons crossing its disc from
+    above: the irradiance pi Le rho^k of the photons that scattered k times, summed over the
+    --bounces window: 0:0 pi Le, 1:1 pi Le rho, 0: pi Le / (1 - rho) (rho 0.5; the photons that
+    leave the floor below cross from behind and do not count).  The disc's radius 0.5 (--radius: the
+    field is uniform, any disc on the floor would do; a large one is crossed often).  4 passes (the
+    default alpha shrinks the eye pass's radius; a probe's disc stays the first).  Within t_bound(31, 3)
+    standard errors (32 photon batches), each below 2 % of the answer (2^19 photons: 0.8 % for 0:0,
+    1.2 % for 1:1, against errors of 50 % and more when the window or the disc is wrong)."""
+    rho = 0.5
+    scene = furnace_scene(ctx, rho, name="probe-furnace")
+    with open(scene, "a") as f:
+        f.write("probe above_floor  0.2 -0.99 0.1  0 1 0\n")
+    bound = t_bound(BATCH_DF, 3)
+    for window, expected in (("0:0", math.pi), ("1:1", math.pi * rho), ("0:", math.pi / (1 - rho))):
+        _, stats = ctx.render(CHAPTER, scene, "--size", "4x4", "--spp", 4, "--photons", 1000, "--radius", 0.5,
+                              "--bounces", window, "--probe-photons", 1 << 19, name="w" + window.replace(":", "_"))
+        got = probe(stats, "above_floor")
+        expect_estimate("irradiance", got["irradiance"][0], expected, got["standard_error"][0], bound,
+                        0.02 * expected, where=f"at the furnace's floor probe with --bounces {window}",
+                        by="pi Le times the Neumann terms rho^k of the window", positive=True)
+
+
+def test_density_estimate_for_any_radius_and_k_nearest(ctx):
+    """(R11) in the furnace (rho 0.5, Le 1, --maps global): the photons land uniformly on each wall,
+    all with the same power Phi, so a fixed disc lying on the wall is unbiased for any radius:
+    L = Le / (1 - rho) = 2 at --radius 0.2 (the furnace criterion uses 0.05).  With --nearest K the
+    disc is the one that holds the K nearest photons, at most --radius 1, which would reach past the
+    wall's edges (a disc of that radius, or one of K photons that are not the nearest, reads the
+    wall too dark): pi r_K^2 times the photon density is a Gamma(K) variable and E[1 / Gamma(K)] =
+    1 / (K - 1), so K Phi / (pi r_K^2) reads the reflected part Le rho / (1 - rho) = 1 as K / (K - 1),
+    and (K - 1) Phi / (pi r_K^2) as 1: the K-th photon lies on the disc's rim, and whether the
+    search counts it is a question of rounding (the solution drops it in about a quarter of the
+    lookups), so with K = 32 L is between 2 and 2 + 1/31.  --alpha 1 (the radius kept).  The
+    central pixels' mean over RENDERS seeds, within t_bound(RENDERS - 1, 2) standard errors of that
+    (a point or a band), each below 0.5 % of the answer; the noise comes from the number of photons
+    on the wall, not from K: 20,000 photons per pass for the fixed disc, 10,000 for the K nearest
+    (the search visits every photon within --radius 1: the whole furnace)."""
+    rho = 0.5
+    scene = furnace_scene(ctx, rho, name="radius-furnace")
+    bound = t_bound(RENDERS - 1, 2)
+    for label, options, low, high in (("--radius 0.2", ("--radius", 0.2, "--photons", 20000), 2.0, 2.0),
+                                      ("--nearest 32", ("--radius", 1, "--nearest", 32, "--photons", 10000), 2.0,
+                                       2 + 1 / 31)):
+        results = renders(ctx, scene, range(1, RENDERS + 1), "--size", "24x24", "--spp", 2, "--alpha", 1,
+                          "--maps", "global", *options, "--probe-photons", 32, "--threads", 1,
+                          name="k" + label.split()[-1])
+        assert all(s["nonfinite_samples"] == 0 for _, s in results)
+        mean, se = mean_and_error([central_mean(img) for img, _ in results])
+        by = "Le / (1 - rho): a fixed disc on the wall" if low == high else \
+            f"Le + Le rho / (1 - rho) times between 1 and K / (K - 1) = {high - 1:.4g} for the K nearest"
+        expect_between("mean radiance", mean, low - bound * se, high + bound * se, expected=(low + high) / 2,
+                       where=f"of the furnace's back wall (albedo {rho}) with {label} (± {bound:.2f} standard "
+                             f"errors of {se:.2g})", by=by, command=results[0][0].command)
+        expect(0 < se < 0.005 * low, f"standard error of the mean radiance with {label}: {se:.3g}, expected "
+               f"positive and below {0.005 * low:.3g} so that the tolerance stays tight", measured=se,
+               expected=0.005 * low, command=results[0][0].command)
