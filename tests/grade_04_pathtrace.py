@@ -34,6 +34,7 @@ from lib import (BATCH_DF, ROOT, check_bad_input, check_probes_match_lambert, ch
 
 from lib import expect_estimate  # the report's sentences
 from lib import CHANNELS, expect, expect_close, lambert_polygon_irradiance  # several lights, MIS
+from lib import expect_at_least, expect_at_most, expect_image  # the report's sentences
 
 CHAPTER = "04_pathtrace"
 ESTIMATORS = ("hemisphere", "cosine", "light", "mis")
@@ -91,8 +92,12 @@ def test_furnace_converges_to_Le_over_1_minus_rho(ctx):
         for estimator in ("mis", "cosine") + (("hemisphere",) if rho == 0.5 else ()):
             img, stats = ctx.render(CHAPTER, scene, "--size", "32x32", "--spp", 16, "--max-depth", 100000,
                                     "--estimator", estimator, "--probe-samples", 8192, name=f"f{rho}{estimator}")
-            assert stats["nonfinite_samples"] == 0 and stats["truncated_paths"] == 0
-            assert stats["biased_by_max_depth"] is False
+            expect(stats["nonfinite_samples"] == 0 and stats["truncated_paths"] == 0 and
+                   stats["biased_by_max_depth"] is False,
+                   f"the furnace (albedo {rho}, --estimator {estimator}, --max-depth 100000): "
+                   f"{stats['nonfinite_samples']} non-finite samples, {stats['truncated_paths']} walks cut, "
+                   f"biased_by_max_depth {stats['biased_by_max_depth']}; expected 0, 0 and false (Russian roulette "
+                   "ends the walks, not the depth limit)", command=img.command)
             mean, se = iid_mean(img)
             bound = t_bound(len(img.pixels) - 1, 2 * renders)
             expect_estimate("mean radiance", mean, expected, se, bound, 0.01 * expected,
@@ -113,7 +118,8 @@ def test_furnace_neumann_partial_sums(ctx):
     rho = 0.5
     scene = furnace_scene(ctx, rho)
     img, _ = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", 4, "--bounces", "0:0", name="b00")
-    assert all(p == (1.0, 1.0, 1.0) for p in img.pixels), "0:0 must be exactly the emission Le = 1"
+    expect_image("radiance", img, lambda x, y, c: 1.0, tol=0, where="of the furnace with --bounces 0:0",
+                 by="exactly the emission Le = 1 (the term E)")
     for window, expected in (("0:1", 1 + rho), ("0:2", 1 + rho + rho ** 2), ("0:5", (1 - rho ** 6) / (1 - rho)),
                              ("1:1", rho), ("3:3", rho ** 3), ("2:", rho ** 2 / (1 - rho))):
         for estimator in ("mis", "cosine", "hemisphere"):
@@ -138,9 +144,13 @@ def test_max_depth_cuts_and_says_so(ctx):
     mean, se = iid_mean(img)
     expect_estimate("mean radiance", mean, expected, se, t_bound(len(img.pixels) - 1), 0.01 * expected,
                     where="of the furnace (albedo 0.9) with --max-depth 3", by="Le (1 + rho + rho^2 + rho^3)")
-    assert stats["truncated_paths"] > 0 and stats["biased_by_max_depth"] is True, "the cut was not reported"
+    expect(stats["truncated_paths"] > 0 and stats["biased_by_max_depth"] is True,
+           f"the stats with --max-depth 3: {stats['truncated_paths']} walks cut, biased_by_max_depth "
+           f"{stats['biased_by_max_depth']}; expected walks cut and true (the cut was not reported)", command=img.command)
     r = ctx.run(CHAPTER, scene, "--quiet", "--size", "8x8", "--spp", 1, "--max-depth", 2, "--out", ctx.path("m.pfm"))
-    assert r.returncode == 0 and "max-depth" in r.stderr, f"no warning on stderr: {r.stderr!r}"
+    expect(r.returncode == 0 and "max-depth" in r.stderr,
+           f"exit status {r.returncode} and stderr {r.stderr.strip()[:200]!r}; expected exit 0 and a warning that "
+           "names --max-depth (the image is biased low)")
 
 
 def test_furnace_surfaces_key(ctx):
@@ -255,24 +265,28 @@ def test_lobe_sampling_agrees_with_light_sampling(ctx):
     inverse, and a lobe pdf normalised by (n + 2) instead of (n + 1) (22/21, 4.5 %) lands more
     than 5 standard errors beyond the tolerance."""
     scene = ctx.write("glossy-floor.scene", GLOSSY_FLOOR_SCENE)
-    batches = {}
+    batches, commands = {}, {}
     for estimator, first_seed in (("cosine", 1), ("light", 101)):
         batches[estimator] = []
         for b in range(16):
             img, stats = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", 512, "--bounces", "1:1",
                                     "--estimator", estimator, "--seed", first_seed + b, "--probe-samples", 32,
                                     "--threads", 1, name=f"{estimator}{b}")
-            assert stats["nonfinite_samples"] == 0 and finite_image(img)
+            expect(stats["nonfinite_samples"] == 0 and finite_image(img),
+                   f"{stats['nonfinite_samples']} non-finite samples on the glossy floor (--estimator {estimator}); "
+                   "expected none and a finite image", command=img.command)
             batches[estimator].append(sum(image_mean(img, c) for c in range(3)) / 3)
+            commands.setdefault(estimator, img.command)
     lobe, light = batches["cosine"], batches["light"]
     t, df, _, d, se = kit_stats.welch(lobe, light)
     bound = t_bound(df)
     mean = sum(light) / len(light)
-    assert mean > 0 and bound * se < 0.02 * mean, \
-        f"tolerance {bound:.2f} x {se:.3g} is not below 2 % of the image mean {mean:.4f}"
-    assert abs(d) <= bound * se, \
-        f"directions from the lobe give the image mean {sum(lobe) / len(lobe):.5f}, points on the light " \
-        f"{mean:.5f} ({100 * d / mean:+.2f} %, t = {t:.2f}, df = {df:.0f}, bound {bound:.2f})"
+    expect(mean > 0 and bound * se < 0.02 * mean,
+           f"tolerance of cosine against light: {bound:.2f} x {se:.3g}, expected below 2 % of the image mean "
+           f"{mean:.4g} so that it stays tight", measured=bound * se, expected=0.02 * mean, command=commands["light"])
+    expect_close("image mean", sum(lobe) / len(lobe), mean, se=se, bound=bound,
+                 where="of direct light on a purely glossy floor, directions drawn from the lobe (--estimator cosine)",
+                 by="--estimator light, which does not use the lobe's pdf", command=commands["cosine"])
 
 
 def test_caustic_under_glass_ball(ctx):
@@ -303,8 +317,10 @@ def test_caustic_under_glass_ball(ctx):
     c, a = probe(stats, "caustic"), probe(stats, "aside")
     diff = c["irradiance"][0] - a["irradiance"][0]
     se = math.hypot(c["standard_error"][0], a["standard_error"][0])
-    assert diff > 4 * se and c["irradiance"][0] > 2 * a["irradiance"][0], \
-        f"no caustic: K^2 E irradiance {c['irradiance'][0]:.4f} under the ball vs {a['irradiance'][0]:.4f} beside it"
+    expect_at_least("irradiance (--bounces 2:2, red) at the caustic under the glass ball", c["irradiance"][0],
+                    max(2 * a["irradiance"][0], a["irradiance"][0] + 4 * se),
+                    by=f"twice and 4 standard errors above the {a['irradiance'][0]:.4g} beside the ball: the ball "
+                       "focuses the light (no caustic otherwise)")
 
 
 def test_neumann_terms_add_up(ctx):
@@ -405,17 +421,22 @@ def test_point_light_warning_and_inverse_square(ctx):
     scene = ctx.write("point.scene", POINT_LIGHT_SCENE)
     for estimator in ("hemisphere", "cosine"):
         r = ctx.run(CHAPTER, scene, "--quiet", "--estimator", estimator, "--out", ctx.path(f"{estimator}.pfm"))
-        assert r.returncode == 0
-        assert "warning" in r.stderr and "point light" in r.stderr, f"{estimator}: no warning: {r.stderr!r}"
+        expect(r.returncode == 0 and "warning" in r.stderr and "point light" in r.stderr,
+               f"--estimator {estimator} with a point light: exit status {r.returncode}, stderr "
+               f"{r.stderr.strip()[:200]!r}; expected exit 0 and a warning that the image misses the point light "
+               "(a sampled direction never hits a point)")
     for estimator in ("light", "mis"):
         r = ctx.run(CHAPTER, scene, "--quiet", "--estimator", estimator, "--out", ctx.path(f"{estimator}.pfm"))
-        assert r.returncode == 0 and "warning" not in r.stderr, r.stderr
+        expect(r.returncode == 0 and "warning" not in r.stderr,
+               f"--estimator {estimator} with a point light: exit status {r.returncode}, stderr "
+               f"{r.stderr.strip()[:200]!r}; expected exit 0 and no warning (light sampling reaches point lights)")
         _, stats = ctx.render(CHAPTER, scene, "--estimator", estimator, "--bounces", "0:0", name=estimator)
         d = (0.5, 3.0, 0.25)
         r2 = sum(x * x for x in d)
         expected = 40.0 * d[1] / math.sqrt(r2) / r2
-        got = probe(stats, "under")["irradiance"][0]
-        assert abs(got - expected) <= 1e-9 * expected, f"{estimator}: {got} vs I cos / r^2 = {expected}"
+        expect_close("irradiance", probe(stats, "under")["irradiance"][0], expected, rel=1e-9,
+                     where=f"at the probe under the point light, red (--estimator {estimator} --bounces 0:0)",
+                     by="I cos / r^2 (R1)")
 
 
 # ---- radiosity and path tracing agree -------------------------------------------------------
@@ -439,17 +460,23 @@ def test_radiosity_and_path_tracing_agree_on_cornell_box(ctx):
     _, stats = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 1, "--surface-samples", 1 << 16,
                           "--probe-samples", 32, name="pt")
     traced = {s["name"]: s for s in stats["surfaces"]}
-    assert set(traced) == set(radiosity[25]) == set(radiosity[50]), "the two chapters report different surfaces"
+    expect(set(traced) == set(radiosity[25]) == set(radiosity[50]),
+           f"surfaces of the Cornell box: path tracing {sorted(traced)}, radiosity {sorted(radiosity[25])}; "
+           "expected the same names")
     t = t_bound(BATCH_DF, 3 * len(traced))
     for name, s in traced.items():
         r25, r50 = radiosity[25][name], radiosity[50][name]
-        assert abs(s["area"] - r25["area"]) <= 1e-6 * s["area"], f"{name}: areas {s['area']} vs {r25['area']}"
+        expect_close("area", s["area"], r25["area"], rel=1e-6, where=f"of the Cornell box's {name}",
+                     by="build/03_radiosity's")
         for c in range(3):
             bound = 2 * abs(r50["radiance"][c] - r25["radiance"][c]) + t * s["standard_error"][c]
-            diff = abs(s["radiance"][c] - r25["radiance"][c])
-            assert diff <= bound, f"{name} channel {c}: path tracing {s['radiance'][c]:.5f} vs radiosity " \
-                                  f"{r25['radiance'][c]:.5f} (50 mm: {r50['radiance'][c]:.5f}); bound {bound:.3g}"
-            assert s["standard_error"][c] <= 0.02 * s["radiance"][c] + 1e-4
+            expect_close("radiance", s["radiance"][c], r25["radiance"][c], tol=bound, se=s["standard_error"][c],
+                         where=f"of the Cornell box's {name}, {CHANNELS[c]} (surface average)",
+                         by=f"radiosity at 25 mm patches (50 mm: {r50['radiance'][c]:.5g}), within twice their "
+                            f"difference + {t:.2f} standard errors")
+            expect_at_most("standard error of the radiance", s["standard_error"][c], 0.02 * s["radiance"][c] + 1e-4,
+                           where=f"of the Cornell box's {name}, {CHANNELS[c]}", by="2 % of the radiance + 1e-4",
+                           words=("too noisy", "less noisy"))
 
 
 # ---- plumbing -----------------------------------------------------------------------------------
@@ -598,7 +625,9 @@ def test_mis_agrees_with_light_and_cosine_on_a_glossy_floor(ctx):
             img, stats = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", spp, "--bounces", "1:1",
                                     "--estimator", estimator, "--seed", first_seed + b, "--probe-samples", 32,
                                     "--threads", 1, name=f"{estimator}{b}")
-            assert stats["nonfinite_samples"] == 0 and finite_image(img)
+            expect(stats["nonfinite_samples"] == 0 and finite_image(img),
+                   f"{stats['nonfinite_samples']} non-finite samples on the glossy floor (--estimator {estimator}); "
+                   "expected none and a finite image", command=img.command)
             batches[estimator].append(sum(image_mean(img, c) for c in range(3)) / 3)
             commands.setdefault(estimator, img.command)
     mis = batches["mis"]

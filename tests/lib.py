@@ -248,6 +248,23 @@ def expect_at_most(quantity, measured, high, *, where="", by="", command=None, w
     return text
 
 
+def expect_each(quantity, cases, *, rel=None, tol=None, by="", command=None, words=None):
+    """Many comparisons of one kind: cases are (where, measured, expected); each must be within the
+    larger of rel * |expected| and tol.  The one farthest off for its allowance goes through
+    expect_close, so one sentence names it (a passed check records the closest call)."""
+    worst, worst_share = None, -1.0
+    for where, got, e in cases:
+        allowed = max(rel * abs(e) if rel is not None else 0.0, tol or 0.0)
+        share = abs(got - e) / allowed if allowed > 0 else (0.0 if got == e else math.inf)
+        share = share if math.isfinite(got) else math.inf
+        if share > worst_share:
+            worst, worst_share = (where, got, e), share
+    if worst is None:
+        return ""
+    return expect_close(quantity, worst[1], worst[2], rel=rel, tol=tol, where=worst[0], by=by, command=command,
+                        words=words)
+
+
 def expect_image(quantity, image, expected_at, *, rel=None, tol=None, pixels=None, where="", by="", command=None,
                  words=None):
     """Every pixel channel of `image` against expected_at(x, y, channel) (None: not checked), each
