@@ -642,3 +642,47 @@ def test_mis_agrees_with_light_and_cosine_on_a_glossy_floor(ctx):
         expect_close("image mean", sum(mis) / len(mis), mean, se=se, bound=bound,
                      where="of direct light on a glossy floor by --estimator mis",
                      by=f"--estimator {other}, which does not use the MIS weights", command=commands["mis"])
+
+
+# ---- the background -----------------------------------------------------------------------------
+
+OPEN_FLOOR_SCENE = """\
+camera eye 0 3 0  look 0 0 0.01  up 0 0 1  fov 40
+background 0.2 0.4 0.6
+material ground diffuse 0.5 0.3 0.1
+quad floor ground  -50 0 -50  -50 0 50  50 0 50  50 0 -50
+probe up 0.3 0 0.2  0 1 0
+"""
+
+
+def test_background_lights_an_open_floor(ctx):
+    """A diffuse floor (albedo 0.5, 0.3, 0.1) under nothing but the background (Lb 0.2, 0.4, 0.6):
+    every direction above a floor point leaves the scene, so its radiance is rho Lb and a probe on
+    it receives pi Lb (no light, no other surface).  A walk that escapes adds the background times
+    its throughput, and MIS counts it fully (no light sample can find it).  Cosine, light and mis
+    draw directions like f cos: every sample is exactly rho Lb, every probe walk pi Lb (to
+    rounding: 1e-6 relative); hemisphere has noise: the pixels' mean (iid pixels: every pixel has
+    the same expectation) and the probe within t_bound standard errors (6 comparisons: 3 channels
+    of the image, 3 of the probe), each below 1 % of the answer."""
+    scene = ctx.write("open-floor.scene", OPEN_FLOOR_SCENE)
+    albedo, background = (0.5, 0.3, 0.1), (0.2, 0.4, 0.6)
+    for estimator in ESTIMATORS:
+        img, stats = ctx.render(CHAPTER, scene, "--size", "32x32", "--spp", 16, "--estimator", estimator,
+                                "--probe-samples", 1 << 16, name=estimator)
+        got = probe(stats, "up")
+        for c in range(3):
+            expected_pixel, expected_probe = albedo[c] * background[c], math.pi * background[c]
+            where = f"{CHANNELS[c]} (--estimator {estimator})"
+            if estimator == "hemisphere":
+                mean, se = iid_mean(img, c)
+                expect_estimate("mean radiance", mean, expected_pixel, se, t_bound(len(img.pixels) - 1, 6),
+                                0.01 * expected_pixel, where=f"of the floor, {where}", by="rho Lb", positive=True)
+                expect_estimate("irradiance", got["irradiance"][c], expected_probe, got["standard_error"][c],
+                                t_bound(BATCH_DF, 6), 0.01 * expected_probe, where=f"at probe up, {where}",
+                                by="pi Lb", positive=True)
+            else:
+                worst = max(img.pixels, key=lambda p: abs(p[c] - expected_pixel))[c]
+                expect_close("pixel radiance", worst, expected_pixel, rel=1e-6,
+                             where=f"of the floor farthest from rho Lb, {where}", by="rho Lb")
+                expect_close("irradiance", got["irradiance"][c], expected_probe, rel=1e-6,
+                             where=f"at probe up, {where}", by="pi Lb")

@@ -463,3 +463,23 @@ def test_density_estimate_for_any_radius_and_k_nearest(ctx):
         expect(0 < se < 0.005 * low, f"standard error of the mean radiance with {label}: {se:.3g}, expected "
                f"positive and below {0.005 * low:.3g} so that the tolerance stays tight", measured=se,
                expected=0.005 * low, command=results[0][0].command)
+
+
+def test_background_lights_an_open_floor(ctx):
+    """A diffuse floor (albedo 0.5, 0.3, 0.1) under nothing but the background (Lb 0.2, 0.4, 0.6):
+    its radiance is rho Lb.  The background shoots no photons, so only the walks find it: --maps
+    caustic (a path tracer for all but caustics) and --maps both --gather 2 (final gathering),
+    whose walks that leave the scene add the background times their weight.  No photon map here,
+    so pixels are independent: the pixels' mean within t_bound(P - 1, 6) standard errors (2 runs,
+    3 channels), each below 1 % of the answer."""
+    from grade_04_pathtrace import OPEN_FLOOR_SCENE, iid_mean
+    scene = ctx.write("open-floor.scene", OPEN_FLOOR_SCENE)
+    albedo, background = (0.5, 0.3, 0.1), (0.2, 0.4, 0.6)
+    for maps in (("--maps", "caustic"), ("--maps", "both", "--gather", 2)):
+        img, _ = ctx.render(CHAPTER, scene, "--size", "32x32", "--spp", 32, *maps, "--probe-photons", 32,
+                            name=maps[1])
+        for c in range(3):
+            mean, se = iid_mean(img, c)
+            expect_estimate("mean radiance", mean, albedo[c] * background[c], se, t_bound(len(img.pixels) - 1, 6),
+                            0.01 * albedo[c] * background[c], where=f"of the floor, {CHANNELS[c]} ({' '.join(map(str, maps))})",
+                            by="rho Lb", positive=True)
