@@ -1,0 +1,282 @@
+"""Run a submission's code where it can see and change nothing of the grader's.
+
+A submission is hostile code: it may try to read the references, forge a
+result, change a classmate's grade, or outlive its grading.  Everything that
+compiles or runs it goes through Sandbox.run, which starts it under
+bubblewrap (Debian's `bwrap`):
+
+- its own user, PID, network, IPC and UTS namespaces (--unshare-all): it
+  sees its own processes only, has no network, and nothing outlives the
+  run (the namespace dies with its first process; --die-with-parent);
+- a filesystem of read-only system directories (/usr, the loader's cache,
+  /etc/alternatives), a private /tmp (a tmpfs), the submission's working
+  copy (the only writable place), and read-only binds of what the grader
+  lends it (the instructor's Makefile, scenes, unit-test sources) at the
+  same paths inside as outside; nothing else of the host: not the
+  instructor's tree, kit/, tests/, references, rubric, reports, other
+  submissions or $HOME;
+- an unprivileged uid (65534): as root the grader drops to it before
+  bwrap starts, so even the files it writes are not root's;
+- whole-sandbox caps in a cgroup of its own (process count, memory
+  including its tmpfs and page cache, CPU time) and per-process ones
+  (file size, no core files);
+- an empty environment but PATH, HOME=/tmp, LANG and OMP_NUM_THREADS;
+  stdin /dev/null; stdout and stderr go to files of its own, read back
+  size-capped; no descriptor of the grader is open inside.
+
+`unavailable()` says why a sandbox cannot start here (no bwrap, no user
+namespaces, no writable cgroup); kit/grade.py then refuses to grade unless
+the instructor passes UNSAFE=1, which the report states.
+"""
+import os
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+import uuid
+
+SANDBOX_UID = 65534  # "nobody": owns nothing of the grader's
+SYSTEM_READ_ONLY = ("/usr", "/etc/alternatives", "/etc/ld.so.cache", "/etc/ld.so.conf", "/etc/ld.so.conf.d")
+MERGED_USR_LINKS = ("bin", "sbin", "lib", "lib64", "lib32", "libx32")
+CGROUP_V1 = "/sys/fs/cgroup"
+OUTPUT_CAP = 1 << 20  # bytes of stdout / stderr kept
+
+
+class Limits:
+    """Caps for one sandbox: the whole sandbox's processes, memory (MiB, page cache and its
+    tmpfs included) and CPU seconds; per process the largest file (MiB)."""
+
+    def __init__(self, memory_mib=4096, processes=64, cpu_seconds=600.0, file_mib=512, tmp_mib=256):
+        self.memory_mib, self.processes, self.cpu_seconds = memory_mib, processes, cpu_seconds
+        self.file_mib, self.tmp_mib = file_mib, tmp_mib
+
+
+class Result:
+    def __init__(self, returncode, stdout, stderr, stopped):
+        self.returncode = returncode  # None when the sandbox was stopped (time, CPU)
+        self.stdout, self.stderr = stdout, stderr
+        self.stopped = stopped        # "" or what stopped it: "time-out after 300 s", "CPU time cap 600 s"
+
+
+# ---- cgroups: whole-sandbox caps ------------------------------------------------------------------
+
+class Cgroup:
+    """One cgroup per sandbox run, v2 (unified) or v1 (pids, memory, cpuacct hierarchies)."""
+
+    def __init__(self, limits):
+        self.name = f"gi-sandbox-{uuid.uuid4().hex[:12]}"
+        self.dirs = {}
+        v2 = os.path.join(CGROUP_V1, "cgroup.controllers")
+        if os.path.exists(v2) and not os.path.isdir(os.path.join(CGROUP_V1, "pids")):
+            d = os.path.join(CGROUP_V1, self.name)
+            os.mkdir(d)
+            self.dirs = {"pids": d, "memory": d, "cpu": d}
+            self._write("pids", "pids.max", limits.processes)
+            self._write("memory", "memory.max", limits.memory_mib << 20)
+            self._write("memory", "memory.swap.max", 0, optional=True)
+        else:
+            for controller in ("pids", "memory", "cpuacct"):
+                d = os.path.join(CGROUP_V1, controller, self.name)
+                os.mkdir(d)
+                self.dirs["cpu" if controller == "cpuacct" else controller] = d
+            self._write("pids", "pids.max", limits.processes)
+            self._write("memory", "memory.limit_in_bytes", limits.memory_mib << 20)
+            self._write("memory", "memory.memsw.limit_in_bytes", limits.memory_mib << 20, optional=True)
+
+    def _write(self, controller, name, value, optional=False):
+        try:
+            with open(os.path.join(self.dirs[controller], name), "w") as f:
+                f.write(str(value))
+        except OSError:
+            if not optional:
+                raise
+
+    def join(self):
+        """Put the calling process (the child, before exec) into every hierarchy."""
+        for d in sorted(set(self.dirs.values())):
+            with open(os.path.join(d, "cgroup.procs"), "w") as f:
+                f.write(str(os.getpid()))
+
+    def cpu_seconds(self):
+        d = self.dirs["cpu"]
+        try:
+            if os.path.exists(os.path.join(d, "cpuacct.usage")):
+                with open(os.path.join(d, "cpuacct.usage")) as f:
+                    return int(f.read()) / 1e9
+            with open(os.path.join(d, "cpu.stat")) as f:
+                for line in f:
+                    if line.startswith("usage_usec"):
+                        return int(line.split()[1]) / 1e6
+        except (OSError, ValueError):
+            pass
+        return 0.0
+
+    def out_of_memory(self):
+        d = self.dirs["memory"]
+        for name, key in (("memory.events", "oom_kill"), ("memory.oom_control", "oom_kill")):
+            try:
+                with open(os.path.join(d, name)) as f:
+                    for line in f:
+                        if line.startswith(key + " ") and int(line.split()[1]) > 0:
+                            return True
+            except (OSError, ValueError):
+                continue
+        return False
+
+    def processes(self):
+        pids = set()
+        for d in set(self.dirs.values()):
+            try:
+                with open(os.path.join(d, "cgroup.procs")) as f:
+                    pids |= {int(p) for p in f.read().split()}
+            except OSError:
+                pass
+        return pids
+
+    def kill_and_remove(self):
+        _kill_all(self)
+        for d in sorted(set(self.dirs.values()), reverse=True):
+            for _ in range(50):
+                try:
+                    os.rmdir(d)
+                    break
+                except FileNotFoundError:
+                    break
+                except OSError:
+                    time.sleep(0.02)
+
+
+# ---- can a sandbox start here? -------------------------------------------------------------------
+
+def unavailable():
+    """None when sandboxes can start here, else one line saying why not."""
+    if not shutil.which("bwrap"):
+        return "bubblewrap (bwrap) is not installed: apt-get install bubblewrap"
+    if os.geteuid() != 0:
+        return "the sandbox's whole-process caps need a cgroup of its own: grade as root"
+    try:
+        group = Cgroup(Limits())
+    except OSError as e:
+        return f"cannot make a cgroup for the sandbox's caps under {CGROUP_V1}: {e.strerror}"
+    try:
+        scratch = tempfile.mkdtemp(prefix="gi-kit-probe-")
+        os.chown(scratch, SANDBOX_UID, SANDBOX_UID)
+        box = Sandbox(scratch, limits=Limits(memory_mib=256, processes=8, cpu_seconds=10))
+        r = box.run(["/bin/sh", "-c", "id -u; echo $$"], cwd=scratch, timeout=20, cgroup=group)
+        if r.returncode != 0:
+            return f"bwrap cannot start a sandbox here: {r.stderr.strip()[-300:] or r.stopped}"
+        if r.stdout.split() != [str(SANDBOX_UID), "2"]:
+            return f"the sandbox did not run as uid {SANDBOX_UID} in a PID namespace of its own: {r.stdout!r}"
+    finally:
+        group.kill_and_remove()
+        shutil.rmtree(scratch, ignore_errors=True)
+    return None
+
+
+# ---- the sandbox ----------------------------------------------------------------------------------
+
+class Sandbox:
+    """work: the submission's copy, writable inside at the same path.  read_only: paths (files or
+    directories) lent read-only at the same path, later ones over earlier ones (the instructor's
+    Makefile over the submission's)."""
+
+    def __init__(self, work, read_only=(), limits=None, threads=1):
+        self.work = os.path.abspath(work)
+        self.read_only = [os.path.abspath(p) for p in read_only]
+        self.limits = limits or Limits()
+        self.threads = threads
+
+    def bwrap_command(self, argv, cwd):
+        cmd = ["bwrap", "--unshare-all", "--die-with-parent", "--new-session", "--uid", str(SANDBOX_UID),
+               "--gid", str(SANDBOX_UID), "--hostname", "sandbox"]
+        for p in SYSTEM_READ_ONLY:
+            if os.path.exists(p):
+                cmd += ["--ro-bind", p, p]
+        for name in MERGED_USR_LINKS:
+            target = os.path.join("/", name)
+            if os.path.islink(target):
+                cmd += ["--symlink", os.readlink(target), target]
+        cmd += ["--proc", "/proc", "--dev", "/dev", "--size", str(self.limits.tmp_mib << 20), "--tmpfs", "/tmp"]
+        cmd += ["--bind", self.work, self.work]
+        for p in self.read_only:
+            cmd += ["--ro-bind", p, p]
+        cmd += ["--chdir", cwd, "--clearenv", "--setenv", "PATH", "/usr/bin:/bin", "--setenv", "HOME", "/tmp",
+                "--setenv", "LANG", "C.UTF-8", "--setenv", "OMP_NUM_THREADS", str(self.threads), "--"]
+        return cmd + list(argv)
+
+    def _preexec(self, cgroup):
+        limits = self.limits
+
+        def start():
+            import resource
+            cgroup.join()
+            resource.setrlimit(resource.RLIMIT_FSIZE, (limits.file_mib << 20, limits.file_mib << 20))
+            resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+            resource.setrlimit(resource.RLIMIT_NOFILE, (256, 256))
+            if os.geteuid() == 0:  # the sandbox's processes are nobody's, inside and outside
+                os.setgroups([])
+                os.setgid(SANDBOX_UID)
+                os.setuid(SANDBOX_UID)
+        return start
+
+    def run(self, argv, cwd=None, timeout=300.0, cgroup=None):
+        """Run argv inside; Result with stdout/stderr (at most OUTPUT_CAP bytes each, the end kept)."""
+        cwd = os.path.abspath(cwd or self.work)
+        own_group = cgroup is None
+        group = cgroup or Cgroup(self.limits)
+        outputs = tempfile.mkdtemp(prefix="gi-kit-out-")  # the grader's: not bound inside
+        stopped = ""
+        try:
+            with open(os.path.join(outputs, "stdout"), "w+b") as out, open(os.path.join(outputs, "stderr"),
+                                                                          "w+b") as err:
+                p = subprocess.Popen(self.bwrap_command(argv, cwd), stdin=subprocess.DEVNULL, stdout=out, stderr=err,
+                                     close_fds=True, preexec_fn=self._preexec(group), start_new_session=True)
+                start = time.monotonic()
+                while p.poll() is None:
+                    if time.monotonic() - start > timeout:
+                        stopped = f"time-out after {timeout:.0f} s"
+                    elif group.cpu_seconds() > self.limits.cpu_seconds:
+                        stopped = f"the sandbox's CPU time cap of {self.limits.cpu_seconds:.0f} s"
+                    if stopped:  # bwrap's death ends the PID namespace; the cgroup catches the rest
+                        os.killpg(p.pid, signal.SIGKILL)
+                        _kill_all(group)
+                        break
+                    time.sleep(0.05)
+                p.wait()
+                if not stopped and group.out_of_memory():
+                    stopped = f"the sandbox's memory cap of {self.limits.memory_mib} MiB"
+                for _ in range(100):  # the PID namespace's processes die with bwrap, a moment later
+                    if not group.processes():
+                        break
+                    time.sleep(0.01)
+                else:
+                    stopped = stopped or f"{len(group.processes())} processes outlived the run (killed)"
+                    _kill_all(group)
+                stdout, stderr = _tail(out), _tail(err)
+            code = None if stopped and p.returncode in (-signal.SIGKILL, None) else p.returncode
+            return Result(code, stdout, stderr, stopped)
+        finally:
+            if own_group:
+                group.kill_and_remove()
+            shutil.rmtree(outputs, ignore_errors=True)
+
+
+def _kill_all(group):
+    for _ in range(50):
+        pids = group.processes()
+        if not pids:
+            return
+        for p in pids:
+            try:
+                os.kill(p, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+        time.sleep(0.02)
+
+
+def _tail(f):
+    f.seek(0, os.SEEK_END)
+    size = f.tell()
+    f.seek(max(0, size - OUTPUT_CAP))
+    return f.read().decode(errors="replace")
