@@ -33,6 +33,7 @@ from lib import BATCH_DF, CRITERION_ALPHA, ROOT, Image, radiosity_surfaces, chec
 
 from lib import expect_estimate  # the report's sentences
 from lib import CHANNELS, expect, expect_between  # several lights, probes and the radius
+from lib import expect_at_least, expect_at_most, expect_close, expect_image  # the report's sentences
 
 CHAPTER = "05_photonmap"
 # Renders (seeds) behind an image mean: their spread gives its standard error with RENDERS - 1
@@ -108,11 +109,12 @@ def test_furnace_converges_to_Le_over_1_minus_rho(ctx):
             results = renders(ctx, scene, range(1, RENDERS + 1), "--size", "24x24", "--spp", 2, "--photons", 20000,
                               "--radius", 0.05, "--maps", maps, "--probe-photons", 32, name=f"f{rho}{maps}")
             mean, se = mean_and_error([central_mean(img) for img, _ in results])
-            assert all(s["nonfinite_samples"] == 0 for _, s in results)
-            assert se < 0.01 * expected, f"rho {rho} {maps}: standard error {se} too large to test"
-            assert abs(mean - expected) <= bound * se, \
-                f"rho {rho} --maps {maps}: {mean:.4f} vs Le/(1-rho) = {expected:.4f} " \
-                f"({bound:.2f} se = {bound * se:.3g})"
+            nonfinite = sum(s["nonfinite_samples"] for _, s in results)
+            expect(nonfinite == 0, f"{nonfinite} non-finite samples in the furnace (albedo {rho}, --maps {maps}); "
+                   "expected none", measured=nonfinite, expected=0, command=results[0][0].command)
+            expect_estimate("mean radiance of the central pixels", mean, expected, se, bound, 0.01 * expected,
+                            where=f"of the furnace (albedo {rho}, --maps {maps}, over {RENDERS} seeds)",
+                            by="Le / (1 - rho)", command=results[0][0].command)
 
 
 def test_furnace_energy_stored_power(ctx):
@@ -125,12 +127,14 @@ def test_furnace_energy_stored_power(ctx):
         scene = furnace_scene(ctx, rho, name=f"energy{rho}")
         _, s = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 4, "--photons", 50000, "--probe-photons", 32)
         emitted = s["emitted_power"][0]
-        assert abs(emitted - 6 * 4 * math.pi * 1.0) < 1e-9 * emitted, f"emitted power {emitted} vs 6 pi Le A"
+        expect_close("emitted power", emitted, 6 * 4 * math.pi * 1.0, rel=1e-9, where=f"of the furnace (albedo {rho})",
+                     by="pi Le A summed over the six walls of area 4")
         stored, se = s["stored_power"]["global"][0], s["stored_power"]["global_standard_error"][0]
         expect_estimate("absorbed power (1 - rho) x stored", (1 - rho) * stored, emitted, (1 - rho) * se, bound,
                         0.005 * (1 - rho) * stored, where=f"in the furnace (albedo {rho})",
                         by="the emitted power", positive=True)
-        assert s["photons_stored"]["caustic"] == 0, "no mirror or glass: no caustic photons"
+        expect_close("caustic photons stored", s["photons_stored"]["caustic"], 0, tol=0,
+                     where=f"in the furnace (albedo {rho})", by="none: no mirror or glass")
 
 
 def test_furnace_neumann_terms(ctx):
@@ -143,7 +147,8 @@ def test_furnace_neumann_terms(ctx):
     scene = furnace_scene(ctx, rho, name="neumann")
     img, _ = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 1, "--bounces", "0:0", "--photons", 1000,
                         "--probe-photons", 32, name="b00")
-    assert all(p == (1.0, 1.0, 1.0) for p in img.pixels), "0:0 must be exactly the emission Le = 1"
+    expect_image("radiance", img, lambda x, y, c: 1.0, tol=0, where="of the furnace with --bounces 0:0",
+                 by="exactly the emission Le = 1 (the term E)")
     for window, expected in (("0:1", 1 + rho), ("1:1", rho), ("2:", rho ** 2 / (1 - rho))):
         for maps in ("global", "both"):
             results = renders(ctx, scene, range(1, RENDERS + 1), "--size", "24x24", "--spp", 4, "--photons", 40000,
@@ -212,11 +217,9 @@ def test_probe_irradiance_matches_lambert_polygon(ctx):
             expected = disc_average(radiance[c], rectangle, p, n, 0.1)
             point = lambert_polygon_irradiance(radiance[c], rectangle, p, n)
             assert abs(expected - point) < 0.01 * point
-            se = got["standard_error"][c]
-            assert 0 < se < 0.02 * expected, f"probe {name}: standard error {se} vs {expected}"
-            assert abs(got["irradiance"][c] - expected) <= bound * se, \
-                f"probe {name} channel {c}: {got['irradiance'][c]:.5f} vs Lambert over the disc {expected:.5f} " \
-                f"({bound:.2f} se = {bound * se:.3g})"
+            expect_estimate("irradiance", got["irradiance"][c], expected, got["standard_error"][c], bound,
+                            0.02 * expected, where=f"at probe {name} under the rectangle light, {CHANNELS[c]}",
+                            by="Lambert's polygon formula averaged over the probe's disc (radius 0.1)", positive=True)
 
 
 # ---- radiosity and photon mapping agree ------------------------------------------------------------
@@ -233,17 +236,23 @@ def test_radiosity_and_photon_mapping_agree_on_cornell_box(ctx):
     _, stats = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 8, "--photons", 200000,
                           "--probe-photons", 32, name="pm")
     mapped = {s["name"]: s for s in stats["surfaces"]}
-    assert set(mapped) == set(radiosity[25]), "the two chapters report different surfaces"
+    expect(set(mapped) == set(radiosity[25]),
+           f"surfaces of the Cornell box: photon mapping {sorted(mapped)}, radiosity {sorted(radiosity[25])}; "
+           "expected the same names")
     t = t_bound(BATCH_DF, 3 * len(mapped))
     for name, s in mapped.items():
         r25, r50 = radiosity[25][name], radiosity[50][name]
-        assert abs(s["area"] - r25["area"]) <= 1e-6 * s["area"]
+        expect_close("area", s["area"], r25["area"], rel=1e-6, where=f"of the Cornell box's {name}",
+                     by="build/03_radiosity's")
         for c in range(3):
             bound = 2 * abs(r50["radiance"][c] - r25["radiance"][c]) + t * s["standard_error"][c]
-            assert abs(s["radiance"][c] - r25["radiance"][c]) <= bound, \
-                f"{name} channel {c}: photons {s['radiance'][c]:.5f} vs radiosity {r25['radiance'][c]:.5f} " \
-                f"(50 mm: {r50['radiance'][c]:.5f}); bound {bound:.3g}"
-            assert s["standard_error"][c] <= 0.02 * s["radiance"][c] + 1e-4
+            expect_close("radiance", s["radiance"][c], r25["radiance"][c], tol=bound, se=s["standard_error"][c],
+                         where=f"of the Cornell box's {name}, {CHANNELS[c]} (from the power the photons deposit)",
+                         by=f"radiosity at 25 mm patches (50 mm: {r50['radiance'][c]:.5g}), within twice their "
+                            f"difference + {t:.2f} standard errors")
+            expect_at_most("standard error of the radiance", s["standard_error"][c], 0.02 * s["radiance"][c] + 1e-4,
+                           where=f"of the Cornell box's {name}, {CHANNELS[c]}", by="2 % of the radiance + 1e-4",
+                           words=("too noisy", "less noisy"))
 
 
 # ---- convergence to the path tracer -----------------------------------------------------------------
@@ -286,7 +295,8 @@ def test_bias_falls_as_radius_shrinks_and_progressive_converges(ctx):
     ref, _ = ctx.render("04_pathtrace", scene, "--size", size, "--spp", 4096, "--seed", 77, "--probe-samples", 32,
                         name="reference")
     region = caustic_region(ref, int(SIZE * 0.75))
-    assert len(region) >= 3, f"no caustic found in the reference ({len(region)} pixels)"
+    expect_at_least("caustic pixels (floor, at least 3 x the median) in chapter 4's reference render", len(region), 3,
+                    by="the glass ball's caustic on the floor", command=ref.command)
     ref_mean = sum(ref.at(x, y)[0] for x, y in region) / len(region)
     means = {}
     for radius in (40, 10):
@@ -297,19 +307,24 @@ def test_bias_falls_as_radius_shrinks_and_progressive_converges(ctx):
     sharpening, se = mean_and_error([m10 - m40 for m10, m40 in zip(means[10], means[40])])
     bound = t_bound(RENDERS - 1, alpha=2 * CRITERION_ALPHA)  # one-sided at CRITERION_ALPHA
     b40, b10 = sum(means[40]) / RENDERS - ref_mean, sum(means[10]) / RENDERS - ref_mean
-    assert sharpening > bound * se, \
-        f"the caustic did not sharpen from 40 to 10 mm: mean difference {sharpening:.4f}, " \
-        f"{bound:.2f} se = {bound * se:.3g}"
-    assert abs(b10) < abs(b40), f"the bias did not fall: {b40:.4f} at 40 mm, {b10:.4f} at 10 mm " \
-                                f"(reference {ref_mean:.4f})"
+    expect_at_least("gain of the caustic's mean radiance (red) from --radius 40 to 10", sharpening, bound * se,
+                    by=f"{bound:.2f} standard errors of {se:.3g} above 0: a smaller disc blurs the caustic less",
+                    command=results[0][0].command)
+    expect_at_most("|bias| of the caustic's mean radiance (red) with --radius 10", abs(b10), abs(b40),
+                   by=f"the |bias| {abs(b40):.4g} with --radius 40 (against chapter 4's {ref_mean:.4g}): the bias "
+                      "falls as the radius shrinks", command=results[0][0].command, words=("too large", "too small"))
     errors = []
     for passes in (4, 64):
         img, stats = ctx.render(CHAPTER, scene, "--size", size, "--spp", passes, "--photons", 30000, "--radius", 40,
                                 "--probe-photons", 32, "--ref", ctx.path("reference.pfm"), name=f"p{passes}")
         errors.append(stats["metrics"]["rmse"])
         radii = stats["radius_per_pass"]
-        assert radii[0] == 40 and radii[-1] < radii[0]
-    assert errors[1] < 0.7 * errors[0], f"progressive photon mapping did not converge: RMSE {errors}"
+        expect(radii[0] == 40 and radii[-1] < radii[0],
+               f"radius per pass with --radius 40 over {passes} passes: first {radii[0]}, last {radii[-1]}; "
+               "expected 40, then smaller (progressive)", command=img.command)
+    expect_at_most("RMSE after 64 progressive passes", errors[1], 0.7 * errors[0],
+                   by=f"0.7 x the RMSE {errors[0]:.4g} after 4 passes: progressive photon mapping converges",
+                   command=img.command, words=("too large", "too small"))
 
 
 def test_radius_follows_R12(ctx):
@@ -318,9 +333,12 @@ def test_radius_follows_R12(ctx):
         _, s = ctx.render(CHAPTER, "scenes/cornell.scene", "--size", "8x8", "--spp", 6, "--photons", 1000,
                           "--radius", 20, "--alpha", alpha, "--probe-photons", 32, name=f"a{alpha}")
         r = s["radius_per_pass"]
-        assert len(r) == 6 and r[0] == 20
+        expect(len(r) == 6 and r[0] == 20, f"radius_per_pass {r} with --spp 6 --radius 20: expected 6 passes "
+               "starting at 20")
         for i in range(1, 6):
-            assert abs(r[i] ** 2 - r[i - 1] ** 2 * (i + alpha) / (i + 1)) <= 1e-12 * r[i - 1] ** 2, r
+            expect_close("radius^2", r[i] ** 2, r[i - 1] ** 2 * (i + alpha) / (i + 1), rel=1e-12,
+                         where=f"of pass {i + 1} with --alpha {alpha}", by="r_i^2 (i + alpha) / (i + 1) (R12)",
+                         words=("too large", "too small"))
 
 
 # ---- plumbing -------------------------------------------------------------------------------------
@@ -453,7 +471,9 @@ def test_density_estimate_for_any_radius_and_k_nearest(ctx):
         results = renders(ctx, scene, range(1, RENDERS + 1), "--size", "24x24", "--spp", 2, "--alpha", 1,
                           "--maps", "global", *options, "--probe-photons", 32, "--threads", 1,
                           name="k" + label.split()[-1])
-        assert all(s["nonfinite_samples"] == 0 for _, s in results)
+        nonfinite = sum(s["nonfinite_samples"] for _, s in results)
+        expect(nonfinite == 0, f"{nonfinite} non-finite samples in the furnace with {label}; expected none",
+               measured=nonfinite, expected=0, command=results[0][0].command)
         mean, se = mean_and_error([central_mean(img) for img, _ in results])
         by = "Le / (1 - rho): a fixed disc on the wall" if low == high else \
             f"Le + Le rho / (1 - rho) times between 1 and K / (K - 1) = {high - 1:.4g} for the K nearest"

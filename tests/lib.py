@@ -109,6 +109,11 @@ def record_todos(stderr):
                 TODOS.append(todo)
 
 
+def as_number(x):
+    """A measured value as a float: None (a stats file's null, written for NaN or infinity) is NaN."""
+    return math.nan if x is None else x
+
+
 def number(x):
     """A value as a student reads it: 5 significant digits, no float noise."""
     if isinstance(x, float) and not math.isfinite(x):
@@ -145,14 +150,15 @@ def deviation(quantity, measured, expected, words=None):
     side = high if d > 0 else low
     if expected == 0:
         return f"{side} by {number(abs(d))} (expected exactly 0)"
-    text = f"{side} by {percent(d / abs(expected))}"
+    text = f"{side} by {percent(d / abs(expected))}" if abs(d / expected) < 100 else \
+        f"{side} by {number(abs(d))} ({abs(d / expected):.3g} times the expected value)"
     if measured == 0:
         text += " (0: what a stub returns)"
     return text
 
 
 def measurement(quantity, measured, expected, passed, allowed, where="", se=None, by="", command=None, words=None,
-                limit=None):
+                limit=None, bound=None):
     """Record one comparison in MEASURED and return its sentence, e.g.
     "irradiance at probe centre, red: measured 0.7412 ± 0.0021 (standard error), expected 0.75227
     (Lambert's polygon formula), allowed ± 0.0086 (4.1 standard errors): too dark by 1.5 %;
@@ -162,11 +168,18 @@ def measurement(quantity, measured, expected, passed, allowed, where="", se=None
     text = f"{what[:1].upper()}{what[1:]}: measured {number(measured)}"
     if se is not None:
         text += f" ± {se:.2g} (standard error)"
-    text += f", expected {number(expected)}" + (f" ({by})" if by else "")
-    if allowed:
-        text += f", allowed {allowed}"
-    off = deviation(quantity, measured, expected, words)
-    text += (": " + off if off and not passed else ": agrees" + (f" ({off})" if off else ""))
+    if bound:  # a one-sided bound (expect_at_least, expect_at_most): how far beyond it, not a percentage
+        text += f", expected {bound} {number(expected)}" + (f" ({by})" if by else "")
+        high, low = direction_words(quantity, words)
+        beyond = f"{high if measured > expected else low} by {number(abs(measured - expected))} beyond the bound" \
+            if math.isfinite(measured) else f"not a number ({measured})"
+        text += ": agrees" if passed else ": " + beyond
+    else:
+        text += f", expected {number(expected)}" + (f" ({by})" if by else "")
+        if allowed:
+            text += f", allowed {allowed}"
+        off = deviation(quantity, measured, expected, words)
+        text += (": " + off if off and not passed else ": agrees" + (f" ({off})" if off else ""))
     if command:
         text += f"; ran {command}"
     MEASURED.append({"quantity": quantity, "where": where, "measured": measured, "expected": expected,
@@ -194,6 +207,7 @@ def expect_close(quantity, measured, expected, *, rel=None, tol=None, se=None, b
         limits.append(bound * se)
         parts.append(f"± {number(bound * se)} ({bound:.2f} standard errors)")
     allowed = max(limits) if limits else 0.0
+    measured = as_number(measured)
     ok = math.isfinite(measured) and abs(measured - expected) <= allowed
     text = measurement(quantity, measured, expected, ok, " or ".join(parts) if parts else "no difference",
                        where, se, by, command, words, allowed)
@@ -207,6 +221,7 @@ def expect_estimate(quantity, measured, expected, se, bound, max_se, *, where=""
     """A Monte Carlo estimate `measured` with standard error `se`: within bound * se of expected
     (expect_close), and se below max_se (and above 0 when positive) so the tolerance cannot grow to
     hide an error.  The value is checked first: its sentence says which way it is off."""
+    se = as_number(se)
     text = expect_close(quantity, measured, expected, se=se, bound=bound, where=where, by=by, command=command,
                         words=words)
     expect(se < max_se and (se > 0 or not positive),
@@ -218,6 +233,7 @@ def expect_estimate(quantity, measured, expected, se, bound, max_se, *, where=""
 
 def expect_between(quantity, measured, low, high, *, expected=None, where="", by="", command=None, words=None):
     """Check low <= measured <= high (expected: the value the band is around, for the sentence)."""
+    measured = as_number(measured)
     ok = math.isfinite(measured) and low <= measured <= high
     centre = expected if expected is not None else (low + high) / 2
     text = measurement(quantity, measured, centre, ok, f"between {number(low)} and {number(high)}", where,
@@ -230,9 +246,10 @@ def expect_between(quantity, measured, low, high, *, expected=None, where="", by
 def expect_at_least(quantity, measured, low, *, where="", by="", command=None, words=None):
     """Check measured >= low (a one-sided bound): "expected at least low"; when it fails the sentence
     says how far below the bound it is ("too small by 40 %")."""
+    measured = as_number(measured)
     ok = math.isfinite(measured) and measured >= low
     text = measurement(quantity, measured, low, ok, f"at least {number(low)}", where, None, by, command, words,
-                       None)
+                       None, bound="at least")
     if not ok:
         raise AssertionError(text)
     return text
@@ -240,9 +257,10 @@ def expect_at_least(quantity, measured, low, *, where="", by="", command=None, w
 
 def expect_at_most(quantity, measured, high, *, where="", by="", command=None, words=None):
     """Check measured <= high (a one-sided bound), as expect_at_least."""
+    measured = as_number(measured)
     ok = math.isfinite(measured) and measured <= high
     text = measurement(quantity, measured, high, ok, f"at most {number(high)}", where, None, by, command, words,
-                       None)
+                       None, bound="at most")
     if not ok:
         raise AssertionError(text)
     return text
@@ -254,6 +272,7 @@ def expect_each(quantity, cases, *, rel=None, tol=None, by="", command=None, wor
     expect_close, so one sentence names it (a passed check records the closest call)."""
     worst, worst_share = None, -1.0
     for where, got, e in cases:
+        got = as_number(got)
         allowed = max(rel * abs(e) if rel is not None else 0.0, tol or 0.0)
         share = abs(got - e) / allowed if allowed > 0 else (0.0 if got == e else math.inf)
         share = share if math.isfinite(got) else math.inf
@@ -277,7 +296,7 @@ def expect_image(quantity, image, expected_at, *, rel=None, tol=None, pixels=Non
             e = expected_at(x, y, c)
             if e is None:
                 continue
-            got = image.at(x, y)[c]
+            got = as_number(image.at(x, y)[c])
             allowed = max(rel * abs(e) if rel is not None else 0.0, tol or 0.0)
             share = abs(got - e) / allowed if allowed > 0 else (0.0 if got == e else math.inf)
             if not math.isfinite(got):
