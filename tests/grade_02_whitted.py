@@ -347,11 +347,11 @@ def test_shadow_ray_through_glass_plate(ctx):
              (("--shadows", "opaque"), [0.0, 0.0]), (("--no-shadows",), [1.0, 1.0])]
     for args, factors in cases:
         img, _ = ctx.render(CHAPTER, scene, *args, name="plate")
-        got = img.at(4, 4)
-        for c in range(2):
-            expected = unshadowed * factors[c]
-            assert abs(got[c] - expected) <= FLOAT * unshadowed, \
-                f"{' '.join(map(str, args)) or 'default'}: channel {c} = {got[c]}, expected {expected}"
+        expect_image("radiance", img, lambda x, y, c: unshadowed * factors[c] if c < 2 else None,
+                     tol=FLOAT * unshadowed, pixels=[(4, 4)],
+                     where=f"of the floor under the glass plate ({' '.join(map(str, args)) or 'default shadows'})",
+                     by=f"rho/pi I / r^2 (R1) x {' and '.join(f'{f:.4g}' for f in factors)} (red and green) that the "
+                        "plate lets through along the shadow ray")
 
 
 # ---- pruning ---------------------------------------------------------------------------------
