@@ -144,12 +144,23 @@ def draw_grid(rows, step_x, step_y):
                 rows[y][x] = blend(rows[y][x], GRID, 0.5)
 
 
-def outline(rows, x0, y0, size_x, size_y, colour, thickness):
-    """A frame of `thickness` pixels inside the size_x x size_y rectangle at (x0, y0)."""
+def outline(rows, x0, y0, size_x, size_y, colour, thickness, sides=(True, True, True, True)):
+    """A frame of `thickness` pixels inside the size_x x size_y rectangle at (x0, y0), on the
+    sides (left, top, right, bottom) that are True."""
     for y in range(y0, y0 + size_y):
         for x in range(x0, x0 + size_x):
-            if min(x - x0, y - y0, x0 + size_x - 1 - x, y0 + size_y - 1 - y) < thickness:
+            near = (x - x0, y - y0, x0 + size_x - 1 - x, y0 + size_y - 1 - y)
+            if any(side and d < thickness for side, d in zip(sides, near)):
                 rows[y][x] = colour
+
+
+def region_sides(index, sign, marks, tiles_x, tiles_y):
+    """Which sides (left, top, right, bottom) of a marked tile border a tile not marked the same
+    way: a block of tiles that differ the same way gets one frame around it, not a grid of frames."""
+    tx, ty = index % tiles_x, index // tiles_x
+    neighbours = ((tx - 1, ty), (tx, ty - 1), (tx + 1, ty), (tx, ty + 1))
+    return tuple(not (0 <= x < tiles_x and 0 <= y < tiles_y and marks.get(y * tiles_x + x) == sign)
+                 for x, y in neighbours)
 
 
 def tone_mapped(pixels):
@@ -160,14 +171,17 @@ def tone_mapped(pixels):
 def write_marked(path, width, height, colours, tiles_x, tiles_y, marks=None, comment=None):
     """The picture `colours` (8-bit RGB, top row first), enlarged to MIN_SIDE if smaller, with the
     grid of tiles_x x tiles_y tiles drawn over it and marks {tile index (row-major): +1 brighter /
-    -1 darker} outlined in BRIGHTER / DARKER; tiles without a mark are left as they are."""
+    -1 darker} outlined in BRIGHTER / DARKER (neighbouring tiles marked the same way share one
+    frame); tiles without a mark are left as they are."""
     scale = scale_for(width, height)
     rows = enlarged(width, height, colours, scale)
     step_x, step_y = width * scale // tiles_x, height * scale // tiles_y
     draw_grid(rows, step_x, step_y)
-    for index, sign in (marks or {}).items():
+    marks = marks or {}
+    for index, sign in marks.items():
         x0, y0 = (index % tiles_x) * step_x, (index // tiles_x) * step_y
-        outline(rows, x0, y0, step_x, step_y, BRIGHTER if sign > 0 else DARKER, max(2, step_x // 16))
+        outline(rows, x0, y0, step_x, step_y, BRIGHTER if sign > 0 else DARKER, max(2, step_x // 16),
+                region_sides(index, sign, marks, tiles_x, tiles_y))
     write_png(path, width * scale, height * scale, rows, comment)
 
 
