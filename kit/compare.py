@@ -78,8 +78,7 @@ def describe_exit(code, stderr):
 def run_chapter(root, c, cmd, what="", timeout=RENDER_TIMEOUT):
     """Run the chapter command `cmd` of criterion c; CriterionFailed on a time-out or a non-zero exit."""
     try:
-        r = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=timeout,
-                           stdin=subprocess.DEVNULL, errors="replace")
+        r = lib.RUN_PROGRAM[0](cmd, cwd=root, timeout=timeout)
     except subprocess.TimeoutExpired:
         raise CriterionFailed(f"{what}timed out after {timeout} s")
     lib.record_todos(r.stderr)
@@ -396,8 +395,7 @@ def surfaces_of(root, build, c):
     lib.record_command(c["chapter"], cmd[1:], out)
     run_chapter(root, c, cmd)
     try:
-        with open(os.path.join(out, "s.json")) as f:
-            data = json.load(f)
+        data = lib.read_json(os.path.join(out, "s.json"))
         surfaces = {s["name"]: s["radiance"] for s in data["surfaces"]}
         converged, residual = data.get("converged"), data.get("residual")
     except (OSError, ValueError, KeyError, TypeError) as e:

@@ -1,8 +1,15 @@
 #!/usr/bin/python3
 """Run one rubric criterion against a prepared submission tree; print one JSON line.
 
-usage (by kit/grade.py, in its own process group with resource limits):
-  kit/criterion.py SRC_DIR BUILD CRITERION_JSON SEED JOBS IMAGES_DIR
+usage (by kit/grade.py, in its own process group, killed on the criterion's time-out):
+  kit/criterion.py SRC_DIR BUILD CRITERION_JSON SEED JOBS IMAGES_DIR [SANDBOX_JSON]
+
+This is the judge: it runs outside any sandbox, from the instructor's kit/ and tests/ (never the
+submission's copy), and starts every program of the submission through tests/lib.py's
+RUN_PROGRAM, which SANDBOX_JSON ({"binds": [[path, writable], ...], "scratch": DIR, "limits": {...},
+"threads": N}) makes a kit/sandbox.py sandbox: the submission's programs see the graded tree
+read-only and the scratch directory where the tests write their scenes and the programs their
+outputs, nothing else.  Without SANDBOX_JSON (kit/grade.py --unsafe) they run directly.
 
 SEED is the grading seed: compare criteria render batch b with SEED * 1000 + b;
 grade criteria get it as lib.Context(build, seed=SEED), which shifts every
@@ -19,11 +26,20 @@ measured: what the criterion compared, one dict per comparison with its sentence
 import importlib.util
 import json
 import os
+import signal
+import stat
+import subprocess
 import sys
+import tempfile
 import traceback
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+KIT = os.path.dirname(os.path.abspath(__file__))
+TESTS = os.path.join(os.path.dirname(KIT), "tests")  # the instructor's tests, never the submission's
+sys.path.insert(0, KIT)
+sys.path.insert(0, TESTS)
 import compare  # noqa: E402
+import lib  # noqa: E402
+import sandbox  # noqa: E402
 
 
 def recorded():
@@ -36,11 +52,8 @@ def recorded():
 
 
 def run_grade_test(src, build, c, seed):
-    tests = os.path.join(src, "tests")
-    sys.path.insert(0, tests)
-    import lib
-    lib.ROOT = src
-    path = os.path.join(tests, c["module"] + ".py")
+    lib.ROOT = src  # the programs and the scenes they read are the graded tree's
+    path = os.path.join(TESTS, c["module"] + ".py")
     spec = importlib.util.spec_from_file_location(c["module"], path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -84,10 +97,64 @@ def failed_message(error):
     return f"the test stopped: {type(error).__name__}: {error}{where}"
 
 
+# ---- the submission's programs, sandboxed -----------------------------------------------------------
+
+def lend_scratch(scratch):
+    """The test's scratch directories (tempfile.mkdtemp, the judge's) become the sandbox user's, so
+    its programs can write their outputs there; the scratch root itself stays the judge's."""
+    for name in os.listdir(scratch):
+        path = os.path.join(scratch, name)
+        info = os.lstat(path)
+        if stat.S_ISDIR(info.st_mode) and info.st_uid != sandbox.SANDBOX_UID:
+            os.chown(path, sandbox.SANDBOX_UID, sandbox.SANDBOX_UID)
+
+
+def remove_strange_files(scratch):
+    """Delete what a run left in scratch that is not a plain file or directory (a symbolic link to a
+    file of the grader's, a FIFO, a socket): the judge reads scratch as root.  Their names."""
+    removed = []
+    for top, dirs, files in os.walk(scratch):
+        for name in dirs + files:
+            path = os.path.join(top, name)
+            mode = os.lstat(path).st_mode
+            if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+                os.unlink(path)
+                removed.append(os.path.relpath(path, scratch))
+        dirs[:] = [d for d in dirs if os.path.isdir(os.path.join(top, d)) and
+                   not os.path.islink(os.path.join(top, d))]
+    return removed
+
+
+def sandboxed_runner(spec):
+    """RUN_PROGRAM for tests/lib.py: the program inside a fresh sandbox (kit/sandbox.py)."""
+    scratch = spec["scratch"]
+    box = sandbox.Sandbox([tuple(b) for b in spec["binds"]] + [(scratch, True)],
+                          limits=sandbox.Limits(**spec["limits"]), threads=spec["threads"])
+
+    def run(argv, cwd, timeout):
+        lend_scratch(scratch)
+        r = box.run(argv, cwd=cwd, timeout=timeout)
+        notes = [f"stopped by the grader's sandbox: {r.stopped}"] if r.stopped else []
+        removed = remove_strange_files(scratch)
+        if removed:
+            notes.append(f"the grader's sandbox removed what the run left that is not a plain file: "
+                         f"{', '.join(removed[:5])}")
+        if r.returncode is None and r.stopped.startswith("time-out"):
+            raise subprocess.TimeoutExpired(argv, timeout, output=r.stdout, stderr=r.stderr)
+        code = r.returncode if r.returncode is not None else -signal.SIGKILL
+        stderr = r.stderr + "".join("\n" + n for n in notes)
+        return subprocess.CompletedProcess(argv, code if not removed or code else 1, r.stdout, stderr)
+    return run
+
+
 def main():
     src, build, criterion, seed, jobs, images = sys.argv[1:7]
+    if len(sys.argv) > 7:
+        spec = json.loads(sys.argv[7])
+        tempfile.tempdir = spec["scratch"]  # the tests' and compare's scratch directories go there
+        lib.RUN_PROGRAM[0] = sandboxed_runner(spec)
     c = json.loads(criterion)
-    rub = json.load(open(os.path.join(os.path.dirname(os.path.abspath(__file__)), "rubric.json")))
+    rub = json.load(open(os.path.join(KIT, "rubric.json")))
     out = {"passed": False, "p_value": None, "message": "", "images": {}}
     try:
         if c["kind"] == "grade":

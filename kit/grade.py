@@ -2,7 +2,7 @@
 """Grade a student's tree by the rubric (kit/rubric.json); write REPORT/report.json and report.html.
 
 usage: kit/grade.py SUBMISSION [--report DIR] [--chapters "01_local ..."] [--seed N] [--jobs N]
-                   [--statistical-only] [--timeout S] [--memory MIB] [--name NAME]
+                   [--statistical-only] [--timeout S] [--memory MIB] [--name NAME] [--unsafe]
        kit/grade.py --make-reference [--jobs N]     (instructor: render kit/reference/ with this tree's build/:
                                                     the statistics and the report's picture of each criterion)
 
@@ -15,14 +15,27 @@ usage: kit/grade.py SUBMISSION [--report DIR] [--chapters "01_local ..."] [--see
   --jobs N            renders run at once and make -j (default 2)
   --statistical-only  only the criteria of kind compare, without their pictures (for calibration)
   --timeout S         per criterion, whole process group killed after S seconds (default 300)
-  --memory MIB        address-space limit of every process of the submission (default 4096)
+  --memory MIB        memory cap of each sandbox (all its processes together; default 4096)
+  --rubric FILE       another rubric than kit/rubric.json (the kit's tests grade with small ones)
+  --unsafe            grade without the sandbox (where bubblewrap or cgroups are missing); the report
+                      says so.  Never for code you do not trust.
 
-The submission is copied into a temporary directory; the grader's tests/,
-scenes/, kit/ and Makefile replace the student's; it is built there with
-its own build directory (compile errors go into the report, and the chapter
-scores 0).  Every criterion runs in its own process group under the limits;
-a crash, hang, NaN pixel or missing output fails that criterion with a
-message.  Exit status 0 whenever grading ran, 2 on bad arguments.
+The graded tree is this project's files (without the instructor's kit, tests
+of the kit and references) with the submission's versions of the files that
+hold the graded chapters' exercises: a submission changes those files and
+nothing else (not the Makefile, not common/'s other files, not the tests).
+Everything of the submission's runs inside a sandbox (kit/sandbox.py:
+bubblewrap, its own namespaces, uid 65534, caps on processes, memory, CPU
+time and file size): its build, its unit tests, every program a criterion
+starts.  The judging (kit/criterion.py, the tests, the comparisons) runs
+outside, from this project's kit/ and tests/, on the output files read back
+as data.  A crash, hang, NaN pixel or missing output fails its criterion
+with a message; after a criterion times out the chapter's other criteria
+are skipped (a hanging submission costs one time-out per chapter).
+A submission that is not a readable directory, is larger than
+SUBMISSION_LIMIT_MIB, or holds device files, FIFOs, sockets or symbolic
+links that lead out of it is refused.  Exit status 0 whenever grading ran,
+2 on bad arguments, a refused submission, or no sandbox (without --unsafe).
 """
 import datetime
 import hashlib
@@ -33,6 +46,7 @@ import re
 import resource
 import shutil
 import signal
+import stat
 import subprocess
 import sys
 import tempfile
@@ -42,10 +56,16 @@ KIT = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(KIT)
 sys.path.insert(0, KIT)
 import compare  # noqa: E402
+import markers  # noqa: E402
 import rubric as rubric_module  # noqa: E402
+import sandbox  # noqa: E402
 
-OVERLAY = ("tests", "scenes", "kit", "Makefile")
-IGNORE = shutil.ignore_patterns("build", "out", ".git", "__pycache__", "node_modules", "*.o")
+SKIPPED_DIRS = {"build", "out", ".git", "__pycache__", "node_modules"}  # never graded, never copied
+SUBMISSION_LIMIT_MIB, SUBMISSION_FILE_LIMIT = 64, 20000
+# What the graded tree never holds: the instructor's kit (references, rubric, calibration), the kit's
+# own tests and the bug corpus.  Only the scenes of kit/ (public inputs) are lent.
+NOT_LENT = ("kit/", "tests/mutants/", "tests/grade_kit.py", "tests/grade_handout.py", ".ci/", ".git/")
+LENT_FROM_KIT = ("kit/scenes/",)
 
 
 def usage_error(message):
@@ -55,9 +75,10 @@ def usage_error(message):
 
 def parse_args(argv):
     opts = {"report": None, "chapters": None, "seed": 1, "jobs": 2, "statistical_only": False, "timeout": 300.0,
-            "memory": 4096, "make_reference": False, "name": None, "submission": None}
+            "memory": 4096, "make_reference": False, "name": None, "submission": None, "unsafe": False,
+            "rubric": None}
     valued = {"--report": str, "--chapters": str, "--seed": int, "--jobs": int, "--timeout": float,
-              "--memory": int, "--name": str}
+              "--memory": int, "--name": str, "--rubric": str}
     i = 0
     while i < len(argv):
         a = argv[i]
@@ -68,6 +89,8 @@ def parse_args(argv):
             opts["statistical_only"] = True
         elif a == "--make-reference":
             opts["make_reference"] = True
+        elif a == "--unsafe":
+            opts["unsafe"] = True
         elif a in valued:
             if i + 1 >= len(argv):
                 usage_error(f"{a} needs a value")
@@ -88,18 +111,15 @@ def parse_args(argv):
     return opts
 
 
-def limited(memory_mib):
+def run_limited(cmd, cwd, timeout, memory, env=None):
+    """The judge (kit/criterion.py, trusted) or, with --unsafe, a submission's program, in its own
+    process group killed on time-out: (returncode or None on time-out, stdout, stderr)."""
     def set_limits():
-        limit = memory_mib * 1024 * 1024
+        limit = memory * 1024 * 1024
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
-    return set_limits
-
-
-def run_limited(cmd, cwd, timeout, memory, env=None):
-    """(returncode or None on timeout, stdout, stderr); the whole process group dies on timeout."""
     p = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
-                         start_new_session=True, preexec_fn=limited(memory), env=env)
+                         start_new_session=True, preexec_fn=set_limits, env=env)
     try:
         out, err = p.communicate(timeout=timeout)
         return p.returncode, out.decode(errors="replace"), err.decode(errors="replace")
@@ -117,48 +137,138 @@ def run_limited(cmd, cwd, timeout, memory, env=None):
             pass
 
 
-def prepare(submission, work):
+# ---- the submission: checked, then the graded tree -------------------------------------------------
+
+class Refused(Exception):
+    """A submission that is not graded, with the one-line reason."""
+
+
+def check_submission(submission):
+    """Refused unless the submission is a readable directory of plain files, directories and
+    symbolic links that stay inside it, at most SUBMISSION_LIMIT_MIB and SUBMISSION_FILE_LIMIT files."""
+    if not os.path.isdir(submission):
+        raise Refused(f"{submission}: not a directory" if os.path.exists(submission) else f"{submission}: missing")
+    real_top, size, count = os.path.realpath(submission), 0, 0
+    for top, dirs, files in os.walk(submission, onerror=lambda e: (_ for _ in ()).throw(
+            Refused(f"{e.filename}: cannot read: {e.strerror}"))):
+        dirs[:] = [d for d in dirs if d not in SKIPPED_DIRS]
+        for name in dirs + files:
+            path = os.path.join(top, name)
+            info = os.lstat(path)
+            if stat.S_ISLNK(info.st_mode):
+                target = os.path.realpath(path)
+                if target != real_top and not target.startswith(real_top + os.sep):
+                    raise Refused(f"{path}: a symbolic link out of the submission (to {os.readlink(path)})")
+            elif not (stat.S_ISREG(info.st_mode) or stat.S_ISDIR(info.st_mode)):
+                raise Refused(f"{path}: not a plain file or directory (a device, FIFO or socket)")
+            elif stat.S_ISREG(info.st_mode):
+                if not os.access(path, os.R_OK):
+                    raise Refused(f"{path}: cannot read")
+                size, count = size + info.st_size, count + 1
+                if size > SUBMISSION_LIMIT_MIB << 20 or count > SUBMISSION_FILE_LIMIT:
+                    raise Refused(f"{submission}: larger than {SUBMISSION_LIMIT_MIB} MiB or "
+                                  f"{SUBMISSION_FILE_LIMIT} files (build/, out/ and .git/ not counted)")
+
+
+def project_files(root):
+    """The project's files, relative to root: git's list where root is a repository, else every
+    file (a handout need not be one)."""
+    if os.path.isdir(os.path.join(root, ".git")):
+        r = subprocess.run(["git", "ls-files", "-z"], cwd=root, capture_output=True)
+        if r.returncode == 0:
+            return [f for f in r.stdout.decode().split("\0") if f and os.path.isfile(os.path.join(root, f))]
+    found = []
+    for top, dirs, files in os.walk(root):
+        dirs[:] = sorted(d for d in dirs if d not in SKIPPED_DIRS)
+        found += [os.path.relpath(os.path.join(top, f), root) for f in sorted(files)]
+    return found
+
+
+def submitted_files(chapters):
+    """The files a submission hands in for these chapters: those holding their exercises."""
+    names = markers.chapter_names(ROOT)
+    return sorted({e.file for e in markers.all_exercises(ROOT) if names.get(e.lecture) in chapters})
+
+
+def prepare(submission, work, chapters):
+    """work/src: this project's files but the instructor's (NOT_LENT), with the submission's versions
+    of the files that hold the graded chapters' exercises; everything root's and read-only but an
+    empty build/ (the sandbox user's).  Returns (src, the submitted files that are missing)."""
     src = os.path.join(work, "src")
-    shutil.copytree(submission, src, ignore=IGNORE, symlinks=False, ignore_dangling_symlinks=True)
-    for name in OVERLAY:
-        dst = os.path.join(src, name)
-        if os.path.isdir(dst) and not os.path.islink(dst):
-            shutil.rmtree(dst)
-        elif os.path.lexists(dst):
-            os.remove(dst)
-        s = os.path.join(ROOT, name)
-        if os.path.isdir(s):
-            shutil.copytree(s, dst, ignore=IGNORE)
-        elif os.path.exists(s):
-            shutil.copy2(s, dst)
-    return src
+    lent = [f for f in project_files(ROOT) if not f.startswith(NOT_LENT) or f.startswith(LENT_FROM_KIT)]
+    submitted, missing = submitted_files(chapters), []
+    for rel in lent:
+        os.makedirs(os.path.dirname(os.path.join(src, rel)), exist_ok=True)
+        if rel not in submitted:
+            shutil.copyfile(os.path.join(ROOT, rel), os.path.join(src, rel))
+    for rel in submitted:
+        mine = os.path.join(submission, rel)
+        if os.path.isfile(mine):  # check_submission: a link here stays inside the submission
+            os.makedirs(os.path.dirname(os.path.join(src, rel)), exist_ok=True)
+            shutil.copyfile(mine, os.path.join(src, rel))
+        else:
+            missing.append(rel)
+    for top, dirs, files in os.walk(work):
+        os.chmod(top, 0o755)
+        for f in files:
+            os.chmod(os.path.join(top, f), 0o644)
+    os.makedirs(os.path.join(src, "build"))
+    os.makedirs(os.path.join(work, "scratch"), mode=0o755)
+    if os.geteuid() == 0:
+        os.chown(os.path.join(src, "build"), sandbox.SANDBOX_UID, sandbox.SANDBOX_UID)
+    return src, missing
+
+
+# ---- building and running the submission --------------------------------------------------------
+
+def sandbox_spec(src, opts, writable_build):
+    """How kit/sandbox.py starts the submission's programs: the graded tree read-only (its build/
+    writable while it builds), caps from --memory and the time-out."""
+    return {"binds": [[src, False]] + ([[os.path.join(src, "build"), True]] if writable_build else []),
+            "limits": {"memory_mib": opts["memory"], "processes": 64, "cpu_seconds": 2 * opts["timeout"] * opts["jobs"],
+                       "file_mib": 512, "tmp_mib": 512},
+            "threads": opts["jobs"]}
+
+
+def run_submission(argv, src, opts, timeout, writable_build=False):
+    """(returncode or None on time-out, stdout, stderr, what stopped it) of a program of the
+    submission (its build, its unit tests): in a sandbox, or directly with --unsafe."""
+    if opts.get("unsafe", False):
+        code, out, err = run_limited(argv, src, timeout, opts["memory"], dict(os.environ, MAKEFLAGS=""))
+        return code, out, err, "" if code is not None else f"time-out after {timeout:.0f} s"
+    spec = sandbox_spec(src, opts, writable_build)
+    spec["limits"]["cpu_seconds"] = max(spec["limits"]["cpu_seconds"], 2 * timeout * opts["jobs"])
+    box = sandbox.Sandbox(spec["binds"], limits=sandbox.Limits(**spec["limits"]), threads=opts["jobs"])
+    r = box.run(argv, cwd=src, timeout=timeout)
+    return r.returncode, r.stdout, r.stderr, r.stopped
 
 
 def build(src, chapters, units, opts):
-    """{target: error text or None}; chapters that do not compile get their compiler output."""
+    """{target: error text or None}; chapters that do not compile get their compiler output.
+    The instructor's Makefile, with the project's list of common/ sources (an extra file of the
+    submission's in common/ is not linked: it is not even in the graded tree)."""
     targets = [f"build/{c}" for c in chapters] + [f"build/tests/{u}" for u in units]
-    env = dict(os.environ, MAKEFLAGS="")
-    code, out, err = run_limited(["make", "-k", f"-j{opts['jobs']}", "BUILD=build", *targets], src, 900,
-                                 opts["memory"], env)
+    make = ["make", "-k", f"-j{opts['jobs']}", "BUILD=build"]
+    run_submission(make + targets, src, opts, 900, writable_build=True)
     result = {}
     for t in targets:
         if os.path.exists(os.path.join(src, t)):
             result[t] = None
             continue
-        code, out, err = run_limited(["make", "BUILD=build", t], src, 600, opts["memory"], env)
+        code, out, err, stopped = run_submission(["make", "BUILD=build", t], src, opts, 600, writable_build=True)
         text = (out + err).strip()
         lines = [ln for ln in text.splitlines() if "error" in ln or "undefined reference" in ln]
         result[t] = ("\n".join(lines[:30]) + "\n\n" if lines else "") + text[-4000:] if code is not None \
-            else "the build timed out"
+            else f"the build was stopped: {stopped}"
     return result
 
 
 def run_unit(src, c, opts):
     """(passed, message, measured): every case of the C unit test, against the submission's common/."""
     exe = os.path.join(src, "build", "tests", c["test"])
-    code, out, err = run_limited([exe], src, opts["timeout"], opts["memory"])
+    code, out, err, stopped = run_submission([exe], src, opts, opts["timeout"])
     if code is None:
-        return False, f"timed out after {opts['timeout']:.0f} s", []
+        return False, f"stopped: {stopped}", []
     failed = [ln[5:] for ln in out.splitlines() if ln.startswith("FAIL ")]
     passed = [ln for ln in out.splitlines() if ln.startswith("ok   ")]
     measured = [{"quantity": "cases passed", "measured": len(passed), "expected": len(passed) + len(failed),
@@ -228,18 +338,36 @@ def still_to_write(results, in_source=()):
 
 
 def run_criterion(src, c, opts, images_dir):
-    cmd = [sys.executable, os.path.join(src, "kit", "criterion.py"), src, "build", json.dumps(c), str(opts["seed"]),
+    """The judge, kit/criterion.py of this kit (not the submission's), outside the sandbox; every
+    program it starts of the submission's is sandboxed (sandbox_spec) unless --unsafe."""
+    cmd = [sys.executable, os.path.join(KIT, "criterion.py"), src, "build", json.dumps(c), str(opts["seed"]),
            str(opts["jobs"]), images_dir]
-    env = dict(os.environ, OMP_NUM_THREADS=str(opts["jobs"]), PYTHONDONTWRITEBYTECODE="1")
+    if not opts.get("unsafe", False):
+        spec = sandbox_spec(src, opts, writable_build=False)
+        spec["scratch"] = os.path.join(os.path.dirname(src), "scratch")
+        cmd.append(json.dumps(spec))
+    scratch = os.path.join(os.path.dirname(src), "scratch")  # the tests' temporary files, removed with the grading
+    env = dict(os.environ, OMP_NUM_THREADS=str(opts["jobs"]), PYTHONDONTWRITEBYTECODE="1", TMPDIR=scratch)
     code, out, err = run_limited(cmd, src, c.get("timeout", opts["timeout"]), opts["memory"], env)
     if code is None:
-        return {"passed": False, "p_value": None, "images": {},
-                "message": f"timed out after {c.get('timeout', opts['timeout']):.0f} s (process group killed)"}
+        return {"passed": False, "p_value": None, "images": {}, "timed_out": True,
+                "message": f"timed out after {c.get('timeout', opts['timeout']):.0f} s (its programs killed)"}
     marker = out.rfind("@@RESULT@@ ")
     if marker < 0:
         return {"passed": False, "p_value": None, "images": {},
                 "message": "the criterion died: " + compare.describe_exit(code, err)}
     return json.loads(out[marker + len("@@RESULT@@ "):])
+
+
+def chapters_run_by(criteria, all_chapters):
+    """The chapters the criteria run: their own, and those their tests name (chapter 4's compares
+    with chapter 3's radiosity); the others need not be built."""
+    needed = {c["chapter"] for c in criteria}
+    for module in {c["module"] for c in criteria if c["kind"] == "grade"}:
+        with open(os.path.join(ROOT, "tests", module + ".py")) as f:
+            text = f.read()
+        needed |= {ch for ch in all_chapters if ch in text}
+    return sorted(ch for ch in all_chapters if ch in needed)
 
 
 def chapters_to_grade(opts, rub):
@@ -359,6 +487,8 @@ def write_html(path, report, name):
     out = ["<!doctype html><meta charset=utf-8><title>grading report</title><style>" + STYLE + "</style>",
            f"<h1>Grading report{': ' + h(name) if name else ''}</h1>",
            f"<p><b>{report['total']} / {report['max']}</b> points.</p>"]
+    if report.get("sandbox", "").startswith("none"):
+        out.append(f"<p class=fail><b>Graded without a sandbox</b>: {h(report['sandbox'])}.</p>")
     out += html_todos(report)
     for chapter in report["chapters"]:
         rows = [c for c in report["criteria"] if c["chapter"] == chapter]
@@ -373,7 +503,7 @@ def write_html(path, report, name):
                f"{h(report.get('submission_sha256', ''))} ({report.get('submission_files', '?')} files); "
                f"{report.get('seconds', '?')} s. Family-wise alpha {report['family_alpha']} over the statistical "
                f"criteria ({h(report['statistics'])}): a correct solution fails a grading by chance at most that "
-               f"often.</p>")
+               f"often. Sandbox: {h(report.get('sandbox', ''))}.</p>")
     with open(path, "w") as f:
         f.write("\n".join(out) + "\n")
 
@@ -381,7 +511,7 @@ def write_html(path, report, name):
 def main(argv):
     opts = parse_args(argv)
     try:
-        rub = rubric_module.load(ROOT)
+        rub = rubric_module.load(ROOT, opts["rubric"])
     except ValueError as e:
         usage_error(str(e))
     if opts["make_reference"]:
@@ -390,11 +520,30 @@ def main(argv):
     if opts["submission"] is None:
         usage_error("no SUBMISSION directory given")
     submission = os.path.abspath(opts["submission"])
-    if not os.path.isdir(submission):
-        usage_error(f"SUBMISSION {opts['submission']}: not a directory")
+    try:
+        check_submission(submission)
+    except Refused as e:
+        print(f"kit/grade.py: not graded: {e}", file=sys.stderr)
+        sys.exit(2)
     chapters = chapters_to_grade(opts, rub)
     report_dir = os.path.abspath(opts["report"] or os.path.join(submission, "out", "grade"))
-    os.makedirs(report_dir, exist_ok=True)
+    try:
+        os.makedirs(report_dir, exist_ok=True)
+        with tempfile.TemporaryFile(dir=report_dir):
+            pass
+    except OSError as e:
+        print(f"kit/grade.py: REPORT {report_dir}: cannot write there: {e.strerror}", file=sys.stderr)
+        sys.exit(2)
+    why_not = None if opts.get("unsafe", False) else sandbox.unavailable()
+    if why_not and not os.path.exists(os.path.join(ROOT, "kit", "handout.json")):
+        print(f"kit/grade.py: no sandbox for the submission's code: {why_not} (UNSAFE=1 / --unsafe grades "
+              "without one: only for code you trust)", file=sys.stderr)
+        sys.exit(2)
+    if why_not:  # a handout grading itself: the student's own code on the student's machine
+        print(f"kit/grade.py: self-check without a sandbox ({why_not})", file=sys.stderr)
+        opts["unsafe"] = True
+    tag = f"gi-sandbox-{os.getpid()}-{int(time.time())}"
+    os.environ[sandbox.TAG_VARIABLE] = tag
     criteria = [c for c in rub["criteria"] if c["chapter"] in chapters and
                 (not opts["statistical_only"] or rubric_module.statistical(c))]
     start = time.time()
@@ -402,14 +551,15 @@ def main(argv):
     digest, files = submission_hash(submission)
     work = tempfile.mkdtemp(prefix="gi-grade-")
     try:
-        src = prepare(submission, work)
-        present = [c for c in chapters if os.path.exists(os.path.join(src, "chapters", c + ".c"))]
+        src, missing = prepare(submission, work, chapters)
+        absent = {c for c in chapters for f in missing if f == f"chapters/{c}.c"}
+        present = [c for c in chapters if c not in absent]
         all_chapters = sorted(os.path.splitext(f)[0] for f in os.listdir(os.path.join(src, "chapters"))
                               if f.endswith(".c") and f[:2].isdigit()) if os.path.isdir(
                                   os.path.join(src, "chapters")) else []
         units = sorted({c["test"] for c in criteria if c["kind"] == "unit"})
-        built = build(src, all_chapters, units, opts)
-        results = []
+        built = build(src, chapters_run_by(criteria, all_chapters), units, opts)
+        results, hung = [], {}
         for c in criteria:
             row = {"chapter": c["chapter"], "name": c["name"], "points": 0, "max": c["points"], "passed": False,
                    "p_value": None, "message": "", "exercises": c["exercises"], "kind": c["kind"]}
@@ -419,6 +569,8 @@ def main(argv):
             t0 = time.time()
             if c["chapter"] not in present:
                 row["message"] = f"chapters/{c['chapter']}.c is not in the submission"
+            elif c["chapter"] in hung:
+                row["message"] = f"not run: the criterion '{hung[c['chapter']]}' of this chapter timed out"
             elif error:
                 row["message"] = f"{c['chapter']} does not compile:\n" + error[:1500]
             elif c["kind"] == "unit":
@@ -435,6 +587,8 @@ def main(argv):
                 if r.get("preview"):
                     row["preview"] = r["preview"]
                 row.update({k: r.get(k, []) for k in ("measured", "commands", "todos")})
+                if r.get("timed_out"):
+                    hung[c["chapter"]] = c["name"]
             row["points"] = c["points"] if row["passed"] else 0
             row["seconds"] = round(time.time() - t0, 2)
             results.append(row)
@@ -446,6 +600,8 @@ def main(argv):
                   "still_to_write": still_to_write(results, stubs_in_source(src)), "date": date,
                   "submission_sha256": digest, "submission_files": files,
                   "seed": opts["seed"], "family_alpha": rub["family_alpha"],
+                  "sandbox": "none: graded with --unsafe (UNSAFE=1), the submission's code ran unconfined"
+                             if opts.get("unsafe", False) else "bubblewrap (kit/sandbox.py)",
                   "statistics": "Welch's t per tile and channel and on the image mean, one-sided F on the noise, "
                                 "Holm within a criterion, Bonferroni over the compare criteria",
                   "build_errors": {c: built.get(f"build/{c}") for c in chapters if built.get(f"build/{c}")},
@@ -456,6 +612,8 @@ def main(argv):
         print(f"{report['total']} / {report['max']} points in {report['seconds']} s; report: "
               f"{os.path.join(report_dir, 'report.html')}")
     finally:
+        if not opts.get("unsafe", False):
+            sandbox.remove_groups(tag)
         shutil.rmtree(work, ignore_errors=True)
 
 

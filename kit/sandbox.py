@@ -41,6 +41,7 @@ SYSTEM_READ_ONLY = ("/usr", "/etc/alternatives", "/etc/ld.so.cache", "/etc/ld.so
 MERGED_USR_LINKS = ("bin", "sbin", "lib", "lib64", "lib32", "libx32")
 CGROUP_V1 = "/sys/fs/cgroup"
 OUTPUT_CAP = 1 << 20  # bytes of stdout / stderr kept
+TAG_VARIABLE = "GI_SANDBOX_TAG"  # cgroups are named after it: one grading's, removed together (remove_groups)
 
 
 class Limits:
@@ -65,7 +66,7 @@ class Cgroup:
     """One cgroup per sandbox run, v2 (unified) or v1 (pids, memory, cpuacct hierarchies)."""
 
     def __init__(self, limits):
-        self.name = f"gi-sandbox-{uuid.uuid4().hex[:12]}"
+        self.name = f"{os.environ.get(TAG_VARIABLE, 'gi-sandbox')}-{uuid.uuid4().hex[:12]}"
         self.dirs = {}
         v2 = os.path.join(CGROUP_V1, "cgroup.controllers")
         if os.path.exists(v2) and not os.path.isdir(os.path.join(CGROUP_V1, "pids")):
@@ -147,6 +148,24 @@ class Cgroup:
                     time.sleep(0.02)
 
 
+def remove_groups(tag):
+    """Kill what is left in the cgroups named tag-* (a judge killed on its time-out leaves its
+    sandboxes' groups behind: their processes died with bwrap) and remove them."""
+    group = Cgroup.__new__(Cgroup)
+    names = set()
+    for top in (CGROUP_V1, *(os.path.join(CGROUP_V1, c) for c in ("pids", "memory", "cpuacct"))):
+        try:
+            names |= {n for n in os.listdir(top) if n.startswith(tag + "-")}
+        except OSError:
+            continue
+    for name in names:
+        group.dirs = {c: os.path.join(CGROUP_V1, *([c] if os.path.isdir(os.path.join(CGROUP_V1, c)) else []), name)
+                      for c in ("pids", "memory", "cpuacct")}
+        group.dirs = {k: d for k, d in group.dirs.items() if os.path.isdir(d)}
+        group.kill_and_remove()
+    return len(names)
+
+
 # ---- can a sandbox start here? -------------------------------------------------------------------
 
 def unavailable():
@@ -162,7 +181,7 @@ def unavailable():
     try:
         scratch = tempfile.mkdtemp(prefix="gi-kit-probe-")
         os.chown(scratch, SANDBOX_UID, SANDBOX_UID)
-        box = Sandbox(scratch, limits=Limits(memory_mib=256, processes=8, cpu_seconds=10))
+        box = Sandbox([(scratch, True)], limits=Limits(memory_mib=256, processes=8, cpu_seconds=10))
         r = box.run(["/bin/sh", "-c", "id -u; echo $$"], cwd=scratch, timeout=20, cgroup=group)
         if r.returncode != 0:
             return f"bwrap cannot start a sandbox here: {r.stderr.strip()[-300:] or r.stopped}"
@@ -177,13 +196,11 @@ def unavailable():
 # ---- the sandbox ----------------------------------------------------------------------------------
 
 class Sandbox:
-    """work: the submission's copy, writable inside at the same path.  read_only: paths (files or
-    directories) lent read-only at the same path, later ones over earlier ones (the instructor's
-    Makefile over the submission's)."""
+    """binds: [(path, writable)], each visible inside at the same path, later ones over earlier
+    ones (a writable build directory inside a read-only tree).  Nothing else of the host is."""
 
-    def __init__(self, work, read_only=(), limits=None, threads=1):
-        self.work = os.path.abspath(work)
-        self.read_only = [os.path.abspath(p) for p in read_only]
+    def __init__(self, binds, limits=None, threads=1):
+        self.binds = [(os.path.abspath(p), bool(w)) for p, w in binds]
         self.limits = limits or Limits()
         self.threads = threads
 
@@ -198,9 +215,8 @@ class Sandbox:
             if os.path.islink(target):
                 cmd += ["--symlink", os.readlink(target), target]
         cmd += ["--proc", "/proc", "--dev", "/dev", "--size", str(self.limits.tmp_mib << 20), "--tmpfs", "/tmp"]
-        cmd += ["--bind", self.work, self.work]
-        for p in self.read_only:
-            cmd += ["--ro-bind", p, p]
+        for path, writable in self.binds:
+            cmd += ["--bind" if writable else "--ro-bind", path, path]
         cmd += ["--chdir", cwd, "--clearenv", "--setenv", "PATH", "/usr/bin:/bin", "--setenv", "HOME", "/tmp",
                 "--setenv", "LANG", "C.UTF-8", "--setenv", "OMP_NUM_THREADS", str(self.threads), "--"]
         return cmd + list(argv)
@@ -222,7 +238,7 @@ class Sandbox:
 
     def run(self, argv, cwd=None, timeout=300.0, cgroup=None):
         """Run argv inside; Result with stdout/stderr (at most OUTPUT_CAP bytes each, the end kept)."""
-        cwd = os.path.abspath(cwd or self.work)
+        cwd = os.path.abspath(cwd or self.binds[0][0])
         own_group = cgroup is None
         group = cgroup or Cgroup(self.limits)
         outputs = tempfile.mkdtemp(prefix="gi-kit-out-")  # the grader's: not bound inside

@@ -67,6 +67,17 @@ PLUMBING = {"--quiet": 0, "--out": 1, "--stats": 1, "--threads": 1}
 TODO_LINE = re.compile(r"^(?P<file>[^\s:]+):(?P<line>\d+): TODO (?P<name>\S+) is not implemented\s*$")
 
 
+# How a chapter program is started: here directly; kit/criterion.py replaces it with a runner that
+# starts it inside the grader's sandbox (kit/sandbox.py), where a submission's code reaches nothing of
+# the grader's.  Same arguments and result as subprocess.run(capture_output=True, text=True).
+def run_program(argv, cwd, timeout):
+    return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=timeout, stdin=subprocess.DEVNULL,
+                          errors="replace")
+
+
+RUN_PROGRAM = [run_program]  # a list, so that the runner can be swapped in every importer at once
+
+
 def reset_record():
     """Forget what earlier tests recorded (kit/criterion.py calls it before each criterion)."""
     del COMMANDS[:], MEASURED[:], TODOS[:]
@@ -357,8 +368,11 @@ class Context:
         return os.path.join(self.scratch, name)
 
     def write(self, name, text):
+        """A file of the test's (a scene) in scratch: written anew, never through a link a run left."""
         p = self.path(name)
-        with open(p, "w") as f:
+        if os.path.lexists(p):
+            os.unlink(p)
+        with os.fdopen(os.open(p, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW, 0o644), "w") as f:
             f.write(text)
         return p
 
@@ -368,8 +382,7 @@ class Context:
         exe = os.path.join(ROOT, self.build, chapter)
         argv = self.seeded([str(a) for a in args])
         record_command(chapter, argv, self.scratch)
-        result = subprocess.run([exe, *argv], cwd=ROOT, capture_output=True, text=True, timeout=timeout,
-                                stdin=subprocess.DEVNULL, errors="replace")
+        result = RUN_PROGRAM[0]([exe, *argv], cwd=ROOT, timeout=timeout)
         record_todos(result.stderr)
         return result
 
@@ -399,8 +412,8 @@ def read_pfm(path):
 
 
 def read_json(path):
-    with open(path) as f:
-        return json.load(f)
+    """A program's JSON output, read as data: a regular file (not a link), at most pfm.OUTPUT_LIMIT bytes."""
+    return json.loads(pfm.read_output(path))
 
 
 def probe(stats, name):
