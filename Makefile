@@ -92,7 +92,9 @@ BUILD_PACKAGES := build-essential libpng-dev python3
 # make test: valgrind (tests/grade_extremes.py), Xvfb and xdotool (the viewer's
 # window tests), clang and its OpenMP (make fuzz, CC=clang), clang-format (the
 # style check), and what the slide and sweep tests need.
-TEST_PACKAGES := valgrind clang libomp-dev clang-format xvfb xauth xdotool parallel
+# make grade: bubblewrap (the sandbox around a submission's code) and GNU parallel (a class).
+GRADE_PACKAGES := bubblewrap parallel
+TEST_PACKAGES := valgrind clang libomp-dev clang-format xvfb xauth xdotool $(GRADE_PACKAGES)
 DEBIAN_PACKAGES := $(sort $(BUILD_PACKAGES) $(VIEWER_PACKAGES) $(SLIDES_PACKAGES) $(TRADEOFF_PACKAGES) \
                           $(TEST_PACKAGES))
 print-deps:
@@ -108,7 +110,7 @@ define install_packages
 	  echo "missing packages; run:  sudo apt-get install -y $(1)"; exit 1; \
 	fi
 endef
-.PHONY: deps deps-demo deps-slides deps-tradeoff
+.PHONY: deps deps-demo deps-slides deps-tradeoff deps-grade
 deps:
 	$(call install_packages,$(DEBIAN_PACKAGES))
 deps-demo:
@@ -117,6 +119,8 @@ deps-slides:
 	$(call install_packages,$(BUILD_PACKAGES) $(VIEWER_PACKAGES) $(SLIDES_PACKAGES))
 deps-tradeoff:
 	$(call install_packages,$(BUILD_PACKAGES) $(VIEWER_PACKAGES) $(TRADEOFF_PACKAGES))
+deps-grade:
+	$(call install_packages,$(BUILD_PACKAGES) $(GRADE_PACKAGES))
 
 # --- the two commands -------------------------------------------------------
 # Renders the Cornell box with every chapter into out/demo/, then opens the
@@ -155,21 +159,24 @@ format:
 
 # --- instructor kit (kit/) ----------------------------------------------------
 # make handout OUT=DIR [CHAPTERS="03_radiosity ..."]   a student tree, marked functions stubbed
-# make grade [SUBMISSION=DIR] [REPORT=DIR] [CHAPTERS=...] [SEED=N]   grade one tree (default: this one)
+# make grade [SUBMISSION=DIR] [REPORT=DIR] [CHAPTERS=...] [SEED=N] [UNSAFE=1]   grade one tree (default: this one)
 # make grade SUBMISSIONS="dir1 dir2 ..."|@list.txt [REPORT=DIR] [JOBS=N] [SSHLOGINFILE=FILE]   a class
-KIT_CHAPTERS = $(CHAPTERS)
 .PHONY: handout grade
 handout:
-	@test -n "$(OUT)" || { echo "make handout: OUT=DIR is required" >&2; exit 2; }
-	$(PYTHON) kit/handout.py $(OUT) $(KIT_CHAPTERS)
+	@test -n "$$OUT" || { echo "make handout: OUT=DIR is required" >&2; exit 2; }
+	$(PYTHON) kit/handout.py "$$OUT" $$CHAPTERS
+# SUBMISSION, SUBMISSIONS, REPORT, CHAPTERS, SEED, JOBS, SSHLOGINFILE and UNSAFE reach the kit
+# through the environment (make exports its command line's variables), never through the shell:
+# a name with spaces, quotes or ';' is data (kit/make_grade.py).
 grade:
-ifneq ($(strip $(SUBMISSIONS)),)
-	$(PYTHON) kit/grade_class.py $(if $(REPORT),--report $(REPORT)) $(if $(JOBS),--jobs $(JOBS)) \
-	  $(if $(SSHLOGINFILE),--sshloginfile $(SSHLOGINFILE)) $(if $(KIT_CHAPTERS),--chapters "$(KIT_CHAPTERS)") $(SUBMISSIONS)
-else
-	$(PYTHON) kit/grade.py $(or $(SUBMISSION),.) $(if $(REPORT),--report $(REPORT)) \
-	  $(if $(KIT_CHAPTERS),--chapters "$(KIT_CHAPTERS)") $(if $(SEED),--seed $(SEED))
-endif
+	$(PYTHON) kit/make_grade.py
+
+# make autograder [OUT=FILE] [CHAPTERS="01_local ..."] [UNSAFE=1]   a Gradescope autograder archive
+# (default out/autograder.zip; kit/README.md).  OUT and CHAPTERS reach the script through the
+# environment (make exports its command line's variables), never through the shell.
+.PHONY: autograder
+autograder:
+	$(PYTHON) kit/autograder/make_archive.py --packages "$(BUILD_PACKAGES)" $(if $(filter 1,$(UNSAFE)),--unsafe)
 
 clean:
 	rm -rf build out
