@@ -172,11 +172,11 @@ grade:
 	$(PYTHON) kit/make_grade.py
 
 # make autograder [OUT=FILE] [CHAPTERS="01_local ..."] [UNSAFE=1]   a Gradescope autograder archive
-# (default out/autograder.zip; kit/README.md).  OUT and CHAPTERS reach the script through the
-# environment (make exports its command line's variables), never through the shell.
+# (default out/autograder.zip; kit/README.md).  OUT, CHAPTERS and UNSAFE reach the script through
+# the environment, never through the shell, as for make grade.
 .PHONY: autograder
 autograder:
-	$(PYTHON) kit/autograder/make_archive.py --packages "$(BUILD_PACKAGES)" $(if $(filter 1,$(UNSAFE)),--unsafe)
+	$(PYTHON) kit/autograder/make_archive.py --packages "$(BUILD_PACKAGES)"
 
 clean:
 	rm -rf build out

@@ -14,7 +14,9 @@ marked [exercise N.M] gets a stub body (kit/markers.py): it prints
 handout compiles without warnings and runs, with black or partial images.
 assignments/NN_name/ASSIGNMENT.md says what to write and how it is graded
 (from the markers of the stubbed text and kit/rubric.json); README.md is the
-student's (kit/student/README.md); `make grade` in the handout grades it.
+student's (kit/student/README.md); `make grade` in the handout grades it, and
+.github/workflows/classroom.yml (kit/autograder/classroom.yml) runs that
+self-check on every push to the student's GitHub repository.
 The slides go as their Markdown and builder: `make slides` in the handout
 builds student decks (slides/build.py --student) from the handout's own code.
 
@@ -40,7 +42,12 @@ import rubric as rubric_module  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 INSTRUCTOR_ONLY = ("tests/mutants/", "tests/grade_kit.py", "tests/grade_handout.py", "kit/handout.py",
-                   "kit/calibrate.py", "kit/README.md", "kit/CALIBRATION.md", "kit/student/", ".ci/")
+                   "kit/calibrate.py", "kit/README.md", "kit/CALIBRATION.md", "kit/student/", ".ci/",
+                   "kit/autograder/", "tests/grade_autograder.py")
+# The student's self-check on push (GitHub Classroom): kept in the kit, so that it runs in the
+# handout's repository only, not in the instructor's.
+CLASSROOM_WORKFLOW = (os.path.join("kit", "autograder", "classroom.yml"), os.path.join(".github", "workflows",
+                                                                                       "classroom.yml"))
 STUDENT_README = os.path.join("kit", "student", "README.md")
 
 
@@ -299,6 +306,9 @@ def build(out, chosen_args):
     tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(out)}.partial-", dir=parent)
     try:
         write_tree(tmp, files, stubbed)
+        if os.path.isfile(os.path.join(ROOT, CLASSROOM_WORKFLOW[0])):  # (a copy of the tree may lack the kit's)
+            os.makedirs(os.path.join(tmp, os.path.dirname(CLASSROOM_WORKFLOW[1])), exist_ok=True)
+            shutil.copy2(os.path.join(ROOT, CLASSROOM_WORKFLOW[0]), os.path.join(tmp, CLASSROOM_WORKFLOW[1]))
         check_no_answers(tmp, stubbed)
         in_handout = stubbed_markers(tmp, stubbed)
         for chapter in chosen:
