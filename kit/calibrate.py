@@ -34,13 +34,14 @@ exercises [--only 4.5 ...] [--commit REV] [--build DIR] [--jobs N] [--out FILE]:
   a build directory of this tree, when given: only what differs compiles)
   and graded unstubbed, recording what each criterion runs; then each
   exercise marked in it is stubbed alone (kit/markers.py stub_file), the
-  programs that changes are found with make -n -W (chapter 2 links chapter
-  1's object, common/optics.h is in chapters 2, 4 and 5) and rebuilt, and
+  programs that changes are found with make -n (chapter 2 links chapter 1's
+  object, common/optics.h is in chapters 2, 4 and 5) and rebuilt, and
   every criterion that runs one of them is graded as kit/grade.py grades
   (seed 1).  Writes kit/exercise-matrix.json (or FILE): per criterion the
   exercises whose stub alone fails it and the commands it ran, the criteria
   no single stub fails, the date, commit and seed.  --only re-measures those
-  exercises and merges them into the existing file.  About 30 s per
+  exercises and merges them into the existing file (keeping what it recorded
+  of the solution's runs).  About 30 s per
   exercise outside chapters 4 and 5, minutes inside (chapter 5 links 4).
 sync-rubric: kit/rubric.json's "exercises" lists set to the matrix's
   (tests/grade_matrix.py fails while they differ).
@@ -252,7 +253,7 @@ def mutants(names, jobs):
         patches = [p for p in patches if any(n in os.path.basename(p) for n in names)]
     os.makedirs(OUT, exist_ok=True)
     files = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
-    opts = {"seed": 1, "jobs": jobs, "timeout": 120.0, "memory": 4096}  # 300 s in kit/grade.py
+    opts = {"seed": 1, "jobs": jobs, "timeout": 120.0, "memory": 4096, "unsafe": True}  # 300 s in kit/grade.py
     killed = 0
     with open(os.path.join(OUT, "mutants.csv"), "w", newline="") as f:
         w = csv.writer(f)
@@ -355,14 +356,36 @@ def target_names(chapters, units):
     return [f"build/{c}" for c in chapters] + [UNIT_TARGET.format(u) for u in units]
 
 
-def affected_targets(src, rel, targets):
-    """The programs make would relink if `rel` changed (make -n -W: from the Makefile and the
-    compiler's dependency files, so chapter 2 linking chapter 1's object, or a header in common/
-    used by three chapters, is found without being written down here).  src must be up to date."""
-    r = subprocess.run(["make", "-n", "-W", rel, "BUILD=build", *targets], cwd=src, capture_output=True,
-                       text=True, env=dict(os.environ, MAKEFLAGS=""))
+def forget_objects_using(src, rel):
+    """Make every object in src/build whose dependency file lists `rel` out of date (its time set to
+    1970; deleting it would not do: the Makefile's .SECONDARY lets make skip a missing object).
+    make knows most of this already, but an object compiled under another name and renamed (the
+    chapter models, build/chapters/NN_name_model.o, written as ...model.o.tmp.o) has its headers
+    recorded for the temporary name only: without this, chapter 5 would keep chapter 4's object
+    with the old common/optics.h."""
+    for top, _, files in os.walk(os.path.join(src, "build")):
+        for name in files:
+            if not name.endswith(".d"):
+                continue
+            with open(os.path.join(top, name)) as f:
+                text = f.read().replace("\\\n", " ")
+            for line in text.splitlines():
+                target, colon, prerequisites = line.partition(":")
+                if not colon or rel not in prerequisites.split():
+                    continue
+                for obj in (target.strip(), target.strip().replace(".tmp.o", "")):
+                    if obj.startswith("build/") and os.path.isfile(os.path.join(src, obj)):
+                        os.utime(os.path.join(src, obj), (0, 0))
+
+
+def changed_targets(src, targets):
+    """The programs make would build in src (make -n: from the Makefile and the compiler's
+    dependency files, so chapter 2 linking chapter 1's object, or a header in common/ used by three
+    chapters, is found without being written down here)."""
+    r = subprocess.run(["make", "-n", "BUILD=build", *targets], cwd=src, capture_output=True, text=True,
+                       env=dict(os.environ, MAKEFLAGS=""))
     if r.returncode != 0:
-        raise RuntimeError(f"make -n -W {rel} failed: {r.stderr.strip()[-500:]}")
+        raise RuntimeError(f"make -n failed in {src}: {r.stderr.strip()[-500:]}")
     words = r.stdout.split()
     outputs = {words[i + 1] for i, w in enumerate(words[:-1]) if w == "-o"}
     return sorted(t for t in targets if t in outputs)
@@ -453,26 +476,32 @@ def first_line(message):
     return (lines[-1] if lines[0].startswith("Traceback") else lines[0])[:300]
 
 
-def measure_exercise(base, work, ex, rub, programs_of, targets, opts, timeouts=None, log=print):
+def measure_exercise(base, work, ex, rub, programs_of, targets, opts, timeouts=None, log=print, choose=None):
     """Stub exercise ex alone in a copy of base, build what that changes and grade every criterion
-    that runs a changed program.  Returns {"file", "function", "affects", "ran", "failed",
-    "messages", "seconds"}; failed and ran are criterion keys ("chapter: name")."""
+    that runs a changed program (choose: a function that keeps some of their keys, to grade fewer).
+    Returns {"file", "function", "affects", "ran", "failed", "messages", "criterion_seconds",
+    "seconds"}; failed and ran are criterion keys ("chapter: name")."""
     start = time.time()
-    affected = affected_targets(base, ex.file, targets)
     src = stubbed_copy(base, work, ex)
     try:
+        forget_objects_using(src, ex.file)
+        affected = changed_targets(src, targets)
         chapters = [t[len("build/"):] for t in affected if not t.startswith("build/tests/")]
         units = [t[len("build/tests/"):] for t in affected if t.startswith("build/tests/")]
         built = grade.build(src, chapters, units, opts) if affected else {}
-        ran, failed, messages = [], [], {}
+        ran, failed, messages, times = [], [], {}, {}
+        # kit/grade.py fails every criterion of a chapter that does not compile
+        reached = [rubric_module.key(c) for c in rub["criteria"] if programs_of[rubric_module.key(c)] & set(affected)
+                   or built.get(f"build/{c['chapter']}")]
+        chosen = set(choose(reached) if choose else reached)
         for c in rub["criteria"]:
             key = rubric_module.key(c)
-            # kit/grade.py fails every criterion of a chapter that does not compile
-            if not programs_of[key] & set(affected) and not built.get(f"build/{c['chapter']}"):
+            if key not in chosen:
                 continue
             timeout = (timeouts or {}).get(key, opts["timeout"])
             passed, message, _, seconds = grade_one(src, c, built, dict(opts, timeout=timeout))
             ran.append(key)
+            times[key] = round(seconds, 1)
             if not passed:
                 failed.append(key)
                 messages[key] = first_line(message)
@@ -481,15 +510,73 @@ def measure_exercise(base, work, ex, rub, programs_of, targets, opts, timeouts=N
     finally:
         shutil.rmtree(src, ignore_errors=True)
     return {"file": ex.file, "function": ex.name, "affects": affected, "ran": ran, "failed": failed,
-            "messages": messages, "seconds": round(time.time() - start, 1)}
+            "messages": messages, "criterion_seconds": times, "seconds": round(time.time() - start, 1)}
+
+
+def load_tests_lib(src):
+    """src's tests/lib.py as the module `lib` the grade tests import."""
+    spec = importlib.util.spec_from_file_location("lib", os.path.join(src, "tests", "lib.py"))
+    lib = importlib.util.module_from_spec(spec)
+    sys.modules["lib"] = lib
+    spec.loader.exec_module(lib)
+    return lib
+
+
+def shown_command(chapter, argv, scratch):
+    """A chapter run as the report shows it: "build/CHAPTER ARG ...", without the options that only
+    say where output goes, the test's scratch files as scratch/NAME (tests/lib.py command_text)."""
+    plumbing = {"--quiet": 0, "--out": 1, "--stats": 1, "--threads": 1}
+    words, i = [f"build/{chapter}"], 0
+    while i < len(argv):
+        if argv[i] in plumbing:
+            i += 1 + plumbing[argv[i]]
+            continue
+        words.append(argv[i].replace(scratch + os.sep, "scratch/"))
+        i += 1
+    return " ".join(words)
+
+
+def grade_recorded(src, c, lib, seed):
+    """(passed, message, commands, seconds): grade criterion c of the solution tree src in this
+    process (as kit/criterion.py does), recording every chapter command its test runs."""
+    start = time.time()
+    commands = []
+
+    class Recording(lib.Context):
+        def run(self, chapter, *args, timeout=600):
+            text = shown_command(chapter, self.seeded([str(a) for a in args]), self.scratch)
+            if text not in commands:
+                commands.append(text)
+            return super().run(chapter, *args, timeout=timeout)
+
+    spec = importlib.util.spec_from_file_location(c["module"], os.path.join(src, "tests", c["module"] + ".py"))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    ctx = Recording("build", seed=seed)
+    try:
+        getattr(module, c["test"])(ctx)
+        passed, message = True, "passed"
+    except AssertionError as e:
+        passed, message = False, str(e) or "assertion failed"
+    except Exception as e:  # the solution should not get here: say where
+        passed, message = False, f"{type(e).__name__}: {e}"
+    finally:
+        shutil.rmtree(ctx.scratch, ignore_errors=True)
+    return passed, message, commands, time.time() - start
 
 
 def baseline(base, rub, chapters, units, opts, log=print):
-    """Every criterion on the unstubbed solution: {key: {"passed", "message", "commands", "seconds"}}."""
+    """Every criterion on the unstubbed solution: {key: {"passed", "message", "commands", "seconds"}}.
+    Grade criteria run in this process, so that their chapter commands are recorded."""
     built = {t: None for t in target_names(chapters, units)}
     found = {}
+    lib = load_tests_lib(base)
+    os.environ["OMP_NUM_THREADS"] = str(opts["jobs"])  # as kit/grade.py runs a criterion
     for c in rub["criteria"]:
-        passed, message, commands, seconds = grade_one(base, c, built, opts)
+        if c["kind"] == "grade":
+            passed, message, commands, seconds = grade_recorded(base, c, lib, opts["seed"])
+        else:
+            passed, message, commands, seconds = grade_one(base, c, built, opts)
         found[rubric_module.key(c)] = {"passed": passed, "message": first_line(message),
                                        "commands": commands, "seconds": round(seconds, 1)}
         log(f"  solution: {'pass' if passed else 'FAIL'} {rubric_module.key(c)} ({seconds:.0f} s)")
@@ -515,7 +602,7 @@ def write_matrix(path, matrix):
 
 
 MATRIX_ABOUT = ("Measured by kit/calibrate.py exercises: each exercise marked in the solution stubbed alone "
-                "(kit/markers.py stub_file), the programs that changes (make -n -W) rebuilt, and every criterion "
+                "(kit/markers.py stub_file), the programs that changes (make -n) rebuilt, and every criterion "
                 "that runs one of them graded with the grading seed below. criteria[].exercises: the exercises "
                 "whose stub alone fails that criterion (kit/rubric.json's lists must equal them: "
                 "tests/grade_matrix.py); commands: what the criterion ran on the solution; no_single_stub_fails: "
@@ -525,19 +612,24 @@ MATRIX_ABOUT = ("Measured by kit/calibrate.py exercises: each exercise marked in
 
 def exercises(only, jobs, commit=None, build_from=None, out_path=MATRIX):
     """kit/calibrate.py exercises: measure the matrix (all exercises, or --only some, merged into the
-    existing file) and write it."""
+    existing file) and write it.  The criteria are the copied tree's (kit/rubric.json as copied)."""
     rub = rubric_module.load(ROOT)
-    opts = {"seed": 1, "jobs": jobs, "timeout": 300.0, "memory": 4096}
+    # unsafe: the solution with one stub is this project's own code, run without kit/sandbox.py
+    opts = {"seed": 1, "jobs": jobs, "timeout": 300.0, "memory": 4096, "unsafe": True}
     head, dirty = tree_state(commit)
-    old = rubric_module.load_matrix(ROOT) if only else None
-    if only and old is None:
-        print(f"kit/calibrate.py: --only needs an existing {os.path.relpath(out_path, ROOT)} (measure all first)",
-              file=sys.stderr)
-        sys.exit(2)
+    old = None
+    if only and os.path.exists(out_path):
+        with open(out_path) as f:
+            old = json.load(f)
     work = tempfile.mkdtemp(prefix="gi-exercises-")
     start = time.time()
     try:
         base, chapters, units = prepare_base(work, rub, opts, commit, build_from)
+        try:
+            rub = rubric_module.load(base)
+        except ValueError as e:
+            print(f"kit/calibrate.py: the copied tree: {e}", file=sys.stderr)
+            sys.exit(2)
         marked = markers.all_exercises(base)
         order = [e.id for e in marked]
         unknown = [x for x in only if x not in order]
@@ -569,6 +661,9 @@ def exercises(only, jobs, commit=None, build_from=None, out_path=MATRIX):
             per_exercise[ex.id] = measure_exercise(base, work, ex, rub, programs_of, targets, opts, timeouts,
                                                    log=lambda s: print(s, flush=True))
             m = per_exercise[ex.id]
+            m["commit"] = head
+            os.makedirs(OUT, exist_ok=True)  # what is measured so far, in case the run is cut short
+            write_matrix(os.path.join(OUT, "exercise-matrix.partial.json"), per_exercise)
             print(f"exercise {ex.id}: rebuilt {' '.join(m['affects']) or 'nothing'}; fails {len(m['failed'])} of "
                   f"{len(m['ran'])} criteria run ({m['seconds']:.0f} s)", flush=True)
         per_exercise = {x: per_exercise[x] for x in order if x in per_exercise}
@@ -578,8 +673,8 @@ def exercises(only, jobs, commit=None, build_from=None, out_path=MATRIX):
                   "commit": head, "uncommitted_changes": dirty, "seed": opts["seed"],
                   "command": "kit/calibrate.py exercises" + (f" --commit {commit}" if commit else "")
                              + (f" --only {' '.join(only)}" if only else ""),
-                  "measured": sorted(set(old["measured"]) | set(only), key=rubric_module.exercise_order)
-                              if old else order,
+                  "measured": sorted(set(old["measured"] if old else []) | {e.id for e in chosen},
+                                     key=rubric_module.exercise_order),
                   "seconds": round(time.time() - start),
                   "criteria": rows,
                   "no_single_stub_fails": [rubric_module.key(r) for r in rows if not r["exercises"]],
