@@ -66,7 +66,7 @@ $(foreach c,$(CHAPTER_PROGRAMS),$(eval $(c): $(patsubst chapters/support/%.c,$(B
 # chapter 5 scatters and samples lights as chapter 4 (chapters/pathtrace_model.h).
 $(BUILD)/chapters/%_model.o: chapters/%.c
 	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS) -Icommon -c $< -o $@.tmp.o
+	$(CC) $(CFLAGS) -Icommon -MF $(@:.o=.d) -MT $@ -c $< -o $@.tmp.o
 	objcopy --redefine-sym main=chapter_$*_main $@.tmp.o $@
 	rm -f $@.tmp.o
 $(BUILD)/02_whitted: $(BUILD)/chapters/01_local_model.o

@@ -114,9 +114,9 @@ def parse_args(argv):
 def run_limited(cmd, cwd, timeout, memory, env=None):
     """The judge (kit/criterion.py, trusted) or, with --unsafe, a submission's program, in its own
     process group killed on time-out: (returncode or None on time-out, stdout, stderr)."""
-    def set_limits():
-        limit = memory * 1024 * 1024
-        resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
+    def set_limits():  # memory None: the judge, whose sandboxes have caps of their own (inherited otherwise)
+        if memory is not None:
+            resource.setrlimit(resource.RLIMIT_AS, (memory << 20, memory << 20))
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
     p = subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, stdin=subprocess.DEVNULL,
                          start_new_session=True, preexec_fn=set_limits, env=env)
@@ -348,7 +348,8 @@ def run_criterion(src, c, opts, images_dir):
         cmd.append(json.dumps(spec))
     scratch = os.path.join(os.path.dirname(src), "scratch")  # the tests' temporary files, removed with the grading
     env = dict(os.environ, OMP_NUM_THREADS=str(opts["jobs"]), PYTHONDONTWRITEBYTECODE="1", TMPDIR=scratch)
-    code, out, err = run_limited(cmd, src, c.get("timeout", opts["timeout"]), opts["memory"], env)
+    code, out, err = run_limited(cmd, src, c.get("timeout", opts["timeout"]),
+                                 opts["memory"] if opts.get("unsafe", False) else None, env)
     if code is None:
         return {"passed": False, "p_value": None, "images": {}, "timed_out": True,
                 "message": f"timed out after {c.get('timeout', opts['timeout']):.0f} s (its programs killed)"}

@@ -1,0 +1,335 @@
+"""Grading untrusted code: hostile submissions against kit/grade.py's sandbox (kit/sandbox.py).
+
+Each probe is a small change a student who wants a better grade (or a classmate's worse one)
+could hand in: chapter 1's solution with a constructor (run before main) that attacks the
+grader, or a submission tree the kit must refuse.  For each: the criterion is graded as the
+rubric says, the report names what was stopped, and afterwards the instructor's tree is
+byte-identical, no process of the submission is left, another student's report is unchanged, and
+no temporary directory or cgroup of the grading is left.  The gradings use a one-criterion rubric
+(the chapter-1 pixel under a point light), so each costs one build of chapter 1.
+These tests check the kit, not the C code: they run with the plain build only.
+"""
+import hashlib
+import json
+import os
+import re
+import shutil
+import socket
+import stat
+import subprocess
+import sys
+import tempfile
+import time
+
+import lib
+
+ROOT = lib.ROOT
+GRADE = [sys.executable, os.path.join(ROOT, "kit", "grade.py")]
+CHAPTER = "chapters/01_local.c"
+SECRET = os.path.join(ROOT, "kit", "rubric.json")  # what a submission must never read or change
+SECRET_LINE = "The grading rubric (kit/grade.py"        # a line of it that must not reach a report
+
+
+def instructor_checksums():
+    """sha256 of every file of the instructor's tree that grading could touch."""
+    digest = {}
+    for top in ("kit", "tests", "chapters", "common", "scenes", "Makefile", "viewer"):
+        path = os.path.join(ROOT, top)
+        walk = [(path, [], [""])] if os.path.isfile(path) else os.walk(path)
+        for d, dirs, files in walk:
+            dirs[:] = [x for x in dirs if x != "__pycache__"]
+            for f in files:
+                p = os.path.join(d, f) if f else d
+                with open(p, "rb") as fh:
+                    digest[os.path.relpath(p, ROOT)] = hashlib.sha256(fh.read()).hexdigest()
+    return digest
+
+
+def leftovers():
+    """Temporary directories and cgroups a grading makes (and must remove)."""
+    tmp = {n for n in os.listdir(tempfile.gettempdir()) if n.startswith(("gi-grade-", "gi-kit-out-", "gi-kit-t"))}
+    groups = set()
+    for top in ("/sys/fs/cgroup/pids", "/sys/fs/cgroup"):
+        if os.path.isdir(top):
+            groups |= {n for n in os.listdir(top) if n.startswith("gi-sandbox-")}
+    return tmp, groups
+
+
+def rubric_file(ctx):
+    """A rubric of one quick criterion of chapter 1 (kit/rubric.json's own row)."""
+    with open(SECRET) as f:
+        rub = json.load(f)
+    rub["criteria"] = [c for c in rub["criteria"] if c["name"] == "point light pixel is R1"]
+    return ctx.write("rubric.json", json.dumps(rub))
+
+
+def submission(ctx, name, constructor="", extra_files=None, before_includes=""):
+    """A submission directory: chapter 1's solution with `constructor` (C statements) run before
+    main, `before_includes` at its top, and extra files {relative path: text}."""
+    top = ctx.path(name)
+    os.makedirs(os.path.join(top, "chapters"))
+    with open(os.path.join(ROOT, CHAPTER)) as f:
+        text = f.read()
+    if constructor:
+        text += ("\n#include <dirent.h>\n#include <fcntl.h>\n#include <signal.h>\n#include <stdio.h>\n"
+                 "#include <stdlib.h>\n#include <string.h>\n#include <sys/socket.h>\n#include <sys/wait.h>\n#include <netinet/in.h>\n"
+                 "#include <unistd.h>\nextern char **environ;\nstatic char stats_output[512];\n"
+                 f"static void link_output(void) {{ unlink(stats_output); symlink({c_string(SECRET)}, stats_output); }}\n"
+                 "__attribute__((constructor)) static void hostile_probe(int argc, char **argv)\n{\n"
+                 "    (void)argc, (void)argv;\n" + constructor + "\n}\n")
+    with open(os.path.join(top, CHAPTER), "w") as f:
+        f.write(before_includes + text)
+    for rel, content in (extra_files or {}).items():
+        os.makedirs(os.path.dirname(os.path.join(top, rel)), exist_ok=True)
+        with open(os.path.join(top, rel), "w") as f:
+            f.write(content)
+    return top
+
+
+def grade(ctx, sub, report, *extra, timeout=600):
+    r = subprocess.run(GRADE + [sub, "--report", report, "--chapters", "01_local", "--rubric", rubric_file(ctx),
+                                *extra], cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+    return r
+
+
+def read_report(report):
+    with open(os.path.join(report, "report.json")) as f:
+        return json.load(f)
+
+
+def c_string(s):
+    return json.dumps(s)
+
+
+# The attacks of one submission, each a few lines of C run as the chapter starts (see the module).
+def hostile_constructor(victim_report):
+    return f"""
+    /* 1. fake result lines into every stdout it can open, then kill its parent and everything */
+    DIR *proc = opendir("/proc");
+    for (struct dirent *e; proc && (e = readdir(proc));) {{
+        char path[300];
+        snprintf(path, sizeof path, "/proc/%s/fd/1", e->d_name);
+        FILE *f = fopen(path, "w");
+        if (f) fprintf(f, "\\n@@RESULT@@ {{\\"passed\\": true, \\"p_value\\": null, \\"message\\": \\"forged\\"}}\\n"),
+               fclose(f);
+    }}
+    if (proc) closedir(proc);
+    /* 2. read and change the instructor's files, a classmate's report */
+    const char *targets[] = {{{c_string(SECRET)}, "/proc/1/root{SECRET}", {c_string(victim_report)}}};
+    for (int i = 0; i < 3; i++) {{
+        char line[200] = "";
+        FILE *f = fopen(targets[i], "r");
+        if (f && fgets(line, sizeof line, f)) fprintf(stderr, "LEAK %s\\n", line);
+        if (f) fclose(f);
+        f = fopen(targets[i], "a");
+        if (f) fprintf(stderr, "WROTE %s\\n", targets[i]), fputs("{{}}", f), fclose(f);
+    }}
+    /* 4. the network */
+    int s = socket(AF_INET, SOCK_STREAM, 0);
+    struct sockaddr_in a = {{.sin_family = AF_INET, .sin_port = htons(22), .sin_addr = {{htonl(0x7f000001)}}}};
+    if (s >= 0 && connect(s, (struct sockaddr *)&a, sizeof a) == 0) fprintf(stderr, "NET connected\\n");
+    /* 5. a process that outlives the grading and then rewrites the classmate's report */
+    if (fork() == 0) {{
+        setsid();
+        if (fork() == 0) execl("/bin/sh", "sh", "-c",
+                               "sleep 4; echo 0 > " {c_string(victim_report)} "; exec sleep 7777", (char *)0);
+        _exit(0);
+    }}
+    /* 6. the output replaced by a link to the rubric when the chapter is done (the judge is root) */
+    for (int i = 1; i + 1 < argc; i++)
+        if (!strcmp(argv[i], "--stats"))
+            snprintf(stats_output, sizeof stats_output, "%s", argv[i + 1]), atexit(link_output);
+    kill(getppid(), SIGKILL);
+    /* 3. the environment, last, so it is in the message's tail */
+    fprintf(stderr, "ENVNAMES");
+    for (char **e = environ; *e; e++) fprintf(stderr, " %.*s", (int)strcspn(*e, "="), *e);
+    fprintf(stderr, " END\\n");
+"""
+
+
+def test_hostile_submission_is_contained(ctx):
+    """One hostile and one honest student graded as a class: the hostile one forges nothing, reads
+    and changes nothing of the grader's or the classmate's, leaves nothing behind."""
+    if "asan" in ctx.build:
+        return
+    before, (tmp_before, groups_before) = instructor_checksums(), leftovers()
+    honest = submission(ctx, "honest")
+    victim_dir = ctx.path("reports")
+    os.makedirs(victim_dir)
+    honest_report = os.path.join(victim_dir, "honest")
+    r = grade(ctx, honest, honest_report)
+    assert r.returncode == 0, f"grading the honest submission: exit {r.returncode}: {r.stderr[-800:]}"
+    with open(os.path.join(honest_report, "report.json"), "rb") as f:
+        honest_bytes = f.read()
+    assert read_report(honest_report)["total"] == 10, f"the honest submission: {read_report(honest_report)}"
+
+    hostile = submission(ctx, "hostile", hostile_constructor(os.path.join(honest_report, "report.json")), {
+        "common/evil.c": '#include <stdio.h>\n__attribute__((constructor)) static void f(void) '
+                         '{ puts("ok   everything"); }\n',
+        "viewer/viewer.mk": f"$(shell touch {ctx.path('viewer-mk-ran')})\n",
+        "Makefile": f"all:\n\ttouch {ctx.path('makefile-ran')}\n"})
+    hostile_report = ctx.path("hostile-report")
+    r = grade(ctx, hostile, hostile_report)
+    time.sleep(6)  # the detached process would have written by now
+    assert r.returncode == 0, f"grading the hostile submission: exit {r.returncode}: {r.stderr[-800:]}"
+    report = read_report(hostile_report)
+    text = json.dumps(report)
+    row = report["criteria"][0]
+    assert not row["passed"] and report["total"] == 0, \
+        f"the hostile submission's output is a link, not an image: it must fail, got {row}"
+    assert "not a plain file" in row["message"] or "sandbox" in row["message"], \
+        f"the message must name what the sandbox stopped: {row['message']!r}"
+    assert row["message"] != "forged", "a forged result line was taken"
+    assert "LEAK" not in text and "WROTE" not in text and SECRET_LINE not in text, \
+        f"the submission read or wrote a grader's file: {text[:1500]}"
+    assert "NET connected" not in text, "the submission reached the network"
+    assert "ENVNAMES" in row["message"], f"the run's stderr should be in the message: {row['message']!r}"
+    names = set(row["message"].split("ENVNAMES")[1].split("END")[0].split())
+    assert names <= {"PATH", "HOME", "LANG", "OMP_NUM_THREADS", "PWD"}, f"the sandbox's environment leaks {names}"
+    for marker in ("viewer-mk-ran", "makefile-ran"):
+        assert not os.path.exists(ctx.path(marker)), f"the submission's {marker[:-4]} ran at build time"
+    with open(os.path.join(honest_report, "report.json"), "rb") as f:
+        assert f.read() == honest_bytes, "the classmate's report changed after the hostile grading"
+    left = subprocess.run(["pgrep", "-f", "sleep 7777"], capture_output=True, text=True).stdout.split()
+    assert not left, f"processes of the hostile submission outlived its grading: {left}"
+    assert instructor_checksums() == before, "the instructor's tree changed"
+    tmp_after, groups_after = leftovers()
+    assert tmp_after <= tmp_before and groups_after <= groups_before, \
+        f"the grading left {sorted(tmp_after - tmp_before)} {sorted(groups_after - groups_before)}"
+
+
+def test_caps_stop_fork_bombs_memory_and_huge_files(ctx):
+    """A fork bomb, a 2 GiB file, 3 GiB of memory: the sandbox's caps (processes, file size,
+    memory) stop each, the criterion fails and says which cap stopped the run."""
+    if "asan" in ctx.build:
+        return
+    bomb = """
+    int children = 0;
+    for (int i = 0; i < 5000; i++) {
+        pid_t p = fork();
+        if (p == 0)
+            _exit(0);
+        if (p < 0)
+            break;
+        children++;
+    }
+    while (wait(NULL) > 0)
+        continue;
+    fprintf(stderr, "FORKED %d\\n", children);
+    signal(SIGXFSZ, SIG_IGN);
+    int fd = open("/tmp/huge", O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    static char block[1 << 20];
+    long written = 0;
+    for (int i = 0; fd >= 0 && i < 2048; i++) {
+        ssize_t n = write(fd, block, sizeof block);
+        if (n <= 0)
+            break;
+        written += n;
+    }
+    fprintf(stderr, "WRITTEN %ld\\n", written);
+    volatile char *m = malloc(3L << 30); /* volatile: the stores are not optimised away */
+    for (long j = 0; m && j < (3L << 30); j += 4096)
+        m[j] = 1;
+"""
+    sub = submission(ctx, "bomb", bomb)
+    report_dir = ctx.path("bomb-report")
+    start = time.time()
+    r = grade(ctx, sub, report_dir, "--memory", "1024")
+    assert r.returncode == 0, f"grading: exit {r.returncode}: {r.stderr[-800:]}"
+    row = read_report(report_dir)["criteria"][0]
+    assert not row["passed"], f"a run stopped by the memory cap cannot pass: {row}"
+    assert "memory cap of 1024 MiB" in row["message"], f"the message must name the memory cap: {row['message']!r}"
+    forked, written = re.search(r"FORKED (\d+)", row["message"]), re.search(r"WRITTEN (\d+)", row["message"])
+    assert forked and int(forked[1]) < 64, f"the process cap (64) must stop the fork bomb: {row['message']!r}"
+    assert written and int(written[1]) <= 512 << 20, f"the file size cap (512 MiB) must stop the file: {row['message']!r}"
+    assert time.time() - start < 300, "the caps took too long to stop the submission"
+
+
+def test_a_secret_included_at_build_time_stays_secret(ctx):
+    """#include of an absolute path of the instructor's: the file is not in the sandbox, the build
+    fails, and its contents are not in the report."""
+    if "asan" in ctx.build:
+        return
+    sub = submission(ctx, "include", before_includes=f'#include "{SECRET}"\n')
+    report_dir = ctx.path("include-report")
+    r = grade(ctx, sub, report_dir)
+    assert r.returncode == 0, f"grading: exit {r.returncode}: {r.stderr[-800:]}"
+    report = read_report(report_dir)
+    assert report["total"] == 0 and "does not compile" in report["criteria"][0]["message"], report["criteria"][0]
+    assert SECRET_LINE not in json.dumps(report), "a line of the instructor's rubric reached the report"
+
+
+def test_submissions_the_kit_refuses(ctx):
+    """A file, a missing path, devices, FIFOs, sockets, links out of the tree, too large: exit 2 and
+    one line naming the path; nothing graded."""
+    if "asan" in ctx.build:
+        return
+
+    def tree(name, make):
+        top = ctx.path(name)
+        os.makedirs(os.path.join(top, "chapters"))
+        shutil.copy(os.path.join(ROOT, CHAPTER), os.path.join(top, CHAPTER))
+        make(top)
+        return top
+
+    def sparse_file(path, size):
+        with open(path, "w"):
+            pass
+        os.truncate(path, size)
+
+    def unix_socket(path):
+        s = socket.socket(socket.AF_UNIX)
+        s.bind(path)
+        s.close()
+
+    cases = {
+        "a file": (ctx.write("file.txt", "x"), "not a directory"),
+        "missing": (ctx.path("nowhere"), "missing"),
+        "fifo": (tree("fifo", lambda t: os.mkfifo(os.path.join(t, "chapters", "pipe"))), "chapters/pipe"),
+        "device": (tree("device", lambda t: os.mknod(os.path.join(t, "null"), 0o600 | stat.S_IFCHR,
+                                                     os.makedev(1, 3))), "null"),
+        "socket": (tree("socket", lambda t: unix_socket(os.path.join(t, "sock"))), "sock"),
+        "link out": (tree("link", lambda t: os.symlink(SECRET, os.path.join(t, "chapters", "ref.json"))),
+                     "a symbolic link out of the submission"),
+        "too large": (tree("large", lambda t: sparse_file(os.path.join(t, "big.bin"), 65 << 20)), "larger than"),
+    }
+    for what, (path, expected) in cases.items():
+        r = grade(ctx, path, ctx.path("refused-report"))
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and expected in lines[0], \
+            f"{what}: expected exit 2 and one line naming {expected!r}; got {r.returncode}: {r.stderr!r}"
+    loop = tree("loop", lambda t: os.symlink(".", os.path.join(t, "loop")))
+    r = grade(ctx, loop, ctx.path("loop-report"))
+    assert r.returncode == 0 and read_report(ctx.path("loop-report"))["total"] == 10, \
+        f"a link inside the tree ('loop -> .') is harmless: {r.returncode} {r.stderr[-500:]}"
+
+
+def test_make_arguments_are_data(ctx):
+    """SUBMISSION, REPORT and CHAPTERS with spaces, quotes and ';' reach the kit as they are."""
+    if "asan" in ctx.build:
+        return
+    marker = ctx.path("injected")
+    odd = ctx.path("a dir; touch " + marker + " 'q\"")
+    os.makedirs(odd)
+    r = subprocess.run(["make", "--no-print-directory", "grade", f"SUBMISSION={odd}/missing",
+                        f"REPORT={ctx.path('r; touch ' + marker)}", "CHAPTERS=01_local;touch " + marker],
+                       cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert not os.path.exists(marker), f"a make variable ran as a command: {r.stdout} {r.stderr}"
+    assert r.returncode != 0 and "missing" in r.stderr, f"expected a refusal naming the path: {r.stderr!r}"
+    r = subprocess.run(GRADE + [submission(ctx, "plain"), "--report", "/proc/version/report"], capture_output=True,
+                       text=True)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "REPORT" in lines[0], \
+        f"an unwritable REPORT is one line and exit 2: {r.returncode} {r.stderr!r}"
+
+
+def test_no_sandbox_no_grading_unless_unsafe(ctx):
+    """Where bubblewrap is missing the kit refuses (exit 2, naming the cause)."""
+    if "asan" in ctx.build:
+        return
+    env = dict(os.environ, PATH=ctx.scratch)  # no bwrap on this PATH
+    r = subprocess.run(GRADE + [submission(ctx, "plain"), "--report", ctx.path("r"), "--rubric", rubric_file(ctx)],
+                       cwd=ROOT,
+                       capture_output=True, text=True, env=env)
+    assert r.returncode == 2 and "bubblewrap" in r.stderr and "UNSAFE=1" in r.stderr, \
+        f"without bwrap the kit must refuse and say why: {r.returncode} {r.stderr!r}"
