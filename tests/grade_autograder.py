@@ -5,7 +5,7 @@ The Gradescope test builds the archive with `make autograder`, unpacks it into a
 in a scratch directory (AUTOGRADER_ROOT), runs setup.sh --dry-run (no apt-get) and run_autograder
 on a chapter-1 handout with exercise 1.2 solved, and checks results.json against every field of
 Gradescope's "Autograder Specifications" (gradescope-autograders.readthedocs.io/en/latest/specs/).
-About a minute on 2 cores (one grading of chapter 1); under the sanitizer build they pass without
+About 80 s on 2 cores (two gradings of chapter 1); under the sanitizer build they pass without
 running (the kit builds its own binaries, whatever BUILD is).
 """
 import json
@@ -188,24 +188,40 @@ def test_gradescope_archive_grades_a_submission_into_results_json(ctx):
     assert not new, f"left behind in {tempfile.gettempdir()}: {sorted(new)}"
 
 
-def test_gradescope_submission_of_loose_files_scores_0_with_the_reason(ctx):
-    """A submission of single files (no chapters/ folder): results.json still has every criterion,
-    each 0 with the reason, in Gradescope's fields; nothing is built (a second or two)."""
+def test_gradescope_single_files_are_graded_by_their_names(ctx):
+    """Single files uploaded (no tree): without the file an exercise is in, results.json has every
+    criterion at 0 with the reason, naming the file to submit; with the handout's stubbed
+    01_local.c (and a stray file) it is graded as chapters/01_local.c: the unit tests of common/
+    pass (10 points), every criterion of the stubs fails, and the stubs are named still to write."""
     if "asan" in ctx.build:
         return
     archive = ctx.path("autograder.zip")
-    r = make("autograder", f"OUT={archive}", "CHAPTERS=01_local 02_whitted")
+    r = make("autograder", f"OUT={archive}", "CHAPTERS=01_local")
     assert r.returncode == 0, r.stderr
     root = ctx.path("autograder")
     unpack(archive, root)
-    os.makedirs(os.path.join(root, "submission"))
-    shutil.copy2(os.path.join(ROOT, "chapters", "01_local.c"), os.path.join(root, "submission", "01_local.c"))
+    submission = os.path.join(root, "submission")
+    os.makedirs(submission)
+    with open(os.path.join(submission, "notes.txt"), "w") as f:
+        f.write("my notes\n")
     r = run_autograder(root)
     assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
-    criteria = [c for c in rubric.load(ROOT)["criteria"] if c["chapter"] in ("01_local", "02_whitted")]
+    criteria = [c for c in rubric.load(ROOT)["criteria"] if c["chapter"] == "01_local"]
     results = check_results(os.path.join(root, "results", "results.json"), criteria)
-    assert results["score"] == 0 and "chapters/" in results["output"], results["output"]
+    assert results["score"] == 0 and "01_local.c" in results["output"], results["output"]
     assert all(t["output"].startswith("not graded: ") for t in results["tests"])
+
+    handout = ctx.path("handout")
+    r = make("handout", f"OUT={handout}", "CHAPTERS=01_local")
+    assert r.returncode == 0, r.stderr
+    shutil.copy2(os.path.join(handout, "chapters", "01_local.c"), os.path.join(submission, "01_local.c"))
+    r = run_autograder(root)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    results = check_results(os.path.join(root, "results", "results.json"), criteria)
+    passed = sorted(t["name"] for t in results["tests"] if t["status"] == "passed")
+    assert results["score"] == 10 and passed == ["01_local: unit tests test_common",
+                                                 "01_local: unit tests test_sampling_chi2"], passed
+    assert all(name in results["output"] for name in ("reflected_fraction", "point_lights", "area_light"))
 
 
 def test_handout_carries_the_classroom_self_check(ctx):

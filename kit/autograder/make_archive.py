@@ -28,10 +28,11 @@ kit/grade.py needs and no more solution than the students have: the handout of t
 (kit/handout.py: the project with the chapters' exercises stubbed; kit/grade.py lends its files
 to every graded tree and takes the exercise files from the submission) with the instructor's
 kit/ in place of the handout's: the rubric and the references, held-out ones included (the
-archive never reaches students); not kit/handout.json, which marks a student's self-check.
+archive never reaches students); not the handout's handout.json, the mark of a student's
+self-check (kit/grade.py grades such a tree without a sandbox where none starts).
 
-make passes OUT, CHAPTERS and UNSAFE through the environment (make exports the variables of its
-command line), so spaces, quotes or ';' in them stay data.  Exit status 2 on bad input.
+OUT, CHAPTERS and UNSAFE come from the environment under `make autograder` (the variables of
+make's command line are exported), so spaces, quotes or ';' in them stay data.  Exit status 2 on bad input.
 """
 import json
 import os
@@ -48,8 +49,8 @@ import rubric as rubric_module  # noqa: E402
 
 VISIBILITIES = ("visible", "after_due_date", "after_published", "hidden")  # Gradescope's four
 SANDBOX_PACKAGES = ("bubblewrap",)
-# Of the instructor's kit/, what grading does not read.  kit/handout.json is a handout's mark: a
-# grader that finds it grades without a sandbox as a student's self-check (kit/grade.py).
+# Of the instructor's kit/, what grading does not read.  A handout's kit holds handout.json, its mark:
+# a grader that finds one grades without a sandbox, as a student's self-check (kit/grade.py).
 KIT_LEFT_OUT = ("kit/autograder/", "kit/student/", "kit/CALIBRATION.md", "kit/README.md", "kit/handout.json")
 
 
