@@ -5,7 +5,7 @@ The Gradescope test builds the archive with `make autograder`, unpacks it into a
 in a scratch directory (AUTOGRADER_ROOT), runs setup.sh --dry-run (no apt-get) and run_autograder
 on a chapter-1 handout with exercise 1.2 solved, and checks results.json against every field of
 Gradescope's "Autograder Specifications" (gradescope-autograders.readthedocs.io/en/latest/specs/).
-About 80 s on 2 cores (two gradings of chapter 1); under the sanitizer build they pass without
+About 90 s on 2 cores (two gradings of chapter 1); under the sanitizer build they pass without
 running (the kit builds its own binaries, whatever BUILD is).
 """
 import json
@@ -243,3 +243,25 @@ def test_handout_carries_the_classroom_self_check(ctx):
     install = workflow[workflow.index("apt-get install"):].split("\n\n")[0].split()
     assert set(build_packages()) <= set(install), f"the workflow does not install {build_packages()}"
     assert "actions/upload-artifact@" in workflow and "path: out/grade/" in workflow
+
+
+def test_gradescope_refuses_to_grade_without_a_sandbox(ctx):
+    """Where no sandbox starts (here: no bwrap on PATH), the archive's grader does not fall back to
+    grading unconfined (as a handout's self-check would): every criterion scores 0, saying why."""
+    if "asan" in ctx.build:
+        return
+    archive = ctx.path("autograder.zip")
+    r = make("autograder", f"OUT={archive}", "CHAPTERS=01_local")
+    assert r.returncode == 0, r.stderr
+    root = ctx.path("autograder")
+    unpack(archive, root)
+    r = make("handout", f"OUT={os.path.join(root, 'submission')}", "CHAPTERS=01_local")
+    assert r.returncode == 0, r.stderr
+    env = dict(os.environ, AUTOGRADER_ROOT=root, PATH="/nonexistent")
+    r = subprocess.run([sys.executable, os.path.join(root, "run_autograder")], cwd=root, env=env, capture_output=True,
+                       text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    criteria = [c for c in rubric.load(ROOT)["criteria"] if c["chapter"] == "01_local"]
+    results = check_results(os.path.join(root, "results", "results.json"), criteria)
+    assert results["score"] == 0 and "no sandbox" in results["output"], results["output"]
+    assert all(t["output"].startswith("not graded: ") for t in results["tests"]), "graded without a sandbox"
