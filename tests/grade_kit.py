@@ -121,19 +121,15 @@ def test_grading_seed_shifts_every_chapter_seed(ctx):
         images.append(img.pixels)
         assert stats["seed"] == lib.shifted_seed(extra[1] if extra else 1, 7)
     assert images[0] == images[1] != images[2]
-    # kit/criterion.py with SEED 5: the grade test sees Context(build, seed=5).
-    src = ctx.path("criterion-src")
-    os.makedirs(os.path.join(src, "tests"))
-    os.makedirs(os.path.join(src, "kit"))
-    for rel in ("tests/lib.py", "tests/pfm.py", "kit/stats.py"):
-        shutil.copy2(os.path.join(ROOT, rel), os.path.join(src, rel))
-    with open(os.path.join(src, "tests", "grade_seed.py"), "w") as f:
-        f.write("def test_seed(ctx):\n    assert ctx.seed == 5, ctx.seed\n")
-    criterion = json.dumps({"kind": "grade", "module": "grade_seed", "test": "test_seed", "name": "seed"})
-    for seed, passed in (("5", True), ("1", False)):
-        r = kit("kit/criterion.py", src, "build", criterion, seed, "1", "", timeout=60)
+    # kit/criterion.py with SEED 5: the grade test (this kit's own, never the submission's) sees
+    # Context(build, seed=5): its run without --seed gets --seed shifted_seed(1, 5).
+    rub = json.load(open(os.path.join(ROOT, "kit", "rubric.json")))
+    criterion = json.dumps(next(c for c in rub["criteria"] if c["name"] == "point light pixel is R1"))
+    for seed in ("5", "1"):
+        r = kit("kit/criterion.py", ROOT, ctx.build, criterion, seed, "1", "", timeout=120)
         result = json.loads(r.stdout[r.stdout.rfind("@@RESULT@@ ") + len("@@RESULT@@ "):])
-        assert result["passed"] is passed, (seed, result)
+        shifted = f"--seed {lib.shifted_seed(1, 5)}"
+        assert result["passed"] and (shifted in " ".join(result["commands"])) == (seed == "5"), (seed, result)
 
 
 def test_handout_builds_runs_and_grades(ctx):
