@@ -238,7 +238,7 @@ static vec3 photon_estimate(const photonmap_state *st, const photon_map *map, ve
     photon_grid_cursor c;
     uint32_t i;
     counters->value[COUNT_LOOKUPS]++;
-    for (photon_grid_search(&map->grid, x, sqrt(r2), &c); photon_grid_next(&map->grid, &c, &i, &d2);) {
+    for (photon_grid_search(&map->grid, x, r2, &c); photon_grid_next(&map->grid, &c, &i, &d2);) {
         const photon *p = &map->photons[i];
         if (photon_counts(st, p, n, before, filter))
             sum = v3_add(sum, v3_mul(bsdf_f(&v, p->from), p->power));
@@ -411,7 +411,8 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
     for (int l = 0; l < st->light_count; l++)
         st->lights[l].probability /= v3_average(st->emitted_power);
     if (st->light_count == 0)
-        fprintf(stderr, "warning: 05_photonmap: the scene has no light to shoot photons from: the image is black\n");
+        fprintf(stderr, "warning: 05_photonmap: the scene has no light to shoot photons from: %s\n",
+                v3_max_component(s->background) > 0.0 ? "only the background lights it" : "the image is black");
     /* A radius relative to the scene, so the scene's unit does not matter. */
     st->initial_radius = st->radius > 0.0 ? st->radius : 0.005 * v3_length(v3_sub(s->bounds.hi, s->bounds.lo));
     st->current_radius = st->initial_radius = st->initial_radius > 0.0 ? st->initial_radius : 1.0;

@@ -71,9 +71,9 @@ void photon_grid_free(photon_grid *g)
     *g = (photon_grid){0};
 }
 
-void photon_grid_search(const photon_grid *g, vec3 x, double radius, photon_grid_cursor *c)
+void photon_grid_search(const photon_grid *g, vec3 x, double radius2, photon_grid_cursor *c)
 {
-    *c = (photon_grid_cursor){.center = x, .radius2 = radius * radius, .current = -1};
+    *c = (photon_grid_cursor){.center = x, .radius2 = radius2, .current = -1};
     if (g->count == 0)
         return;
     int64_t cx = cell_of(x.x, g->cell_size), cy = cell_of(x.y, g->cell_size), cz = cell_of(x.z, g->cell_size);
@@ -143,7 +143,7 @@ double photon_grid_nearest_radius2(const photon_grid *g, vec3 x, double radius, 
     uint32_t i;
     int n = 0;
     k = k < PHOTON_GRID_MAX_NEAREST ? k : PHOTON_GRID_MAX_NEAREST;
-    for (photon_grid_search(g, x, radius, &c); photon_grid_next(g, &c, &i, &dist2);) {
+    for (photon_grid_search(g, x, radius * radius, &c); photon_grid_next(g, &c, &i, &dist2);) {
         if (n < k) {
             d2[n] = dist2;
             sift_up(d2, n++);

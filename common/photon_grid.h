@@ -38,8 +38,10 @@ typedef struct {
 int photon_grid_build(photon_grid *grid, const void *first, size_t stride, size_t count, double cell_size);
 void photon_grid_free(photon_grid *grid);
 
-/* for (photon_grid_search(g, x, r, &c); photon_grid_next(g, &c, &i, &d2);) ...
- * visits every point i with |p_i - x|^2 <= r^2 (d2 = that squared distance). */
+/* for (photon_grid_search(g, x, r2, &c); photon_grid_next(g, &c, &i, &d2);) ...
+ * visits every point i with |p_i - x|^2 <= r2 (d2 = that squared distance).  Squared, so that
+ * the radius photon_grid_nearest_radius2 returns keeps its K-th point (sqrt, then squaring
+ * again, rounds below it about one time in four). */
 typedef struct {
     vec3 center;
     double radius2;
@@ -48,7 +50,7 @@ typedef struct {
     uint32_t next, end;
 } photon_grid_cursor;
 
-void photon_grid_search(const photon_grid *grid, vec3 x, double radius, photon_grid_cursor *cursor);
+void photon_grid_search(const photon_grid *grid, vec3 x, double radius2, photon_grid_cursor *cursor);
 bool photon_grid_next(const photon_grid *grid, photon_grid_cursor *cursor, uint32_t *index, double *distance2);
 
 /* The squared radius of the smallest ball around x that holds the k

@@ -455,19 +455,19 @@ def test_density_estimate_for_any_radius_and_k_nearest(ctx):
     wall's edges (a disc of that radius, or one of K photons that are not the nearest, reads the
     wall too dark): pi r_K^2 times the photon density is a Gamma(K) variable and E[1 / Gamma(K)] =
     1 / (K - 1), so K Phi / (pi r_K^2) reads the reflected part Le rho / (1 - rho) = 1 as K / (K - 1),
-    and (K - 1) Phi / (pi r_K^2) as 1: the K-th photon lies on the disc's rim, and whether the
-    search counts it is a question of rounding (the solution drops it in about a quarter of the
-    lookups), so with K = 32 L is between 2 and 2 + 1/31.  --alpha 1 (the radius kept).  The
-    central pixels' mean over RENDERS seeds, within t_bound(RENDERS - 1, 2) standard errors of that
-    (a point or a band), each below 0.5 % of the answer; the noise comes from the number of photons
+    and (K - 1) Phi / (pi r_K^2) as 1: the K-th photon lies on the disc's rim and is counted
+    (the search takes r_K^2 itself: its square root squared again rounded below it in a quarter of
+    the lookups), so with K = 32 L is 2 + 1/31.  --alpha 1 (the radius kept).  The
+    central pixels' mean over RENDERS seeds, within t_bound(RENDERS - 1, 2) standard errors of that,
+    each below 0.5 % of the answer; the noise comes from the number of photons
     on the wall, not from K: 20,000 photons per pass for the fixed disc, 10,000 for the K nearest
     (the search visits every photon within --radius 1: the whole furnace)."""
     rho = 0.5
     scene = furnace_scene(ctx, rho, name="radius-furnace")
     bound = t_bound(RENDERS - 1, 2)
     for label, options, low, high in (("--radius 0.2", ("--radius", 0.2, "--photons", 20000), 2.0, 2.0),
-                                      ("--nearest 32", ("--radius", 1, "--nearest", 32, "--photons", 10000), 2.0,
-                                       2 + 1 / 31)):
+                                      ("--nearest 32", ("--radius", 1, "--nearest", 32, "--photons", 10000),
+                                       2 + 1 / 31, 2 + 1 / 31)):
         results = renders(ctx, scene, range(1, RENDERS + 1), "--size", "24x24", "--spp", 2, "--alpha", 1,
                           "--maps", "global", *options, "--probe-photons", 32, "--threads", 1,
                           name="k" + label.split()[-1])
@@ -476,7 +476,7 @@ def test_density_estimate_for_any_radius_and_k_nearest(ctx):
                measured=nonfinite, expected=0, command=results[0][0].command)
         mean, se = mean_and_error([central_mean(img) for img, _ in results])
         by = "Le / (1 - rho): a fixed disc on the wall" if low == high else \
-            f"Le + Le rho / (1 - rho) times between 1 and K / (K - 1) = {high - 1:.4g} for the K nearest"
+            f"Le + Le rho / (1 - rho) K / (K - 1) = {high:.4g} for the K nearest (the K-th photon on the rim counted)"
         expect_between("mean radiance", mean, low - bound * se, high + bound * se, expected=(low + high) / 2,
                        where=f"of the furnace's back wall (albedo {rho}) with {label} (± {bound:.2f} standard "
                              f"errors of {se:.2g})", by=by, command=results[0][0].command)
