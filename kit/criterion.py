@@ -99,14 +99,14 @@ def failed_message(error):
 
 # ---- the submission's programs, sandboxed -----------------------------------------------------------
 
-def lend_scratch(scratch):
+def lend_scratch(scratch, uid):
     """The test's scratch directories (tempfile.mkdtemp, the judge's) become the sandbox user's, so
     its programs can write their outputs there; the scratch root itself stays the judge's."""
     for name in os.listdir(scratch):
         path = os.path.join(scratch, name)
         info = os.lstat(path)
-        if stat.S_ISDIR(info.st_mode) and info.st_uid != sandbox.SANDBOX_UID:
-            os.chown(path, sandbox.SANDBOX_UID, sandbox.SANDBOX_UID)
+        if stat.S_ISDIR(info.st_mode) and info.st_uid != uid:
+            os.chown(path, uid, uid)
 
 
 def remove_strange_files(scratch):
@@ -129,10 +129,11 @@ def sandboxed_runner(spec):
     """RUN_PROGRAM for tests/lib.py: the program inside a fresh sandbox (kit/sandbox.py)."""
     scratch = spec["scratch"]
     box = sandbox.Sandbox([tuple(b) for b in spec["binds"]] + [(scratch, True)],
-                          limits=sandbox.Limits(**spec["limits"]), threads=spec["threads"])
+                          limits=sandbox.Limits(**spec["limits"]), threads=spec["threads"],
+                          mode=spec.get("mode", "bwrap"), uid=spec.get("uid", sandbox.SANDBOX_UID))
 
     def run(argv, cwd, timeout):
-        lend_scratch(scratch)
+        lend_scratch(scratch, spec.get("uid", sandbox.SANDBOX_UID))
         r = box.run(argv, cwd=cwd, timeout=timeout)
         notes = [f"stopped by the grader's sandbox: {r.stopped}"] if r.stopped else []
         removed = remove_strange_files(scratch)

@@ -9,6 +9,7 @@ a path with spaces or quotes is one path.
   SUBMISSION=DIR       one tree (default: this one)          REPORT=DIR     where the report goes
   SUBMISSIONS="A B"    a class (whitespace-separated; or @LIST.txt, one directory per line)
   CHAPTERS="01_local ..."   SEED=N   JOBS=N   SSHLOGINFILE=FILE   UNSAFE=1 (no sandbox: trusted code only)
+  SANDBOX=user         the weaker sandbox where user namespaces are blocked (kit/grade.py --help)
 """
 import os
 import sys
@@ -30,6 +31,8 @@ def arguments(env):
         common += ["--seed", value("SEED")]
     if value("UNSAFE") not in ("", "0"):
         common += ["--unsafe"]
+    if value("SANDBOX"):
+        common += ["--sandbox", value("SANDBOX")]
     if value("SUBMISSIONS"):
         extra = (["--jobs", value("JOBS")] if value("JOBS") else []) + \
                 (["--sshloginfile", env["SSHLOGINFILE"]] if value("SSHLOGINFILE") else [])

@@ -44,8 +44,8 @@ if [ "$dry_run" = 0 ]; then
   reason=$(/usr/bin/python3 -c 'import sys; sys.path.insert(0, sys.argv[1]); import sandbox
 print(sandbox.unavailable() or "")' "$SOURCE/kit")
   if [ -n "$reason" ]; then
-    echo "setup.sh: WARNING: the sandbox cannot start in this image: $reason" >&2
-    echo "setup.sh: run_autograder will refuse to grade (results.json will say why)" >&2
+    echo "setup.sh: WARNING: bubblewrap's sandbox cannot start in this image: $reason" >&2
+    echo "setup.sh: run_autograder grades with the fallback, a separate user (kit/grade.py --sandbox user)" >&2
   else
     echo "setup.sh: the sandbox starts: submissions will be graded inside it"
   fi
