@@ -86,6 +86,18 @@ def criteria_table(rows, criterion_names):
     return out
 
 
+def refusal(log):
+    """The one line kit/grade.py wrote when it refused a submission ("kit/grade.py: not graded: ..."),
+    or None."""
+    try:
+        with open(log, errors="replace") as f:
+            lines = [ln.strip() for ln in f.read(1 << 20).splitlines()]
+    except OSError:
+        return None
+    found = [ln.split("not graded: ", 1)[1] for ln in lines if "kit/grade.py: not graded: " in ln]
+    return found[-1][:300] if found else None
+
+
 def main(argv):
     report, jobs, login, extra, dirs = os.path.join(ROOT, "out", "class"), os.cpu_count() or 1, None, [], []
     i = 0
@@ -174,8 +186,10 @@ def main(argv):
                          "sha256": r.get("submission_sha256", "")})
         except (OSError, ValueError, KeyError):
             code, seconds = status.get(n, ("?", "?"))
+            reason = refusal(os.path.join(report, n + ".log"))
             rows.append({"student": n, "directory": os.path.abspath(d), "total": "", "max": "", "chapters": {},
-                         "seconds": seconds, "status": f"not graded (exit status {code}; see {n}.log)",
+                         "seconds": seconds, "status": f"not graded: {reason}" if reason else
+                         f"not graded (exit status {code}; see {n}.log)",
                          "criteria": [], "seed": "", "date": "", "sha256": ""})
     chapter_names = sorted({c for r in rows for c in r["chapters"]})
     criterion_names = []  # "chapter: name", in rubric order as the reports list them

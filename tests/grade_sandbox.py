@@ -298,6 +298,16 @@ def test_submissions_the_kit_refuses(ctx):
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 2 and len(lines) == 1 and expected in lines[0], \
             f"{what}: expected exit 2 and one line naming {expected!r}; got {r.returncode}: {r.stderr!r}"
+    # In a class, a refused submission is a "not graded" row with the reason; the others stand.
+    class_dir = ctx.path("class")
+    r = subprocess.run([sys.executable, os.path.join(ROOT, "kit", "grade_class.py"), "--report", class_dir,
+                        "--jobs", "2", cases["fifo"][0], cases["link out"][0]], cwd=ROOT, capture_output=True,
+                       text=True, timeout=300)
+    with open(os.path.join(class_dir, "summary.csv")) as f:
+        summary = f.read()
+    for what in ("fifo", "link out"):
+        assert f"not graded: {cases[what][0]}" in summary and cases[what][1] in summary, \
+            f"the class summary must say why {what} was not graded: {summary[:1500]}"
     loop = tree("loop", lambda t: os.symlink(".", os.path.join(t, "loop")))
     r = grade(ctx, loop, ctx.path("loop-report"))
     assert r.returncode == 0 and read_report(ctx.path("loop-report"))["total"] == 10, \
