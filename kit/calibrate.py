@@ -2,6 +2,7 @@
 """Measure the grader: false failures of the solution over many seeds, and power on mutants.
 
 usage: kit/calibrate.py false-failures [--seeds A-B] [--jobs N] [--kinds K,K] [--chapters "A B"] [--out FILE]
+                                      [--public] [--build DIR]
        kit/calibrate.py seed-dependence
        kit/calibrate.py combine FILE FILE ...
        kit/calibrate.py mutants [--jobs N] [NAME ...]             (default every tests/mutants/*.patch)
@@ -12,7 +13,12 @@ false-failures: the solution (this tree's build/, `make` first) graded with
   seed (seed-dependence, below, run first); each as kit/grade.py --seed S runs
   it.  --kinds compare,grade,surfaces keeps only those kinds (to split a long
   measurement; `combine` joins the parts per seed); --chapters keeps only those
-  chapters' criteria (each still at the rubric's alpha).  Writes FILE (default
+  chapters' criteria (each still at the rubric's alpha).  The compare and
+  surfaces criteria are graded as kit/grade.py grades them: their held-out
+  variants where kit/heldout/ has them, the public references with --public.
+  --build DIR grades the solution built in DIR instead of build/ (--kinds
+  compare only: the other kinds run through kit/grade.py's judge, on build/).
+  Writes FILE (default
   out/calibration/false_failures.csv: seed, chapter, kind, criterion, passed,
   p, message) and prints per criterion and overall how many gradings failed.
 seed-dependence: every grade and surfaces criterion of the rubric run twice,
@@ -188,8 +194,12 @@ def summarise_rows(rows, source=""):
               + (f"; seeds {' '.join(map(str, sorted(failing_seeds)))}" if failing_seeds else ""))
 
 
-def false_failures(seeds, jobs, kinds, out_file, chapters=None):
+def false_failures(seeds, jobs, kinds, out_file, chapters=None, public=False, build_dir="build"):
     rub = rubric_module.load(ROOT)
+    rub = dict(rub, criteria=[compare.graded_variant(c, public) for c in rub["criteria"]])
+    heldout = [c["name"] for c in rub["criteria"] if c.get("heldout")]
+    print(f"{len(heldout)} criteria graded by their held-out variants (kit/heldout/)" if heldout else
+          "the public references (kit/reference/)", flush=True)
     if chapters:
         rub = dict(rub, criteria=[c for c in rub["criteria"] if c["chapter"] in chapters])
     kinds = kinds or ["compare", "grade", "surfaces"]
@@ -219,7 +229,7 @@ def false_failures(seeds, jobs, kinds, out_file, chapters=None):
                 t0 = time.time()
                 if c["kind"] == "compare":
                     try:
-                        ok, p, message, _ = compare.run_compare(ROOT, "build", c, rub, seed, jobs, None)
+                        ok, p, message, _ = compare.run_compare(ROOT, build_dir, c, rub, seed, jobs, None)
                     except compare.CriterionFailed as e:
                         ok, p, message = False, None, str(e)
                 else:
@@ -359,7 +369,7 @@ def target_names(chapters, units):
 def forget_objects_using(src, rel):
     """Make every object in src/build whose dependency file lists `rel` out of date (its time set to
     1970; deleting it would not do: the Makefile's .SECONDARY lets make skip a missing object).
-    make knows most of this already, but an object compiled under another name and renamed (the
+    Make knows most of this already, but an object compiled under another name and renamed (the
     chapter models, build/chapters/NN_name_model.o, written as ...model.o.tmp.o) has its headers
     recorded for the temporary name only: without this, chapter 5 would keep chapter 4's object
     with the old common/optics.h."""
@@ -761,6 +771,7 @@ def main(argv):
         print(f"kit/calibrate.py: {e}", file=sys.stderr)
         sys.exit(2)
     jobs, seeds, names, kinds, out_file, chapters = 2, list(range(1, 101)), [], None, None, None
+    public = False
     only, commit, build_from = [], None, None
     i = 0
     while i < len(rest):
@@ -796,6 +807,9 @@ def main(argv):
                 print(f"kit/calibrate.py: --kinds {rest[i + 1]}: not compare, grade, surfaces", file=sys.stderr)
                 sys.exit(2)
             i += 2
+        elif rest[i] == "--public":
+            public = True
+            i += 1
         elif rest[i] == "--chapters" and i + 1 < len(rest):
             chapters = rest[i + 1].split()
             i += 2
@@ -809,7 +823,15 @@ def main(argv):
             names.append(rest[i])
             i += 1
     if mode == "false-failures":
-        false_failures(seeds, jobs, kinds, out_file, chapters)
+        if build_from and kinds != ["compare"]:
+            print("kit/calibrate.py: false-failures --build needs --kinds compare", file=sys.stderr)
+            sys.exit(2)
+        try:
+            false_failures(seeds, jobs, kinds, out_file, chapters, public,
+                           os.path.relpath(build_from, ROOT) if build_from else "build")
+        except ValueError as e:  # a held-out file made for other options than the rubric's
+            print(f"kit/calibrate.py: {e}", file=sys.stderr)
+            sys.exit(2)
     elif mode == "seed-dependence":
         seed_dependence(rubric_module.load(ROOT))
     elif mode == "combine":

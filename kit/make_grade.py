@@ -2,7 +2,7 @@
 """`make grade`: the make variables, read from the environment, as arguments of kit/grade.py or
 kit/grade_class.py.
 
-make passes the variables of its command line to the recipe's environment; reading them here, never
+Make passes the variables of its command line to the recipe's environment; reading them here, never
 through the shell, keeps them data: SUBMISSION='dir;rm -rf ~' is a directory name with a ';' in it,
 a path with spaces or quotes is one path.
 

@@ -6,7 +6,7 @@ test tests/<test>.c that is missing).  The error names the row: kit/rubric.json:
 
 criterion_commands() says what a criterion runs (chapter, scene, options), for ASSIGNMENT.md and
 the grading report: compare and surfaces rows from the row itself, grade rows from the commands
-kit/calibrate.py exercises recorded into kit/exercise-matrix.json.
+the instructor's calibration recorded into the exercise matrix.
 """
 import json
 import os
@@ -124,7 +124,7 @@ def criterion_commands(root, c, matrix=None):
     OPTION ...")}, without the options that only say where output goes (--out, --stats, --quiet,
     --threads).  A compare row renders its command `batches` times with seeds S * 1000 + b (grading
     seed S); a unit row runs build/tests/<test>; a grade row the commands its test ran when
-    kit/calibrate.py exercises measured the solution (kit/exercise-matrix.json), files the test
+    the instructor's calibration measured the solution (the exercise matrix), files the test
     writes shown as scratch/NAME.  [] when a grade row has not been measured yet."""
     if c["kind"] in ("compare", "surfaces"):
         return [parse_command(row_command(c))]

@@ -34,7 +34,7 @@ directly as uid 65534 with per-user and per-process limits (processes of the
 uid, address space, CPU time, file size), a cgroup where one can be made,
 an empty environment, and every process of the uid killed after the run.
 The filesystem is not hidden there: the grader must keep what the
-submission must not read unreadable to others (kit/autograder/setup.sh does).
+submission must not read unreadable to others (the Gradescope set-up script does).
 """
 import os
 import shutil

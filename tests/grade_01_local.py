@@ -111,7 +111,7 @@ def test_area_light_error_shrinks_with_samples(ctx):
     """Standard error falls like N^-1/2: 16x the samples, 1/4 the error.  Each standard error the
     chapter reports comes from 32 batch means (31 degrees of freedom), so the ratio of two is
     itself noisy: a flat band of 30 % around 4 failed the solution for 12 % of grading seeds
-    (kit/CALIBRATION.md).  Eight probes at one place, each with random numbers of its own, pool
+    (the instructor's calibration measures it).  Eight probes at one place, each with random numbers of its own, pool
     8 x 31 degrees of freedom: if the error falls like N^-1/2, the ratio of the summed squared
     standard errors divided by 16 follows F(248, 248) (normal batch means), and it must lie
     between its two-sided CRITERION_ALPHA quantiles (a ratio of errors between about 3.2 and 5.0)."""

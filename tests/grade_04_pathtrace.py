@@ -11,7 +11,7 @@ Monte Carlo tolerances of the graded tests (kit/rubric.json) are
 t_bound(df, m) estimated standard errors (tests/lib.py): Student's t quantile
 for the degrees of freedom of the standard error, at CRITERION_ALPHA / m for
 the m comparisons of the test, so a correct chapter fails one in at most
-CRITERION_ALPHA of the grading seeds (kit/CALIBRATION.md measures it).  The
+CRITERION_ALPHA of the grading seeds (the instructor's calibration measures it).  The
 tests only `make test` runs keep a flat four standard errors (their seeds are
 fixed).  Each test says where its standard error comes from.  Two
 standard-error estimators are used:

@@ -18,7 +18,7 @@ errors from 32 batches of independently emitted photons (31 degrees of
 freedom).  Tolerances are t_bound(df, m) standard errors (tests/lib.py):
 Student's t quantile at CRITERION_ALPHA / m, m being the comparisons the
 criterion makes (Bonferroni), so a correct chapter fails a criterion for at
-most CRITERION_ALPHA of the grading seeds (kit/CALIBRATION.md measures it).
+most CRITERION_ALPHA of the grading seeds (the instructor's calibration measures it).
 Each test also requires its standard error to be small, so a tolerance
 cannot hide a real error.
 

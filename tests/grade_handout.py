@@ -126,7 +126,7 @@ def test_handout_refuses_bad_input_and_writes_nothing(ctx):
     """kit/handout.py exits 2 naming file:line, and leaves no tree, for an unknown chapter, an
     [exercise] tag above something that is not a function, and answers left elsewhere: a short one
     as a whole function, a long one renamed inside a longer function, and a near copy (one
-    guard dropped, as common/scatter.h once had exercise 4.3)."""
+    guard dropped, as a header of common/ once had exercise 4.3)."""
     if "asan" in ctx.build:
         return
     assert "no chapter 99_nothing" in refused(ROOT, "99_nothing")

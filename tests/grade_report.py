@@ -1,6 +1,6 @@
 """The grading report says what to do: a student's half-written chapter 1, graded.
 
-The tree is a chapter-1 handout (kit/handout.py) with two of its three exercises written back from
+The tree is a chapter-1 handout (make handout) with two of its three exercises written back from
 the solution: area_light (1.3) as the solution has it, point_lights (1.2) with a deliberate
 mistake (the intensity divided by 4 pi r^2, as if it were the light's power: 1 / (4 pi) = 8 % of
 the answer, "too dark by 92 %"), and reflected_fraction (1.1) still the handout's stub.  One

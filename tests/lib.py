@@ -20,11 +20,11 @@ sys.path.insert(0, os.path.join(ROOT, "kit"))
 import stats as kit_stats  # noqa: E402  (kit/stats.py: Student's t, F, Welch; standard library only)
 
 # The chance that one statistical grading test (one criterion of kit/rubric.json) fails a correct
-# solution: at most CRITERION_ALPHA, Bonferroni over the comparisons in it.  Thirteen grade criteria
-# have such a tolerance (8 of chapters 1-4, found by kit/calibrate.py seed-dependence, and 5 of
-# chapter 5), 0.0026 together, plus the compare criteria's 0.002 (kit/rubric.json family_alpha):
-# a correct solution fails a whole grading with probability at most 0.46 % by design, so that
-# the measured rate stays below the 1 % the kit promises (kit/CALIBRATION.md).
+# solution: at most CRITERION_ALPHA, Bonferroni over the comparisons in it.  Every grade criterion
+# with such a tolerance adds CRITERION_ALPHA to the chance that a correct solution fails a whole
+# grading, the compare criteria add their family_alpha (kit/rubric.json): the designed rate that
+# README.md states and ASSIGNMENT.md computes, kept below the 1 % the kit promises (the
+# instructor's calibration measures it).
 CRITERION_ALPHA = 0.0002
 # Probes' and surfaces' standard errors come from 32 batch means (common/walk_stats.h WALK_BATCHES,
 # chapters/01_local.c): 31 degrees of freedom.
@@ -343,7 +343,7 @@ class Context:
     the seed of every chapter run by shifted_seed: an explicit `--seed X` becomes
     shifted_seed(X, seed), and a run without --seed, which the chapter would give its default
     seed 1, gets `--seed shifted_seed(1, seed)` appended.  So each grading seed reruns every
-    Monte Carlo test with fresh random numbers, and kit/calibrate.py can measure how often a
+    Monte Carlo test with fresh random numbers, and the instructor's calibration can measure how often a
     correct solution fails.  Runs with --help, and values of --seed that are not a seed the
     chapters accept (bad-input tests), are left alone."""
 
