@@ -11,11 +11,19 @@ compare:  B renders with B seeds (one batch each); per tile of TxT pixels and
 surfaces: 03_radiosity's per-surface radiance (stats key "surfaces", exact up
           to the solver's tolerance) within a relative tolerance of the
           solution's.
+Held-out variants (kit/heldout/<criterion>.json, instructor-only, never in a handout): the
+          same criterion under a camera (compare) or patch size (surfaces) nobody sees in the
+          handout, drawn at random by kit/grade.py --make-heldout and stored with the seed that drew
+          it and the solution's reference for it.  The instructor's grading grades the held-out
+          variant instead of the public one (graded_variant), so a submission that replays the
+          public numbers of kit/reference/ (which the handout ships for the student's self-check)
+          fails; the cost of a grading is unchanged.
 """
 import concurrent.futures
 import json
 import math
 import os
+import random
 import re
 import subprocess
 import sys
@@ -52,7 +60,9 @@ def slug(c):
 
 
 def reference_path(c):
-    return os.path.join(KIT, "reference", slug(c) + ".json")
+    """The solution's numbers criterion c is graded against: kit/reference/ (public, in the handout)
+    or, for a held-out variant (graded_variant), kit/heldout/."""
+    return heldout_path(c) if c.get("heldout") else os.path.join(KIT, "reference", slug(c) + ".json")
 
 
 def read_pfm(path):
@@ -140,6 +150,13 @@ def summarise(images, tile):
 
 
 def make_reference(root, build, c, rub, jobs):
+    os.makedirs(os.path.dirname(reference_path(c)), exist_ok=True)
+    with open(reference_path(c), "w") as f:
+        json.dump(reference_data(root, build, c, rub, jobs), f, separators=(",", ":"))
+
+
+def reference_data(root, build, c, rub, jobs):
+    """The solution's reference_batches renders of criterion c, summarised (tile means per batch)."""
     seeds = [REFERENCE_SEED + b for b in range(rub["reference_batches"])]
     data = summarise(batch_renders(root, build, c, seeds, jobs), rub["tile"])
     data.update({"criterion": c["name"], "chapter": c["chapter"], "scene": c["scene"], "args": c.get("args", []),
@@ -148,15 +165,16 @@ def make_reference(root, build, c, rub, jobs):
     data["tile_means"] = [[r7(v) for v in row] for row in data["tile_means"]]
     data["pixel_mean"] = [[r7(v) for v in p] for p in data["pixel_mean"]]
     data["pixel_var"] = [[r7(v) for v in p] for p in data["pixel_var"]]
-    os.makedirs(os.path.dirname(reference_path(c)), exist_ok=True)
-    with open(reference_path(c), "w") as f:
-        json.dump(data, f, separators=(",", ":"))
+    return data
 
 
 def preview_criterion(c):
     """Criterion c as the report's picture renders it: PREVIEW_SIZE square, its samples per pixel
-    clamped to PREVIEW_SPP (enough to recognise the scene)."""
+    clamped to PREVIEW_SPP (enough to recognise the scene).  A held-out variant's picture is the
+    public camera's: the held-out solution's picture is not shown (it would give its tile means
+    away to whoever reads the report)."""
     low, high = PREVIEW_SPP
+    c = public_criterion(c)
     return dict(c, size=f"{PREVIEW_SIZE}x{PREVIEW_SIZE}", spp=min(high, max(low, c.get("spp", 1))))
 
 
@@ -233,7 +251,23 @@ def run_compare(root, build, c, rub, seed, jobs, images_dir):
     sub = summarise(batch_renders(root, build, c, seeds, jobs), ref["tile"])
     if (sub["width"], sub["height"]) != (ref["width"], ref["height"]):
         raise CriterionFailed(f"image is {sub['width']}x{sub['height']}, expected {ref['width']}x{ref['height']}")
-    tests = []  # (label, p, detail, kind, index, t, measured, expected, se)
+    tests = compare_tests(sub, ref)
+    adjusted = stats.holm([test[1] for test in tests])
+    alpha = alpha_per_criterion(rub)
+    worst = min(range(len(tests)), key=lambda i: adjusted[i])
+    failing = [i for i in range(len(tests)) if adjusted[i] < alpha]
+    p_value = adjusted[worst]
+    marks, strength = failing_tiles(tests, adjusted, alpha, sub, ref)
+    message = compare_sentence(c, tests, adjusted, alpha, marks, ref, sub, command, seeds)
+    record_compare(tests, adjusted, alpha, marks, ref["tiles_x"] * ref["tiles_y"], command)
+    images = write_pictures(root, build, c, jobs, images_dir, ref, sub, marks, strength) if images_dir else {}
+    return not failing, p_value, message, images
+
+
+def compare_tests(sub, ref):
+    """The criterion's tests of the submission's summary against the reference's, before Holm:
+    [(label, p, detail, kind, index, t, measured, expected, se)]."""
+    tests = []
     nt = ref["tiles_x"] * ref["tiles_y"]
     for k in range(nt * 3):
         a = [row[k] for row in sub["tile_means"]]
@@ -252,16 +286,7 @@ def run_compare(root, build, c, rub, seed, jobs, images_dir):
         ratio, p = stats.variance_ratio(a, b)
         tests.append((f"noise of the image mean {lib.CHANNELS[ch]}", p, f"F = {ratio:.3g}", "noise", ch, ratio,
                       ratio, 1.0, None))
-    adjusted = stats.holm([test[1] for test in tests])
-    alpha = alpha_per_criterion(rub)
-    worst = min(range(len(tests)), key=lambda i: adjusted[i])
-    failing = [i for i in range(len(tests)) if adjusted[i] < alpha]
-    p_value = adjusted[worst]
-    marks, strength = failing_tiles(tests, adjusted, alpha, sub, ref)
-    message = compare_sentence(c, tests, adjusted, alpha, marks, ref, sub, command, seeds)
-    record_compare(tests, adjusted, alpha, marks, nt, command)
-    images = write_pictures(root, build, c, jobs, images_dir, ref, sub, marks, strength) if images_dir else {}
-    return not failing, p_value, message, images
+    return tests
 
 
 PREVIEW = {}  # what the last write_pictures showed: {"command", "student", "reference"} (kit/criterion.py)
@@ -279,6 +304,9 @@ def write_pictures(root, build, c, jobs, images_dir, ref, sub, marks, strength):
     PREVIEW["command"] = preview_command(c)
     PREVIEW["grid"] = (f"{tiles_x} x {tiles_y} tiles (each {ref['tile']} x {ref['tile']} pixels of the "
                        f"{ref['width']} x {ref['height']} test renders)")
+    if c.get("heldout"):
+        PREVIEW["grid"] += (f"; the test renders were made from {c['heldout']}, the pictures from the public "
+                            "camera: the marks show the same tiles of this view")
     try:
         student = render_preview(root, build, c, jobs)
         PREVIEW["student"] = f"one render: {PREVIEW['command']}"
@@ -288,7 +316,11 @@ def write_pictures(root, build, c, jobs, images_dir, ref, sub, marks, strength):
                               f"failed: {str(e)[:300]})")
     solution = stored_preview(c)
     if solution is None:
-        solution = (ref["width"], ref["height"], png.tone_mapped(ref["pixel_mean"]), "")
+        shown = ref
+        if c.get("heldout"):  # the public reference's mean image (the held-out file has none)
+            with open(reference_path(public_criterion(c))) as f:
+                shown = json.load(f)
+        solution = (shown["width"], shown["height"], png.tone_mapped(shown["pixel_mean"]), "")
         PREVIEW["reference"] = (f"the {ref['width']}x{ref['height']} reference mean (no "
                                 f"{os.path.relpath(preview_path(c), KIT)}: kit/grade.py --make-reference)")
     else:
@@ -348,7 +380,7 @@ def compare_sentence(c, tests, adjusted, alpha, marks, ref, sub, command, seeds)
         parts.append(f"the image mean is noisier than the solution's: its variance over the batches is "
                      f"{max(test[6] for test in noisy):.3g} x the solution's at the same samples (F test)")
     ran = (f"Ran {command} with {len(seeds)} seeds ({seeds[0]}-{seeds[-1]}) against the solution's "
-           f"{ref['batches']} renders")
+           f"{ref['batches']} renders" + (f" from {c['heldout']}" if c.get("heldout") else ""))
     statistic = (f"{len(tests)} tests: Welch's t per tile and channel and on the image mean, F on its noise, "
                  f"Holm-adjusted, alpha = {alpha:.2g}")
     if parts:
@@ -436,6 +468,8 @@ def run_surfaces(root, build, c, rub):
         if bad:
             off.append(f"{name} {lib.deviation('radiance', a, b) or 'off in colour'} ({channels})")
     ran = f"ran {command}" if command else ""
+    if c.get("heldout"):
+        ran += f" ({c['heldout']})"
     shared = [n for n in ref if n in got and luminance(ref[n])]
     if shared and not off:  # the closest call, for a passed criterion
         n = max(shared, key=lambda n: abs(luminance(got[n]) / luminance(ref[n]) - 1))
@@ -444,3 +478,159 @@ def run_surfaces(root, build, c, rub):
         return (False, None, f"{len(off)} of {len(ref)} surfaces off by more than {tol:.1%}: " + "; ".join(off[:6]) +
                 ("; ..." if len(off) > 6 else "") + f". {ran[:1].upper()}{ran[1:]}.", {})
     return True, None, f"All {len(ref)} surfaces within {tol:.1%} of the solution's radiance; {ran}.", {}
+
+
+# ---- held-out variants (kit/heldout/: the instructor's only, never in a handout) -----------------------
+
+HELDOUT = os.path.join(KIT, "heldout")
+# How far a held-out variant is from its public criterion: far enough that a replay of the public
+# numbers fails (most tile means move by many times the test's noise; checked when it is drawn,
+# replay_of_public), near enough that it is the same scene seen almost the same way.
+EYE_SHIFT = (0.03, 0.05)    # the eye moves this share of its distance to the look point, in a random direction
+FOV_CHANGE = (2.0, 4.0)     # degrees, wider or narrower at random
+PATCH_FACTOR = (0.8, 0.95)  # radiosity's --patch-size times a random factor in this range
+REPLAY_MIN_SHARE = 0.5      # a draw is kept when a replay of the public tile means fails this share of the tile tests
+REPLAY_MIN_SURFACES = 1     # ... of the surfaces criteria: surfaces off by more than twice the tolerance
+DRAWS = 5                   # draws tried before giving up
+RENDER_KEYS = ("scene", "args", "size", "spp", "patch_size", "tol", "iterations")  # what a criterion runs
+
+
+def heldout_path(c):
+    return os.path.join(HELDOUT, slug(c) + ".json")
+
+
+def render_options(c):
+    """The rubric row's options that decide what criterion c runs."""
+    return {k: c[k] for k in RENDER_KEYS if k in c}
+
+
+def graded_variant(c, public=False):
+    """Criterion c as the instructor grades it: its held-out variant where kit/heldout/ has one (an
+    instructor's tree; a handout has none), with "heldout" (what differs, for the report) and
+    "public" (the rubric's options); else c (the public reference).  ValueError when the held-out
+    file is unreadable or was made for other options than the rubric row's."""
+    if public or c["kind"] not in ("compare", "surfaces") or not os.path.exists(heldout_path(c)):
+        return c
+    where = os.path.relpath(heldout_path(c), os.path.dirname(KIT))
+    try:
+        with open(heldout_path(c)) as f:
+            data = json.load(f)
+        made_for, graded, text = data["public"], data["graded"], data["description"]
+    except (OSError, ValueError, KeyError) as e:
+        raise ValueError(f"{where}: unreadable ({e}): kit/grade.py --make-heldout makes it again")
+    if made_for != render_options(c):
+        raise ValueError(f"{where}: made for other options than kit/rubric.json's row '{c['name']}' "
+                         f"({json.dumps(made_for)}): kit/grade.py --make-heldout makes it again")
+    return dict(c, **graded, heldout=text, public=made_for)
+
+
+def public_criterion(c):
+    """The public criterion of a held-out variant (graded_variant); c itself otherwise."""
+    if not c.get("heldout"):
+        return c
+    return dict({k: v for k, v in c.items() if k not in RENDER_KEYS + ("heldout", "public")}, **c["public"])
+
+
+def set_option(args, name, value):
+    """args with option `name` given `value`: replaced where args has it, else appended."""
+    args = list(args)
+    if name in args:
+        args[args.index(name) + 1] = value
+        return args
+    return args + [name, value]
+
+
+def camera_of(root, c):
+    """(eye, look, fov) criterion c renders with: its --eye/--look/--fov, else its scene's camera."""
+    with open(os.path.join(root, c["scene"])) as f:
+        words = next((line.split("#")[0].split()[1:] for line in f if line.split()[:1] == ["camera"]), None)
+    if words is None:
+        raise ValueError(f"{c['scene']}: no camera statement")
+    camera = {key: words[words.index(key) + 1:words.index(key) + 1 + n] for key, n in (("eye", 3), ("look", 3), ("fov", 1))}
+    args = c.get("args", [])
+    for key in ("eye", "look", "fov"):
+        if "--" + key in args:
+            camera[key] = args[args.index("--" + key) + 1].split(",")
+    return [float(v) for v in camera["eye"]], [float(v) for v in camera["look"]], float(camera["fov"][0])
+
+
+def draw_variant(root, c, rng):
+    """(the options that change, a description for the report, the random choice) of one held-out
+    variant of criterion c drawn with rng: another camera (compare) or patch size (surfaces)."""
+    if c["kind"] == "surfaces":
+        size, factor = c.get("patch_size", 50), rng.uniform(*PATCH_FACTOR)
+        new = round(size * factor, 2)
+        return ({"patch_size": new}, f"a held-out --patch-size {new:g} (not the handout's {size:g})",
+                {"patch_size_factor": round(factor, 4)})
+    eye, look, fov = camera_of(root, c)
+    direction = [rng.gauss(0.0, 1.0) for _ in range(3)]
+    norm = math.sqrt(sum(d * d for d in direction))
+    share = rng.uniform(*EYE_SHIFT)
+    new_eye = [e + share * math.dist(eye, look) * d / norm for e, d in zip(eye, direction)]
+    new_fov = fov + rng.choice((-1.0, 1.0)) * rng.uniform(*FOV_CHANGE)
+    args = set_option(c.get("args", []), "--eye", ",".join(f"{v:.6g}" for v in new_eye))
+    args = set_option(args, "--fov", f"{new_fov:.6g}")
+    return ({"args": args}, f"a held-out camera (not the handout's: the eye moved {share:.1%} of its distance "
+                            f"to the look point, fov {new_fov:.4g} instead of {fov:.4g} degrees)",
+            {"eye_shift_share": round(share, 4), "eye_shift_direction": [round(d / norm, 4) for d in direction],
+             "fov_change_degrees": round(new_fov - fov, 4)})
+
+
+def replay_of_public(c, public_ref, heldout_ref):
+    """How the held-out variant grades a submission that replays the public reference (the handout's
+    kit/reference/): {"fails", "share of tile tests failed" or "surfaces off", ...}."""
+    with open(os.path.join(KIT, "rubric.json")) as f:  # the alpha kit/criterion.py grades with
+        rub = json.load(f)
+    if c["kind"] == "surfaces":
+        tol = rub["surface_tolerance"]
+        off = sorted(name for name, r in heldout_ref["surfaces"].items() if name not in public_ref["surfaces"] or
+                     any(abs(p - h) > 2 * tol * abs(h) + 1e-6 for p, h in zip(public_ref["surfaces"][name], r)))
+        return {"fails": len(off) >= REPLAY_MIN_SURFACES, "surfaces_off_by_twice_the_tolerance": off,
+                "surfaces": len(heldout_ref["surfaces"])}
+    mean_row = [sum(column) / len(column) for column in zip(*public_ref["tile_means"])]
+    tests = compare_tests({"tile_means": [mean_row] * rub["batches"]}, heldout_ref)
+    adjusted = stats.holm([test[1] for test in tests])
+    alpha = alpha_per_criterion(rub)
+    tile_tests = [i for i, test in enumerate(tests) if test[3] == "tile"]
+    failed = sum(1 for i in tile_tests if adjusted[i] < alpha)
+    moved = sorted(abs(tests[i][6] - tests[i][7]) / tests[i][8] if tests[i][8] else math.inf for i in tile_tests)
+    return {"fails": failed >= REPLAY_MIN_SHARE * len(tile_tests), "tile_tests_failed": failed,
+            "tile_tests": len(tile_tests), "smallest_adjusted_p": float("%.3g" % min(adjusted)),
+            "median_tile_shift_in_standard_errors": float("%.3g" % moved[len(moved) // 2]), "alpha": alpha}
+
+
+def make_heldout(root, build, c, rub, jobs, log=print):
+    """kit/heldout/<criterion>.json: a held-out variant of compare or surfaces criterion c and the
+    solution's reference for it.  Its random seed is the existing file's (re-rendering after the
+    solution changed keeps the choice; delete the file to draw anew), else a fresh one; a draw a
+    replay of the public reference would pass (replay_of_public) is drawn again.  The public
+    reference (kit/reference/) must exist."""
+    try:
+        with open(heldout_path(c)) as f:
+            seed = int(json.load(f)["seed"])
+    except (OSError, ValueError, KeyError, TypeError):
+        seed = random.SystemRandom().randrange(1 << 32)
+    with open(reference_path(c)) as f:
+        public_ref = json.load(f)
+    rng = random.Random(seed)
+    for draw in range(1, DRAWS + 1):
+        graded, text, choice = draw_variant(root, c, rng)
+        variant = dict(c, **graded, heldout=text, public=render_options(c))
+        if c["kind"] == "surfaces":
+            data = {"surfaces": surfaces_of(root, build, variant)}
+        else:  # without the mean image: a report's fallback picture must not show the held-out one
+            data = {k: v for k, v in reference_data(root, build, variant, rub, jobs).items()
+                    if k not in ("pixel_mean", "pixel_var")}
+        replay = replay_of_public(c, public_ref, data)
+        if replay["fails"]:
+            break
+        log(f"{slug(c)}: draw {draw} rejected, a replay of the public reference would pass it: {replay}")
+    else:
+        raise RuntimeError(f"{slug(c)}: no held-out variant in {DRAWS} draws that a replay of the public reference fails")
+    about = {"criterion": c["name"], "chapter": c["chapter"], "description": text, "public": render_options(c),
+             "graded": graded, "seed": seed, "draw": draw, "choice": choice, "replay_of_public": replay,
+             "made_by": "kit/grade.py --make-heldout (compare.make_heldout: random.Random(seed), draw number 'draw')"}
+    os.makedirs(HELDOUT, exist_ok=True)
+    with open(heldout_path(c), "w") as f:
+        json.dump(dict(about, **{k: v for k, v in data.items() if k not in about}), f, separators=(",", ":"))
+    return about

@@ -3,8 +3,12 @@
 
 usage: kit/grade.py SUBMISSION [--report DIR] [--chapters "01_local ..."] [--seed N] [--jobs N]
                    [--statistical-only] [--timeout S] [--memory MIB] [--name NAME] [--unsafe]
-       kit/grade.py --make-reference [--jobs N]     (instructor: render kit/reference/ with this tree's build/:
-                                                    the statistics and the report's picture of each criterion)
+       kit/grade.py --make-reference [--jobs N] [--build DIR]   (instructor: render kit/reference/ with this
+                      tree's build/ (or DIR): the statistics and the report's picture of each criterion; then
+                      kit/heldout/ as --make-heldout does)
+       kit/grade.py --make-heldout [--jobs N] [--build DIR]     (instructor: only kit/heldout/: each compare and
+                      surfaces criterion's held-out variant, another camera or patch size drawn at random (the
+                      seed kept in the file; delete the file to draw anew), and the solution's reference for it)
 
   SUBMISSION          a filled-in handout or any copy of this project (a directory)
   --report DIR        where the report goes (default SUBMISSION/out/grade)
@@ -17,8 +21,15 @@ usage: kit/grade.py SUBMISSION [--report DIR] [--chapters "01_local ..."] [--see
   --timeout S         per criterion, whole process group killed after S seconds (default 300)
   --memory MIB        memory cap of each sandbox (all its processes together; default 4096)
   --rubric FILE       another rubric than kit/rubric.json (the kit's tests grade with small ones)
+  --public            grade the compare and surfaces criteria against the public references (kit/reference/,
+                      which the handout ships: the student's self-check), not their held-out variants
   --unsafe            grade without the sandbox (where bubblewrap or cgroups are missing); the report
                       says so.  Never for code you do not trust.
+
+Held-out grading data: where kit/heldout/ has a criterion's variant (an
+instructor's tree: kit/handout.py leaves kit/heldout/ out) that variant is
+graded instead of the public criterion, so replaying the public references'
+numbers fails; the report says which was graded.
 
 The graded tree is this project's files (without the instructor's kit, tests
 of the kit and references) with the submission's versions of the files that
@@ -76,9 +87,9 @@ def usage_error(message):
 def parse_args(argv):
     opts = {"report": None, "chapters": None, "seed": 1, "jobs": 2, "statistical_only": False, "timeout": 300.0,
             "memory": 4096, "make_reference": False, "name": None, "submission": None, "unsafe": False,
-            "rubric": None}
+            "rubric": None, "make_heldout": False, "public": False, "build": "build"}
     valued = {"--report": str, "--chapters": str, "--seed": int, "--jobs": int, "--timeout": float,
-              "--memory": int, "--name": str, "--rubric": str}
+              "--memory": int, "--name": str, "--rubric": str, "--build": str}
     i = 0
     while i < len(argv):
         a = argv[i]
@@ -91,6 +102,8 @@ def parse_args(argv):
             opts["make_reference"] = True
         elif a == "--unsafe":
             opts["unsafe"] = True
+        elif a in ("--make-heldout", "--public"):
+            opts[a[2:].replace("-", "_")] = True
         elif a in valued:
             if i + 1 >= len(argv):
                 usage_error(f"{a} needs a value")
@@ -390,16 +403,23 @@ def chapters_to_grade(opts, rub):
 
 
 def make_reference(opts, rub):
+    """kit/reference/ (unless --make-heldout), then kit/heldout/, from the solution in opts["build"]."""
+    build_dir = opts["build"]
     for c in rub["criteria"]:
-        if c["kind"] == "compare":
-            compare.make_reference(ROOT, "build", c, rub, opts["jobs"])
-            compare.make_preview(ROOT, "build", c, opts["jobs"])
-            print(f"picture: {compare.preview_path(c)}", flush=True)
-        elif c["kind"] == "surfaces":
-            compare.make_surfaces_reference(ROOT, "build", c)
-        else:
+        if c["kind"] not in ("compare", "surfaces"):
             continue
-        print(f"reference: {compare.reference_path(c)}", flush=True)
+        if not opts["make_heldout"]:
+            if c["kind"] == "compare":
+                compare.make_reference(ROOT, build_dir, c, rub, opts["jobs"])
+                compare.make_preview(ROOT, build_dir, c, opts["jobs"])
+                print(f"picture: {compare.preview_path(c)}", flush=True)
+            else:
+                compare.make_surfaces_reference(ROOT, build_dir, c)
+            print(f"reference: {compare.reference_path(c)}", flush=True)
+        t0 = time.time()
+        about = compare.make_heldout(ROOT, build_dir, c, rub, opts["jobs"])
+        print(f"held-out: {compare.heldout_path(c)}: {about['description']}; a replay of the public reference: "
+              f"{about['replay_of_public']} ({time.time() - t0:.0f} s)", flush=True)
 
 
 STYLE = """
@@ -478,7 +498,7 @@ def html_criterion(c):
     test = f"<br><small>{h(c['test'])}</small>" if c.get("test") else ""
     images = html_images(c)
     return (f"<tr><td>{h(c['name'])}<br><small>exercises "
-            f"{h(', '.join(c['exercises']))}; {h(c.get('kind', ''))}</small>{test}</td><td>{c['points']} / {c['max']}"
+            f"{h(', '.join(c['exercises']))}; {h(c.get('kind', ''))}{'; graded with ' + h(c['reference']) if c.get('reference') else ''}</small>{test}</td><td>{c['points']} / {c['max']}"
             f"</td><td class={cls}>{'pass' if c['passed'] else 'FAIL'}{p}</td><td>{body}{details}</td></tr>" +
             (f"<tr><td colspan=4>{images}</td></tr>" if images else ""))
 
@@ -515,7 +535,7 @@ def main(argv):
         rub = rubric_module.load(ROOT, opts["rubric"])
     except ValueError as e:
         usage_error(str(e))
-    if opts["make_reference"]:
+    if opts["make_reference"] or opts["make_heldout"]:
         make_reference(opts, rub)
         return
     if opts["submission"] is None:
@@ -547,6 +567,11 @@ def main(argv):
     os.environ[sandbox.TAG_VARIABLE] = tag
     criteria = [c for c in rub["criteria"] if c["chapter"] in chapters and
                 (not opts["statistical_only"] or rubric_module.statistical(c))]
+    try:  # the held-out variants where kit/heldout/ has them (the instructor's), unless --public
+        criteria = [compare.graded_variant(c, opts["public"]) for c in criteria]
+    except ValueError as e:
+        print(f"kit/grade.py: {e}", file=sys.stderr)
+        sys.exit(2)
     start = time.time()
     date = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     digest, files = submission_hash(submission)
@@ -566,6 +591,8 @@ def main(argv):
                    "p_value": None, "message": "", "exercises": c["exercises"], "kind": c["kind"]}
             if c["kind"] == "grade":
                 row["test"] = f"tests/{c['module']}.py {c['test']}"
+            if c["kind"] in ("compare", "surfaces"):
+                row["reference"] = c.get("heldout") or "the public reference (kit/reference/, as in the handout)"
             error = built.get(f"build/{c['chapter']}")
             t0 = time.time()
             if c["chapter"] not in present:
