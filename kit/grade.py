@@ -21,6 +21,9 @@ usage: kit/grade.py SUBMISSION [--report DIR] [--chapters "01_local ..."] [--see
   --timeout S         per criterion, whole process group killed after S seconds (default 300)
   --memory MIB        memory cap of each sandbox (all its processes together; default 4096)
   --rubric FILE       another rubric than kit/rubric.json (the kit's tests grade with small ones)
+  --sandbox user      where user namespaces are blocked (a Docker container: Gradescope), the weaker
+                      fallback of kit/sandbox.py: a uid of its own, per-user and per-process limits,
+                      nothing hidden but what is unreadable to others (the report says so)
   --public            grade the compare and surfaces criteria against the public references (kit/reference/,
                       which the handout ships: the student's self-check), not their held-out variants
   --unsafe            grade without the sandbox (where bubblewrap or cgroups are missing); the report
@@ -87,9 +90,10 @@ def usage_error(message):
 def parse_args(argv):
     opts = {"report": None, "chapters": None, "seed": 1, "jobs": 2, "statistical_only": False, "timeout": 300.0,
             "memory": 4096, "make_reference": False, "name": None, "submission": None, "unsafe": False,
-            "rubric": None, "make_heldout": False, "public": False, "build": "build"}
+            "rubric": None, "make_heldout": False, "public": False, "build": "build",
+            "sandbox": "bwrap"}
     valued = {"--report": str, "--chapters": str, "--seed": int, "--jobs": int, "--timeout": float,
-              "--memory": int, "--name": str, "--rubric": str, "--build": str}
+              "--memory": int, "--name": str, "--rubric": str, "--build": str, "--sandbox": str}
     i = 0
     while i < len(argv):
         a = argv[i]
@@ -227,8 +231,6 @@ def prepare(submission, work, chapters):
             os.chmod(os.path.join(top, f), 0o644)
     os.makedirs(os.path.join(src, "build"))
     os.makedirs(os.path.join(work, "scratch"), mode=0o755)
-    if os.geteuid() == 0:
-        os.chown(os.path.join(src, "build"), sandbox.SANDBOX_UID, sandbox.SANDBOX_UID)
     return src, missing
 
 
@@ -240,7 +242,7 @@ def sandbox_spec(src, opts, writable_build):
     return {"binds": [[src, False]] + ([[os.path.join(src, "build"), True]] if writable_build else []),
             "limits": {"memory_mib": opts["memory"], "processes": 64, "cpu_seconds": 2 * opts["timeout"] * opts["jobs"],
                        "file_mib": 512, "tmp_mib": 512},
-            "threads": opts["jobs"]}
+            "threads": opts["jobs"], "mode": opts.get("sandbox", "bwrap"), "uid": opts.get("uid", sandbox.SANDBOX_UID)}
 
 
 def run_submission(argv, src, opts, timeout, writable_build=False):
@@ -251,7 +253,8 @@ def run_submission(argv, src, opts, timeout, writable_build=False):
         return code, out, err, "" if code is not None else f"time-out after {timeout:.0f} s"
     spec = sandbox_spec(src, opts, writable_build)
     spec["limits"]["cpu_seconds"] = max(spec["limits"]["cpu_seconds"], 2 * timeout * opts["jobs"])
-    box = sandbox.Sandbox(spec["binds"], limits=sandbox.Limits(**spec["limits"]), threads=opts["jobs"])
+    box = sandbox.Sandbox(spec["binds"], limits=sandbox.Limits(**spec["limits"]), threads=opts["jobs"],
+                          mode=spec["mode"], uid=spec["uid"])
     r = box.run(argv, cwd=src, timeout=timeout)
     return r.returncode, r.stdout, r.stderr, r.stopped
 
@@ -555,7 +558,10 @@ def main(argv):
     except OSError as e:
         print(f"kit/grade.py: REPORT {report_dir}: cannot write there: {e.strerror}", file=sys.stderr)
         sys.exit(2)
-    why_not = None if opts.get("unsafe", False) else sandbox.unavailable()
+    if opts["sandbox"] not in ("bwrap", "user"):
+        usage_error(f"--sandbox {opts['sandbox']}: bwrap or user")
+    why_not = None if opts.get("unsafe", False) else \
+        sandbox.unavailable() if opts["sandbox"] == "bwrap" else sandbox.fallback_unavailable()
     if why_not and not os.path.exists(os.path.join(ROOT, "kit", "handout.json")):
         print(f"kit/grade.py: no sandbox for the submission's code: {why_not} (UNSAFE=1 / --unsafe grades "
               "without one: only for code you trust)", file=sys.stderr)
@@ -563,6 +569,7 @@ def main(argv):
     if why_not:  # a handout grading itself: the student's own code on the student's machine
         print(f"kit/grade.py: self-check without a sandbox ({why_not})", file=sys.stderr)
         opts["unsafe"] = True
+    opts["uid"] = sandbox.user_for_grading() if opts["sandbox"] == "user" else sandbox.SANDBOX_UID
     tag = f"gi-sandbox-{os.getpid()}-{int(time.time())}"
     os.environ[sandbox.TAG_VARIABLE] = tag
     criteria = [c for c in rub["criteria"] if c["chapter"] in chapters and
@@ -578,6 +585,8 @@ def main(argv):
     work = tempfile.mkdtemp(prefix="gi-grade-")
     try:
         src, missing = prepare(submission, work, chapters)
+        if not opts.get("unsafe", False):  # the sandbox user writes the build and nothing else of the tree
+            os.chown(os.path.join(src, "build"), opts["uid"], opts["uid"])
         absent = {c for c in chapters for f in missing if f == f"chapters/{c}.c"}
         present = [c for c in chapters if c not in absent]
         all_chapters = sorted(os.path.splitext(f)[0] for f in os.listdir(os.path.join(src, "chapters"))
@@ -629,7 +638,9 @@ def main(argv):
                   "submission_sha256": digest, "submission_files": files,
                   "seed": opts["seed"], "family_alpha": rub["family_alpha"],
                   "sandbox": "none: graded with --unsafe (UNSAFE=1), the submission's code ran unconfined"
-                             if opts.get("unsafe", False) else "bubblewrap (kit/sandbox.py)",
+                             if opts.get("unsafe", False) else "bubblewrap (kit/sandbox.py)" if opts["sandbox"] == "bwrap"
+                             else f"a separate user (uid {opts['uid']}) with per-user and per-process limits "
+                                  "(--sandbox user: no namespaces here, the file system is not hidden)",
                   "statistics": "Welch's t per tile and channel and on the image mean, one-sided F on the noise, "
                                 "Holm within a criterion, Bonferroni over the compare criteria",
                   "build_errors": {c: built.get(f"build/{c}") for c in chapters if built.get(f"build/{c}")},
