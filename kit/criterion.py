@@ -104,9 +104,12 @@ def lend_scratch(scratch, uid):
     its programs can write their outputs there; the scratch root itself stays the judge's."""
     for name in os.listdir(scratch):
         path = os.path.join(scratch, name)
-        info = os.lstat(path)
-        if stat.S_ISDIR(info.st_mode) and info.st_uid != uid:
-            os.chown(path, uid, uid)
+        try:
+            info = os.lstat(path)
+            if stat.S_ISDIR(info.st_mode) and info.st_uid != uid:
+                os.chown(path, uid, uid)
+        except FileNotFoundError:  # removed meanwhile (renders run two at a time)
+            continue
 
 
 def remove_strange_files(scratch):
@@ -116,10 +119,13 @@ def remove_strange_files(scratch):
     for top, dirs, files in os.walk(scratch):
         for name in dirs + files:
             path = os.path.join(top, name)
-            mode = os.lstat(path).st_mode
-            if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
-                os.unlink(path)
-                removed.append(os.path.relpath(path, scratch))
+            try:  # another run (renders run two at a time) may rename or remove its files meanwhile
+                mode = os.lstat(path).st_mode
+                if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+                    os.unlink(path)
+                    removed.append(os.path.relpath(path, scratch))
+            except FileNotFoundError:
+                continue
         dirs[:] = [d for d in dirs if os.path.isdir(os.path.join(top, d)) and
                    not os.path.islink(os.path.join(top, d))]
     return removed
