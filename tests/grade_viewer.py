@@ -25,7 +25,7 @@ a 14-pixel status line at the bottom of the window, above it ceil(sqrt(n))
 columns, a 34-pixel label band on top of each panel, the
 image scaled to fit the rest, centred on a whole pixel.
 
-Standard library only.  PNGs are decoded here (zlib + the five PNG filters).
+Standard library only.  PNGs are decoded by kit/png.py.
 """
 
 import math
@@ -36,9 +36,9 @@ import struct
 import subprocess
 import threading
 import time
-import zlib
 
 import lib
+import png  # kit/png.py (tests/lib.py puts kit/ on the path)
 
 # The documented layout (build/viewer --help) at the default font size 14:
 FONT_PX = 14
@@ -73,44 +73,12 @@ def ok(result, what):
 
 
 def read_png(path):
-    """8-bit RGB / RGBA PNG -> (width, height, rows of bytes RGB)."""
-    with open(path, "rb") as f:
-        data = f.read()
-    assert data[:8] == b"\x89PNG\r\n\x1a\n", f"{path}: not a PNG"
-    pos, idat, width = 8, b"", None
-    while pos < len(data):
-        length, kind = struct.unpack(">I4s", data[pos:pos + 8])
-        body = data[pos + 8:pos + 8 + length]
-        if kind == b"IHDR":
-            width, height, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", body)
-            assert depth == 8 and colour in (2, 6) and interlace == 0, f"{path}: unsupported PNG kind"
-            channels = 3 if colour == 2 else 4
-        elif kind == b"IDAT":
-            idat += body
-        pos += 12 + length
-    raw = zlib.decompress(idat)
-    stride = width * channels
-    rows, previous = [], bytearray(stride)
-    for y in range(height):
-        filter_type = raw[y * (stride + 1)]
-        line = bytearray(raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)])
-        for i in range(stride):
-            a = line[i - channels] if i >= channels else 0
-            b = previous[i]
-            c = previous[i - channels] if i >= channels else 0
-            if filter_type == 1:
-                line[i] = (line[i] + a) & 255
-            elif filter_type == 2:
-                line[i] = (line[i] + b) & 255
-            elif filter_type == 3:
-                line[i] = (line[i] + (a + b) // 2) & 255
-            elif filter_type == 4:
-                p = a + b - c
-                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
-                line[i] = (line[i] + (a if pa <= pb and pa <= pc else b if pb <= pc else c)) & 255
-        rows.append(bytes(line) if channels == 3 else bytes(v for k, v in enumerate(line) if k % 4 != 3))
-        previous = line
-    return width, height, rows
+    """8-bit RGB / RGBA PNG -> (width, height, rows of bytes RGB), by the kit's one PNG reader."""
+    try:
+        width, height, pixels = png.read_png(path)
+    except ValueError as e:
+        raise AssertionError(str(e))
+    return width, height, [bytes(v for p in pixels[y * width:(y + 1) * width] for v in p) for y in range(height)]
 
 
 def rgb_at(png, x, y):
