@@ -172,23 +172,9 @@ def test_albedo_zero_shows_emission_only(ctx):
 
 def disc_average(radiance, polygon, centre, normal, radius, rings=48, sectors=96):
     """Lambert's irradiance averaged over the disc of the given radius around centre, in the
-    plane of normal: the expectation of the probe's estimate (flux through the disc / area).
-    Midpoint rule in polar coordinates (area-weighted); the integrand is smooth there."""
-    n = normal
-    a = (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 1.0, 0.0)
-    u = [n[1] * a[2] - n[2] * a[1], n[2] * a[0] - n[0] * a[2], n[0] * a[1] - n[1] * a[0]]
-    lu = math.sqrt(sum(c * c for c in u))
-    u = [c / lu for c in u]
-    v = [n[1] * u[2] - n[2] * u[1], n[2] * u[0] - n[0] * u[2], n[0] * u[1] - n[1] * u[0]]
-    total = weight = 0.0
-    for i in range(rings):
-        r = radius * (i + 0.5) / rings
-        for j in range(sectors):
-            phi = 2 * math.pi * (j + 0.5) / sectors
-            p = [centre[k] + r * (math.cos(phi) * u[k] + math.sin(phi) * v[k]) for k in range(3)]
-            total += r * lambert_polygon_irradiance(radiance, polygon, p, n)
-            weight += r
-    return total / weight
+    plane of normal: the expectation of the probe's estimate (flux through the disc / area)."""
+    return disc_mean(lambda p, n: lambert_polygon_irradiance(radiance, polygon, p, n), centre, normal, radius,
+                     rings, sectors)
 
 
 def test_probe_irradiance_matches_lambert_polygon(ctx):
@@ -383,7 +369,7 @@ def test_sigint_writes_completed_passes(ctx):
 def disc_mean(function, centre, normal, radius, rings=24, sectors=48):
     """The mean of function(point, normal) over the disc of the given radius around centre in the
     plane of normal: what a probe's photon estimate (flux through the disc / its area) expects.
-    Midpoint rule in polar coordinates (area-weighted), as disc_average."""
+    Midpoint rule in polar coordinates (area-weighted); the integrand is smooth there."""
     n = normal
     a = (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 1.0, 0.0)
     u = [n[1] * a[2] - n[2] * a[1], n[2] * a[0] - n[0] * a[2], n[0] * a[1] - n[1] * a[0]]
