@@ -251,6 +251,24 @@ quad light lamp  -1.5 1.5 1  1.5 1.5 1  1.5 1.5 3  -1.5 1.5 3
 """
 
 
+def glossy_floor_batches(ctx, scene, runs):
+    """16 batch means of the image's mean (the direct light, --bounces 1:1) per (estimator, first seed,
+    spp) of runs, each batch its own seed; ({estimator: means}, {estimator: a command})."""
+    batches, commands = {}, {}
+    for estimator, first_seed, spp in runs:
+        batches[estimator] = []
+        for b in range(16):
+            img, stats = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", spp, "--bounces", "1:1",
+                                    "--estimator", estimator, "--seed", first_seed + b, "--probe-samples", 32,
+                                    "--threads", 1, name=f"{estimator}{b}")
+            expect(stats["nonfinite_samples"] == 0 and finite_image(img),
+                   f"{stats['nonfinite_samples']} non-finite samples on the glossy floor (--estimator {estimator}); "
+                   "expected none and a finite image", command=img.command)
+            batches[estimator].append(sum(image_mean(img, c) for c in range(3)) / 3)
+            commands.setdefault(estimator, img.command)
+    return batches, commands
+
+
 def test_lobe_sampling_agrees_with_light_sampling(ctx):
     """Direct light (--bounces 1:1) reflected by a purely glossy floor (normalised Phong, kd 0, so
     every direction the cosine estimator draws comes from the lobe, exponent 20) under a large
@@ -265,18 +283,7 @@ def test_lobe_sampling_agrees_with_light_sampling(ctx):
     inverse, and a lobe pdf normalised by (n + 2) instead of (n + 1) (22/21, 4.5 %) lands more
     than 5 standard errors beyond the tolerance."""
     scene = ctx.write("glossy-floor.scene", GLOSSY_FLOOR_SCENE)
-    batches, commands = {}, {}
-    for estimator, first_seed in (("cosine", 1), ("light", 101)):
-        batches[estimator] = []
-        for b in range(16):
-            img, stats = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", 512, "--bounces", "1:1",
-                                    "--estimator", estimator, "--seed", first_seed + b, "--probe-samples", 32,
-                                    "--threads", 1, name=f"{estimator}{b}")
-            expect(stats["nonfinite_samples"] == 0 and finite_image(img),
-                   f"{stats['nonfinite_samples']} non-finite samples on the glossy floor (--estimator {estimator}); "
-                   "expected none and a finite image", command=img.command)
-            batches[estimator].append(sum(image_mean(img, c) for c in range(3)) / 3)
-            commands.setdefault(estimator, img.command)
+    batches, commands = glossy_floor_batches(ctx, scene, (("cosine", 1, 512), ("light", 101, 512)))
     lobe, light = batches["cosine"], batches["light"]
     t, df, _, d, se = kit_stats.welch(lobe, light)
     bound = t_bound(df)
@@ -618,18 +625,7 @@ def test_mis_agrees_with_light_and_cosine_on_a_glossy_floor(ctx):
     of freedom, tolerance t_bound(df, 2) standard errors, which must be below 2 % of the image
     mean."""
     scene = ctx.write("mis-floor.scene", MIS_FLOOR_SCENE)
-    batches, commands = {}, {}
-    for estimator, first_seed, spp in (("mis", 1, 256), ("light", 101, 256), ("cosine", 201, 1024)):
-        batches[estimator] = []
-        for b in range(16):
-            img, stats = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", spp, "--bounces", "1:1",
-                                    "--estimator", estimator, "--seed", first_seed + b, "--probe-samples", 32,
-                                    "--threads", 1, name=f"{estimator}{b}")
-            expect(stats["nonfinite_samples"] == 0 and finite_image(img),
-                   f"{stats['nonfinite_samples']} non-finite samples on the glossy floor (--estimator {estimator}); "
-                   "expected none and a finite image", command=img.command)
-            batches[estimator].append(sum(image_mean(img, c) for c in range(3)) / 3)
-            commands.setdefault(estimator, img.command)
+    batches, commands = glossy_floor_batches(ctx, scene, (("mis", 1, 256), ("light", 101, 256), ("cosine", 201, 1024)))
     mis = batches["mis"]
     for other in ("light", "cosine"):
         t, df, _, d, se = kit_stats.welch(mis, batches[other])
