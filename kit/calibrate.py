@@ -197,6 +197,7 @@ def summarise_rows(rows, source=""):
 def false_failures(seeds, jobs, kinds, out_file, chapters=None, public=False, build_dir="build"):
     rub = rubric_module.load(ROOT)
     rub = dict(rub, criteria=[compare.graded_variant(c, public) for c in rub["criteria"]])
+    whole = rub  # compare's alpha per criterion is the whole rubric's, as kit/criterion.py grades (not --chapters')
     heldout = [c["name"] for c in rub["criteria"] if c.get("heldout")]
     print(f"{len(heldout)} criteria graded by their held-out variants (kit/heldout/)" if heldout else
           "the public references (kit/reference/)", flush=True)
@@ -229,7 +230,7 @@ def false_failures(seeds, jobs, kinds, out_file, chapters=None, public=False, bu
                 t0 = time.time()
                 if c["kind"] == "compare":
                     try:
-                        ok, p, message, _ = compare.run_compare(ROOT, build_dir, c, rub, seed, jobs, None)
+                        ok, p, message, _ = compare.run_compare(ROOT, build_dir, c, whole, seed, jobs, None)
                     except compare.CriterionFailed as e:
                         ok, p, message = False, None, str(e)
                 else:

@@ -486,11 +486,13 @@ HELDOUT = os.path.join(KIT, "heldout")
 # How far a held-out variant is from its public criterion: far enough that a replay of the public
 # numbers fails (most tile means move by many times the test's noise; checked when it is drawn,
 # replay_of_public), near enough that it is the same scene seen almost the same way.
+# A draw is only rejected when a replay would pass the criterion (never seen): a stricter rule
+# (at first, "the replay fails half the tile tests") picks references whose batches happen to
+# scatter little, which makes the solution fail the noise test (measured: kit/CALIBRATION.md).
 EYE_SHIFT = (0.03, 0.05)    # the eye moves this share of its distance to the look point, in a random direction
 FOV_CHANGE = (2.0, 4.0)     # degrees, wider or narrower at random
 PATCH_FACTOR = (0.8, 0.95)  # radiosity's --patch-size times a random factor in this range
-REPLAY_MIN_SHARE = 0.5      # a draw is kept when a replay of the public tile means fails this share of the tile tests
-REPLAY_MIN_SURFACES = 1     # ... of the surfaces criteria: surfaces off by more than twice the tolerance
+REPLAY_MIN_SURFACES = 1     # a surfaces draw is kept when this many surfaces move by twice the tolerance (exact numbers)
 DRAWS = 5                   # draws tried before giving up
 RENDER_KEYS = ("scene", "args", "size", "spp", "patch_size", "tol", "iterations")  # what a criterion runs
 
@@ -594,7 +596,7 @@ def replay_of_public(c, public_ref, heldout_ref):
     tile_tests = [i for i, test in enumerate(tests) if test[3] == "tile"]
     failed = sum(1 for i in tile_tests if adjusted[i] < alpha)
     moved = sorted(abs(tests[i][6] - tests[i][7]) / tests[i][8] if tests[i][8] else math.inf for i in tile_tests)
-    return {"fails": failed >= REPLAY_MIN_SHARE * len(tile_tests), "tile_tests_failed": failed,
+    return {"fails": min(adjusted) < alpha, "tile_tests_failed": failed,
             "tile_tests": len(tile_tests), "smallest_adjusted_p": float("%.3g" % min(adjusted)),
             "median_tile_shift_in_standard_errors": float("%.3g" % moved[len(moved) // 2]), "alpha": alpha}
 
