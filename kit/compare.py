@@ -488,7 +488,7 @@ HELDOUT = os.path.join(KIT, "heldout")
 # replay_of_public), near enough that it is the same scene seen almost the same way.
 # A draw is only rejected when a replay would pass the criterion (never seen): a stricter rule
 # (at first, "the replay fails half the tile tests") picks references whose batches happen to
-# scatter little, which makes the solution fail the noise test (measured: kit/CALIBRATION.md).
+# scatter little, which makes the solution fail the noise test (measured in the instructor's calibration).
 EYE_SHIFT = (0.03, 0.05)    # the eye moves this share of its distance to the look point, in a random direction
 FOV_CHANGE = (2.0, 4.0)     # degrees, wider or narrower at random
 PATCH_FACTOR = (0.8, 0.95)  # radiosity's --patch-size times a random factor in this range

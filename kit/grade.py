@@ -30,7 +30,7 @@ usage: kit/grade.py SUBMISSION [--report DIR] [--chapters "01_local ..."] [--see
                       says so.  Never for code you do not trust.
 
 Held-out grading data: where kit/heldout/ has a criterion's variant (an
-instructor's tree: kit/handout.py leaves kit/heldout/ out) that variant is
+instructor's tree: a handout has only the README there) that variant is
 graded instead of the public criterion, so replaying the public references'
 numbers fails; the report says which was graded.
 

@@ -50,6 +50,14 @@ INSTRUCTOR_ONLY = ("tests/mutants/", "tests/grade_kit.py", "tests/grade_handout.
 CLASSROOM_WORKFLOW = (os.path.join("kit", "autograder", "classroom.yml"), os.path.join(".github", "workflows",
                                                                                        "classroom.yml"))
 STUDENT_README = os.path.join("kit", "student", "README.md")
+HELDOUT_README = """# Held-out references (the instructor's)
+
+In the instructor's copy of the course this folder holds, for every criterion *vs reference*,
+a variant nobody sees in a handout (another camera, another patch size) with the solution's
+reference for it, and the instructor's grading grades that variant. A handout has none, so
+`make grade` here grades against the public references in `kit/reference/`: a check of your
+own, not your grade. Code that is right passes both; copying the public numbers passes only here.
+"""
 
 
 class Refused(Exception):
@@ -219,7 +227,10 @@ def assignment_text(root, chapter, exercises, criteria, rub):
               "with closed forms or other methods within a Monte Carlo tolerance.  By design, the grading of",
               f"this chapter fails a correct solution with probability at most {percent(rate)}: {how}.",
               "A compile error gives 0 for the chapter; a crash, a time-out, a NaN pixel or a missing output",
-              "fails the criterion with a message.", ""]
+              "fails the criterion with a message.",
+              "Your instructor grades each criterion *vs reference* on a held-out variant (another camera, or",
+              "for radiosity another patch size) whose reference this handout does not have; `make grade`",
+              "here uses the public references in `kit/reference/` (kit/heldout/README.md).", ""]
     return "\n".join(lines)
 
 
@@ -310,6 +321,9 @@ def build(out, chosen_args):
         if os.path.isfile(os.path.join(ROOT, CLASSROOM_WORKFLOW[0])):  # (a copy of the tree may lack the kit's)
             os.makedirs(os.path.join(tmp, os.path.dirname(CLASSROOM_WORKFLOW[1])), exist_ok=True)
             shutil.copy2(os.path.join(ROOT, CLASSROOM_WORKFLOW[0]), os.path.join(tmp, CLASSROOM_WORKFLOW[1]))
+        os.makedirs(os.path.join(tmp, "kit", "heldout"), exist_ok=True)  # the instructor's are left out: say so
+        with open(os.path.join(tmp, "kit", "heldout", "README.md"), "w") as f:
+            f.write(HELDOUT_README)
         check_no_answers(tmp, stubbed)
         in_handout = stubbed_markers(tmp, stubbed)
         for chapter in chosen:
