@@ -275,7 +275,7 @@ class Sandbox:
                                      preexec_fn=self._preexec(group), start_new_session=True, cwd=cwd,
                                      env=self.environment() if self.mode == "user" else None)
                 start = time.monotonic()
-                while p.poll() is None:
+                while not _exited(p, 0.1):  # checks time and CPU every 0.1 s; returns as soon as it ends
                     if time.monotonic() - start > timeout:
                         stopped = f"time-out after {timeout:.0f} s"
                     elif group and group.cpu_seconds() > self.limits.cpu_seconds:
@@ -284,7 +284,6 @@ class Sandbox:
                         os.killpg(p.pid, signal.SIGKILL)
                         _kill_all(group) if group else kill_user(self.uid)
                         break
-                    time.sleep(0.05)
                 p.wait()
                 if self.mode == "user":  # nothing of the run may outlive it: no PID namespace here
                     left = kill_user(self.uid)
@@ -352,6 +351,14 @@ def _passwd_has(uid):
 def fallback_unavailable():
     """None when the "user" fallback can run here (root, to switch to uid 65534), else why not."""
     return None if os.geteuid() == 0 else "the fallback sandbox (a separate user) needs root to switch to it"
+
+
+def _exited(p, seconds):
+    try:
+        p.wait(timeout=seconds)
+        return True
+    except subprocess.TimeoutExpired:
+        return False
 
 
 def _kill_all(group):
