@@ -502,7 +502,7 @@ def test_matrix_over_memory_limit_exits_2(ctx):
     assert stats["patches"] > 100 and stats["matrix_bytes"] == 0 and stats["converged"]
 
 
-# ---- hierarchical radiosity (issue 17) -------------------------------------------------------------
+# ---- hierarchical radiosity -------------------------------------------------------------------------
 
 HIER = ["--solver", "hierarchical", "--quadrature", 2]
 
@@ -808,7 +808,7 @@ def test_smooth_shading_has_no_step_at_t_vertices(ctx):
                        words=("too large", "too small"))
 
 
-# ---- criteria for the paths the exercises do not tag (issue 23 item 6) -------------------------------
+# ---- criteria for the paths the exercises do not tag ---------------------------------------------------
 
 def test_hierarchical_matches_the_furnace_and_the_uniform_solve(ctx):
     """--solver hierarchical (refinement oracle, links, gather, push-pull) against what it
