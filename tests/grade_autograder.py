@@ -48,6 +48,16 @@ def build_packages():
     return r.stdout.split()
 
 
+def chapter_1_autograder(ctx):
+    """make autograder for chapter 1, unpacked into a fake /autograder root (returned)."""
+    archive = ctx.path("autograder.zip")
+    r = make("autograder", f"OUT={archive}", "CHAPTERS=01_local")
+    assert r.returncode == 0, r.stderr
+    root = ctx.path("autograder")
+    unpack(archive, root)
+    return root
+
+
 def unpack(archive, root):
     """The archive into ROOT/source as Gradescope does (modes kept), run_autograder copied to ROOT."""
     source = os.path.join(root, "source")
@@ -195,11 +205,7 @@ def test_gradescope_single_files_are_graded_by_their_names(ctx):
     pass (10 points), every criterion of the stubs fails, and the stubs are named still to write."""
     if "asan" in ctx.build:
         return
-    archive = ctx.path("autograder.zip")
-    r = make("autograder", f"OUT={archive}", "CHAPTERS=01_local")
-    assert r.returncode == 0, r.stderr
-    root = ctx.path("autograder")
-    unpack(archive, root)
+    root = chapter_1_autograder(ctx)
     submission = os.path.join(root, "submission")
     os.makedirs(submission)
     with open(os.path.join(submission, "notes.txt"), "w") as f:
@@ -251,11 +257,7 @@ def test_gradescope_falls_back_to_a_separate_user_without_bubblewrap(ctx):
     it grades with kit/sandbox.py's fallback, a separate user, and says so."""
     if "asan" in ctx.build:
         return
-    archive = ctx.path("autograder.zip")
-    r = make("autograder", f"OUT={archive}", "CHAPTERS=01_local")
-    assert r.returncode == 0, r.stderr
-    root = ctx.path("autograder")
-    unpack(archive, root)
+    root = chapter_1_autograder(ctx)
     r = make("handout", f"OUT={os.path.join(root, 'submission')}", "CHAPTERS=01_local")
     assert r.returncode == 0, r.stderr
     env = dict(os.environ, AUTOGRADER_ROOT=root, PATH="/nonexistent")
