@@ -518,179 +518,247 @@ static int check_outputs(const chapter *ch, const render_options *o, char *err, 
     return 0;
 }
 
+/* One render from the command line to the files: what the steps below share. */
+typedef struct {
+    const chapter *ch;
+    void *state;
+    render_options o;
+    scene s;
+    image reference, img;
+    accumulation acc;
+    probe_result *probes;
+    run_summary summary;
+    double start, render_start;
+    char default_output[1200];
+} render_job;
+
+/* --eye --look --up --fov replace the scene's camera; refused if degenerate. */
+static int override_camera(render_job *job, char *err, size_t err_size)
+{
+    const render_options *o = &job->o;
+    if (!o->camera_override)
+        return 0;
+    camera c = job->s.camera;
+    if (o->camera_override & CAMERA_EYE)
+        c.eye = o->camera_eye;
+    if (o->camera_override & CAMERA_LOOK)
+        c.look = o->camera_look;
+    if (o->camera_override & CAMERA_UP)
+        c.up = o->camera_up;
+    if (o->camera_override & CAMERA_FOV)
+        c.fov_degrees = o->camera_fov;
+    vec3 view = v3_sub(c.look, c.eye);
+    if (v3_length(view) == 0.0 || v3_length(v3_cross(view, c.up)) <= 1e-9 * v3_length(view) * v3_length(c.up)) {
+        snprintf(err, err_size, "argv:%d: the camera given by --eye/--look/--up is degenerate", o->camera_argv);
+        return 2;
+    }
+    job->s.camera = c;
+    return 0;
+}
+
+/* The image size (--size, else the scene's) and, without --out, out/<scene>-<chapter>.png. */
+static void settle_size_and_outputs(render_job *job)
+{
+    render_options *o = &job->o;
+    o->width = o->width ? o->width : job->s.width;
+    o->height = o->height ? o->height : job->s.height;
+    if (o->output_count > 0)
+        return;
+    const char *base = strrchr(o->scene_path, '/');
+    base = base ? base + 1 : o->scene_path;
+    snprintf(job->default_output, sizeof job->default_output, "out/%.*s-%s.png", (int)strcspn(base, "."), base,
+             job->ch->name);
+    o->outputs[o->output_count++] = job->default_output;
+    mkdir("out", 0777); /* may exist already; a failure shows when writing */
+}
+
+/* --ref: read it now, so a wrong size fails before the render. */
+static int load_reference(render_job *job, char *err, size_t err_size)
+{
+    const render_options *o = &job->o;
+    if (!o->reference_path)
+        return 0;
+    if (image_read_pfm(o->reference_path, &job->reference, err, err_size))
+        return 2;
+    if (job->reference.width != o->width || job->reference.height != o->height) {
+        snprintf(err, err_size, "%s:0: reference is %dx%d but the image is %dx%d", o->reference_path,
+                 job->reference.width, job->reference.height, o->width, o->height);
+        return 2;
+    }
+    return 0;
+}
+
+/* The chapter's prepare step, then the image and its two sums. */
+static int prepare_and_allocate(render_job *job, char *err, size_t err_size)
+{
+    const render_options *o = &job->o;
+    double prepare_start = now_seconds();
+    if (job->ch->prepare && job->ch->prepare(job->state, &job->s, o, err, err_size))
+        return 2;
+    job->render_start = now_seconds();
+    job->summary.time_prepare = job->render_start - prepare_start;
+    size_t values = 3 * (size_t)o->width * (size_t)o->height;
+    job->img = image_new(o->width, o->height);
+    job->acc.sum = calloc(values, sizeof(double));
+    job->acc.pass = calloc(values, sizeof(double));
+    if (!job->img.pixels || !job->acc.sum || !job->acc.pass) {
+        snprintf(err, err_size, "argv:%d: out of memory for a %dx%d image", o->size_argv ? o->size_argv : o->scene_argv,
+                 o->width, o->height);
+        return 2;
+    }
+    return 0;
+}
+
+/* Progressive passes.  Without --time: the --spp samples in passes of
+ * growing size (the bar moves, the overhead stays small).  With --time:
+ * passes of 1 spp until the budget is spent (at least one pass), capped
+ * by --spp when given; the result so far is written after each pass so
+ * a viewer can show it while the render goes on. */
+static int render_passes(render_job *job, char *err, size_t err_size)
+{
+    const chapter *ch = job->ch;
+    const render_options *o = &job->o;
+    accumulation *acc = &job->acc;
+    bool timed = o->time_budget > 0.0;
+    int spp_cap = timed ? (o->spp_given ? o->spp : INT_MAX) : o->spp;
+    /* Strata need the final count in advance; a timed render jitters. */
+    int spp_for_offsets = timed ? (spp_cap == 1 ? 1 : 0) : o->spp;
+    double last_write = job->render_start;
+    while (acc->samples < spp_cap) {
+        int pass_samples = timed ? 1 : (int)fmin((double)(spp_cap - acc->samples), fmax(1.0, acc->samples / 2.0));
+        if (ch->begin_pass) {
+            pass_samples = 1;
+            if (ch->begin_pass(job->state, &job->s, o, job->summary.passes + 1, err, err_size))
+                return 2;
+            if (interrupted)
+                break;
+        }
+        render_pass(ch, job->state, &job->s, o, o->width, o->height, (int)acc->samples, pass_samples,
+                    spp_for_offsets, acc);
+        if (interrupted)
+            break;
+        job->summary.passes++;
+        double elapsed = now_seconds() - job->render_start;
+        double fraction = timed ? fmin(1.0, elapsed / o->time_budget) : (double)acc->samples / spp_cap;
+        show_progress(o, fraction, job->summary.passes, elapsed);
+        if (timed && now_seconds() - job->start >= o->time_budget)
+            break;
+        if (timed && now_seconds() - last_write > 0.5) {
+            accumulation_to_image(acc, &job->img);
+            if (write_outputs(ch, job->state, &job->s, o, &job->img, err, err_size))
+                return 2;
+            last_write = now_seconds();
+        }
+    }
+    if (!o->quiet && isatty(STDERR_FILENO))
+        fputc('\n', stderr);
+    if (interrupted && acc->samples == 0) {
+        fprintf(stderr, "%s: interrupted before the first pass was complete; no output written\n", ch->name);
+        return 130;
+    }
+    accumulation_to_image(acc, &job->img);
+    job->summary.time_render = now_seconds() - job->render_start;
+    job->summary.samples_per_pixel = acc->samples;
+    return 0;
+}
+
+/* The scene's probes, once the image is done (not after an interrupt). */
+static int measure_probes(render_job *job, char *err, size_t err_size)
+{
+    const scene *s = &job->s;
+    if (!job->ch->probe || !s->probe_count || interrupted)
+        return 0;
+    job->probes = calloc((size_t)s->probe_count, sizeof *job->probes);
+    if (!job->probes) {
+        snprintf(err, err_size, "argv:%d: out of memory for the scene's %d probes", job->o.scene_argv, s->probe_count);
+        return 2;
+    }
+    for (int p = 0; p < s->probe_count; p++)
+        job->probes[p] = job->ch->probe(job->state, s, &s->probes[p], job->o.seed, &job->acc.counters);
+    return 0;
+}
+
+/* Metrics against --ref, the outputs, the stats; then the status (130 after Ctrl-C). */
+static int report(render_job *job, char *err, size_t err_size)
+{
+    const chapter *ch = job->ch;
+    const render_options *o = &job->o;
+    run_summary *summary = &job->summary;
+    if (o->reference_path) {
+        summary->metrics = image_compare(&job->img, &job->reference);
+        summary->have_metrics = true;
+        fprintf(stderr, "%s: rmse %.6g  relmse %.6g  psnr %.2f dB  ssim %.4f\n", ch->name, summary->metrics.rmse,
+                summary->metrics.relmse, summary->metrics.psnr, summary->metrics.ssim);
+    }
+    if (write_outputs(ch, job->state, &job->s, o, &job->img, err, err_size))
+        return 2;
+    summary->time_total = now_seconds() - job->start;
+    if (o->stats_path &&
+        write_stats(ch, job->state, &job->s, o, o->width, o->height, &job->acc, job->probes, summary, err, err_size))
+        return 2;
+    if (job->acc.nonfinite)
+        fprintf(stderr, "warning: %llu non-finite samples were rejected (counted in stats)\n",
+                (unsigned long long)job->acc.nonfinite);
+    if (!interrupted)
+        return 0;
+    /* The conventional status of a program ended by SIGINT (128 + 2). */
+    fprintf(stderr, "%s: interrupted; wrote the %ld samples per pixel completed so far\n", ch->name, job->acc.samples);
+    return 130;
+}
+
+/* Everything after the scene is loaded, each step stopping the rest on failure. */
+static int render_loaded_scene(render_job *job, char *err, size_t err_size)
+{
+    int status = override_camera(job, err, err_size);
+    if (status)
+        return status;
+    settle_size_and_outputs(job);
+    if ((status = load_reference(job, err, err_size)) || (status = prepare_and_allocate(job, err, err_size)) ||
+        (status = render_passes(job, err, err_size)) || (status = measure_probes(job, err, err_size)))
+        return status;
+    return report(job, err, err_size);
+}
+
+static void render_job_free(render_job *job)
+{
+    free(job->probes);
+    free(job->acc.sum);
+    free(job->acc.pass);
+    image_free(&job->img);
+    image_free(&job->reference);
+    if (job->ch->finish)
+        job->ch->finish(job->state);
+    scene_free(&job->s);
+}
+
+/* Ctrl-C finishes with what is done; a second Ctrl-C kills at once
+ * (SA_RESETHAND restores the default action). */
+static void finish_on_first_interrupt(void)
+{
+    struct sigaction on_sigint = {.sa_handler = on_interrupt, .sa_flags = SA_RESETHAND};
+    sigemptyset(&on_sigint.sa_mask);
+    sigaction(SIGINT, &on_sigint, NULL);
+}
+
 static int run(int argc, char **argv, const chapter *ch, void *state, char *err, size_t err_size)
 {
-    double start = now_seconds();
-    render_options o;
+    render_job job = {.ch = ch, .state = state, .start = now_seconds()};
     bool help = false;
-    if (parse_command_line(argc, argv, ch, &o, &help, err, err_size))
+    if (parse_command_line(argc, argv, ch, &job.o, &help, err, err_size))
         return 2;
     if (help) {
         print_help(ch, argv[0]);
         return 0;
     }
-    if (check_outputs(ch, &o, err, err_size))
+    if (check_outputs(ch, &job.o, err, err_size))
         return 2;
-    if (o.threads > 0)
-        omp_set_num_threads(o.threads);
-    /* Ctrl-C finishes with what is done; a second Ctrl-C kills at once
-     * (SA_RESETHAND restores the default action). */
-    struct sigaction on_sigint = {.sa_handler = on_interrupt, .sa_flags = SA_RESETHAND};
-    sigemptyset(&on_sigint.sa_mask);
-    sigaction(SIGINT, &on_sigint, NULL);
-
-    scene s;
-    if (scene_load(o.scene_path, &s, err, err_size))
+    if (job.o.threads > 0)
+        omp_set_num_threads(job.o.threads);
+    finish_on_first_interrupt();
+    if (scene_load(job.o.scene_path, &job.s, err, err_size))
         return 2;
-    if (o.camera_override) {
-        camera c = s.camera;
-        if (o.camera_override & CAMERA_EYE)
-            c.eye = o.camera_eye;
-        if (o.camera_override & CAMERA_LOOK)
-            c.look = o.camera_look;
-        if (o.camera_override & CAMERA_UP)
-            c.up = o.camera_up;
-        if (o.camera_override & CAMERA_FOV)
-            c.fov_degrees = o.camera_fov;
-        vec3 view = v3_sub(c.look, c.eye);
-        if (v3_length(view) == 0.0 || v3_length(v3_cross(view, c.up)) <= 1e-9 * v3_length(view) * v3_length(c.up)) {
-            snprintf(err, err_size, "argv:%d: the camera given by --eye/--look/--up is degenerate", o.camera_argv);
-            scene_free(&s);
-            return 2;
-        }
-        s.camera = c;
-    }
-    int width = o.width ? o.width : s.width, height = o.height ? o.height : s.height;
-    o.width = width, o.height = height;
-
-    char default_output[1200];
-    if (o.output_count == 0) {
-        const char *base = strrchr(o.scene_path, '/');
-        base = base ? base + 1 : o.scene_path;
-        snprintf(default_output, sizeof default_output, "out/%.*s-%s.png", (int)strcspn(base, "."), base, ch->name);
-        o.outputs[o.output_count++] = default_output;
-        mkdir("out", 0777); /* may exist already; a failure shows when writing */
-    }
-
-    image reference = {0};
-    int status = 2;
-    accumulation acc = {0};
-    image img = {0};
-    probe_result *probes = NULL;
-    if (o.reference_path) {
-        if (image_read_pfm(o.reference_path, &reference, err, err_size))
-            goto done;
-        if (reference.width != width || reference.height != height) {
-            snprintf(err, err_size, "%s:0: reference is %dx%d but the image is %dx%d", o.reference_path,
-                     reference.width, reference.height, width, height);
-            goto done;
-        }
-    }
-
-    double prepare_start = now_seconds();
-    if (ch->prepare && ch->prepare(state, &s, &o, err, err_size))
-        goto done;
-    double render_start = now_seconds();
-
-    img = image_new(width, height);
-    acc.sum = calloc(3 * (size_t)width * (size_t)height, sizeof(double));
-    acc.pass = calloc(3 * (size_t)width * (size_t)height, sizeof(double));
-    if (!img.pixels || !acc.sum || !acc.pass) {
-        snprintf(err, err_size, "argv:%d: out of memory for a %dx%d image", o.size_argv ? o.size_argv : o.scene_argv,
-                 width, height);
-        goto done;
-    }
-
-    /* Progressive passes.  Without --time: the --spp samples in passes of
-     * growing size (the bar moves, the overhead stays small).  With --time:
-     * passes of 1 spp until the budget is spent (at least one pass), capped
-     * by --spp when given; the result so far is written after each pass so
-     * a viewer can show it while the render goes on. */
-    bool timed = o.time_budget > 0.0;
-    int spp_cap = timed ? (o.spp_given ? o.spp : INT_MAX) : o.spp;
-    /* Strata need the final count in advance; a timed render jitters. */
-    int spp_for_offsets = timed ? (spp_cap == 1 ? 1 : 0) : o.spp;
-    int passes = 0;
-    double last_write = render_start;
-    while (acc.samples < spp_cap) {
-        int pass_samples = timed ? 1 : (int)fmin((double)(spp_cap - acc.samples), fmax(1.0, acc.samples / 2.0));
-        if (ch->begin_pass) {
-            pass_samples = 1;
-            if (ch->begin_pass(state, &s, &o, passes + 1, err, err_size))
-                goto done;
-            if (interrupted)
-                break;
-        }
-        render_pass(ch, state, &s, &o, width, height, (int)acc.samples, pass_samples, spp_for_offsets, &acc);
-        if (interrupted)
-            break;
-        passes++;
-        double elapsed = now_seconds() - render_start;
-        double fraction = timed ? fmin(1.0, elapsed / o.time_budget) : (double)acc.samples / spp_cap;
-        show_progress(&o, fraction, passes, elapsed);
-        if (timed && now_seconds() - start >= o.time_budget)
-            break;
-        if (timed && now_seconds() - last_write > 0.5) {
-            accumulation_to_image(&acc, &img);
-            if (write_outputs(ch, state, &s, &o, &img, err, err_size))
-                goto done;
-            last_write = now_seconds();
-        }
-    }
-    if (!o.quiet && isatty(STDERR_FILENO))
-        fputc('\n', stderr);
-    if (interrupted && acc.samples == 0) {
-        fprintf(stderr, "%s: interrupted before the first pass was complete; no output written\n", ch->name);
-        status = 130;
-        goto done;
-    }
-    accumulation_to_image(&acc, &img);
-    double render_end = now_seconds();
-
-    if (ch->probe && s.probe_count && !interrupted) {
-        probes = calloc((size_t)s.probe_count, sizeof *probes);
-        if (!probes) {
-            snprintf(err, err_size, "argv:%d: out of memory for the scene's %d probes", o.scene_argv, s.probe_count);
-            goto done;
-        }
-        for (int p = 0; p < s.probe_count; p++)
-            probes[p] = ch->probe(state, &s, &s.probes[p], o.seed, &acc.counters);
-    }
-
-    run_summary summary = {.time_prepare = render_start - prepare_start,
-                           .time_render = render_end - render_start,
-                           .samples_per_pixel = acc.samples,
-                           .passes = passes};
-    if (o.reference_path) {
-        summary.metrics = image_compare(&img, &reference);
-        summary.have_metrics = true;
-        fprintf(stderr, "%s: rmse %.6g  relmse %.6g  psnr %.2f dB  ssim %.4f\n", ch->name, summary.metrics.rmse,
-                summary.metrics.relmse, summary.metrics.psnr, summary.metrics.ssim);
-    }
-    if (write_outputs(ch, state, &s, &o, &img, err, err_size))
-        goto done;
-    summary.time_total = now_seconds() - start;
-    if (o.stats_path && write_stats(ch, state, &s, &o, width, height, &acc, probes, &summary, err, err_size))
-        goto done;
-    if (acc.nonfinite)
-        fprintf(stderr, "warning: %llu non-finite samples were rejected (counted in stats)\n",
-                (unsigned long long)acc.nonfinite);
-    status = 0;
-    if (interrupted) {
-        /* The conventional status of a program ended by SIGINT (128 + 2). */
-        fprintf(stderr, "%s: interrupted; wrote the %ld samples per pixel completed so far\n", ch->name, acc.samples);
-        status = 130;
-    }
-
-done:
-    free(probes);
-    free(acc.sum);
-    free(acc.pass);
-    image_free(&img);
-    image_free(&reference);
-    if (ch->finish)
-        ch->finish(state);
-    scene_free(&s);
+    int status = render_loaded_scene(&job, err, err_size);
+    render_job_free(&job);
     return status;
 }
 
