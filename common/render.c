@@ -633,8 +633,8 @@ static int render_passes(render_job *job, char *err, size_t err_size)
             if (interrupted)
                 break;
         }
-        render_pass(ch, job->state, &job->s, o, o->width, o->height, (int)acc->samples, pass_samples,
-                    spp_for_offsets, acc);
+        render_pass(ch, job->state, &job->s, o, o->width, o->height, (int)acc->samples, pass_samples, spp_for_offsets,
+                    acc);
         if (interrupted)
             break;
         job->summary.passes++;
