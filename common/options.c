@@ -125,9 +125,11 @@ int options_set_defaults(const option_group *groups, int group_count, char *err,
     return 0;
 }
 
-/* An alias ("--smooth" for "--shading smooth") parses as what it stands for. */
-static int parse_alias(const option_group *groups, int group_count, const option *row, int index, char *err,
-                       size_t err_size)
+/* An alias parses as what it stands for: "--smooth" for "--shading smooth"
+ * (the value written in alias_of), or "--live-time" for "--budget" (no value
+ * in alias_of: the command line's next word is the value, if the option takes one). */
+static int parse_alias(const option_group *groups, int group_count, const option *row, int argc, char **argv, int *i,
+                       char *err, size_t err_size)
 {
     char name[64];
     const char *space = strchr(row->alias_of, ' ');
@@ -136,10 +138,17 @@ static int parse_alias(const option_group *groups, int group_count, const option
     void *state;
     const option *target = find_row(groups, group_count, name, &state);
     if (!target) {
-        snprintf(err, err_size, "argv:%d: %s stands for unknown option %s", index, row->name, name);
+        snprintf(err, err_size, "argv:%d: %s stands for unknown option %s", *i, row->name, name);
         return 2;
     }
-    return parse_value(target, state, space ? space + 1 : "", index, err, err_size);
+    if (space || target->type == OPTION_FLAG)
+        return parse_value(target, state, space ? space + 1 : "", *i, err, err_size);
+    if (*i + 1 >= argc) {
+        snprintf(err, err_size, "argv:%d: %s needs a value (see --help)", *i, argv[*i]);
+        return 2;
+    }
+    ++*i;
+    return parse_value(target, state, argv[*i], *i, err, err_size);
 }
 
 int options_parse_one(const option_group *groups, int group_count, int argc, char **argv, int *i, char *err,
@@ -150,7 +159,7 @@ int options_parse_one(const option_group *groups, int group_count, int argc, cha
     if (!row)
         return 0;
     if (row->alias_of)
-        return parse_alias(groups, group_count, row, *i, err, err_size) ? 2 : 1;
+        return parse_alias(groups, group_count, row, argc, argv, i, err, err_size) ? 2 : 1;
     if (row->type == OPTION_FLAG)
         return parse_value(row, state, "", *i, err, err_size) ? 2 : 1;
     if (*i + 1 >= argc) {

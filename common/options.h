@@ -39,7 +39,8 @@ typedef struct option {
     const char *choices;      /* OPTION_CHOICE: the words, separated by '|' */
     const char *default_text; /* parsed like a value given on the command line; NULL: zero */
     const char *help;         /* one line for --help */
-    const char *alias_of;     /* "--shading smooth": this name is a short way of writing that */
+    const char *alias_of;     /* "--shading smooth": this name is a short way of writing that; "--budget"
+                                 (no value): another name for that option, taking its value */
     /* OPTION_CUSTOM: parse `value` (argv[argv_index]) into the state; 0, or
      * 2 with the reason (without "argv:N: --name") in why. */
     int (*parse)(void *state, const char *value, int argv_index, char *why, size_t why_size);

@@ -1265,7 +1265,7 @@ def markdown_table_rows(lines, header):
 
 
 def test_help_keys_match_readme(ctx):
-    """`build/viewer --help-keys` prints the one key table of main.c (the same
+    """`build/viewer --help-keys` prints the one key table of input.c (the same
     table dispatches the keys and draws the H overlay) as Markdown;
     viewer/README.md must carry exactly those rows: every key with its help
     line, and no key the table lacks."""

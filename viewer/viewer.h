@@ -54,7 +54,7 @@ typedef struct {
     mesh mesh;
 } panel;
 
-/* sources.c */
+/* panel_file.c */
 double now_seconds(void);
 /* Load a PFM into p->img and its texture; read the stats JSON beside it
  * (same name, .json) into the label.  Returns 0, or 2 with a message. */
@@ -65,7 +65,7 @@ void panel_upload(panel *p);
 void panel_free(panel *p);
 void panel_read_stats(panel *p, const char *json_path);
 
-/* Children (live and raster modes). */
+/* children.c: chapters as child processes (live and raster modes). */
 typedef struct {
     const char *scene_path;
     int width, height;
@@ -82,7 +82,7 @@ bool child_reap(panel *p);
 /* Scan the child's new log lines for "warning:"; returns true if one came. */
 bool child_poll_warnings(panel *p);
 
-/* 3D: scene and PLY meshes, the camera. */
+/* meshes.c, ply.c: scene and PLY meshes, the camera. */
 int scene_mesh(const scene *s, mesh *m, mesh_uniforms *u, vec3 ambient, char *err, size_t err_size);
 int ply_mesh(const char *path, mesh *m, vec3 *lo, vec3 *hi, char *err, size_t err_size);
 /* view_projection for cam at an image of width x height, depth range from the bounds. */

@@ -4,11 +4,11 @@
 #   build/glad/             the GL 3.3 core loader, generated here by Debian's python3-glad
 #   build/viewer-obj/       its objects (build/viewer itself is the executable)
 #
-# GLFW and stb (stb_truetype, for the labels' DejaVu Sans) are linked; EGL and OSMesa are dlopen()ed at run time by
-# viewer/backend.c, so libGL and libOSMesa never meet in one link line.
+# GLFW, stb (stb_truetype, for the labels' DejaVu Sans) and cJSON (reading the stats JSON) are linked; EGL and
+# OSMesa are dlopen()ed at run time by viewer/backend.c, so libGL and libOSMesa never meet in one link line.
 
 VIEWER_PACKAGES := libglfw3-dev libegl-dev libegl1-mesa-dev libgl-dev libosmesa6-dev python3-glad \
-                   libstb-dev fonts-dejavu-core
+                   libstb-dev fonts-dejavu-core libcjson-dev
 
 VIEWER_SRC  := $(wildcard viewer/*.c)
 VIEWER_OBJ  := $(VIEWER_SRC:viewer/%.c=$(BUILD)/viewer-obj/%.o)
@@ -37,4 +37,4 @@ $(BUILD)/viewer-obj/%.o: viewer/%.c $(GLAD_HEADER)
 
 $(BUILD)/viewer: $(VIEWER_OBJ) $(BUILD)/viewer-obj/glad.o $(COMMON_OBJ)
 	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS) $^ -o $@ $(LDFLAGS) -lglfw -lstb -ldl $(LDLIBS)
+	$(CC) $(CFLAGS) $^ -o $@ $(LDFLAGS) -lglfw -lstb -lcjson -ldl $(LDLIBS)
