@@ -51,6 +51,13 @@ exercises [--only 4.5 ...] [--commit REV] [--build DIR] [--jobs N] [--out FILE]:
   exercise outside chapters 4 and 5, minutes inside (chapter 5 links 4).
 sync-rubric: kit/rubric.json's "exercises" lists set to the matrix's
   (tests/grade_matrix.py fails while they differ).
+grading-time [--chapters "A B"] [--rounds N] [--jobs N] [--out FILE]: what the
+  sandbox costs.  A submission of this tree's solution files for the chapters
+  (default 01_local 02_whitted) is graded N times (default 3) sandboxed and N
+  times with --unsafe, alternately (so both see the same load), each as
+  `kit/grade.py SUBMISSION --chapters ...` grades; prints each grading's
+  seconds (the report's) and the ratio of the medians, and writes FILE
+  (default out/calibration/grading_time.csv).
 """
 import csv
 import glob
@@ -60,6 +67,7 @@ import json
 import os
 import re
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -761,6 +769,44 @@ def sync_rubric():
           + (f"; not measured yet: {'; '.join(unmeasured)}" if unmeasured else ""))
 
 
+def grading_time(chapters, rounds, jobs, out_file):
+    """Sandboxed against --unsafe grading time of the solution, alternately (see the module)."""
+    chapters = chapters or ["01_local", "02_whitted"]
+    work = tempfile.mkdtemp(prefix="gi-kit-timing-")
+    rows = []
+    try:
+        sub = os.path.join(work, "submission")
+        for rel in grade.submitted_files(chapters):
+            os.makedirs(os.path.dirname(os.path.join(sub, rel)), exist_ok=True)
+            shutil.copyfile(os.path.join(ROOT, rel), os.path.join(sub, rel))
+        for r in range(rounds):
+            for mode in ("sandbox", "unsafe"):
+                report = os.path.join(work, f"report-{mode}-{r}")
+                cmd = [sys.executable, os.path.join(KIT, "grade.py"), sub, "--chapters", " ".join(chapters),
+                       "--report", report, "--jobs", str(jobs)] + (["--unsafe"] if mode == "unsafe" else [])
+                done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True)
+                if done.returncode != 0:
+                    print(f"kit/calibrate.py: {' '.join(cmd)}: exit {done.returncode}: {done.stderr[-500:]}",
+                          file=sys.stderr)
+                    sys.exit(1)
+                with open(os.path.join(report, "report.json")) as f:
+                    got = json.load(f)
+                rows.append({"round": r, "mode": mode, "seconds": got["seconds"],
+                             "points": f"{got['total']}/{got['max']}"})
+                print(f"round {r} {mode}: {got['seconds']} s, {got['total']}/{got['max']} points", flush=True)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    median = {m: statistics.median(r["seconds"] for r in rows if r["mode"] == m) for m in ("sandbox", "unsafe")}
+    print(f"median: sandboxed {median['sandbox']} s, unsafe {median['unsafe']} s; "
+          f"ratio {median['sandbox'] / median['unsafe']:.3f} ({' '.join(chapters)}, {rounds} rounds, jobs {jobs})")
+    out_file = out_file or os.path.join(ROOT, "out", "calibration", "grading_time.csv")
+    os.makedirs(os.path.dirname(out_file), exist_ok=True)
+    with open(out_file, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=["round", "mode", "seconds", "points"])
+        w.writeheader()
+        w.writerows(rows)
+
+
 def main(argv):
     if not argv or argv[0] in ("-h", "--help"):
         print(__doc__.strip())
@@ -772,6 +818,7 @@ def main(argv):
         print(f"kit/calibrate.py: {e}", file=sys.stderr)
         sys.exit(2)
     jobs, seeds, names, kinds, out_file, chapters = 2, list(range(1, 101)), [], None, None, None
+    rounds = 3
     public = False
     only, commit, build_from = [], None, None
     i = 0
@@ -807,6 +854,9 @@ def main(argv):
             if not set(kinds) <= {"compare", "grade", "surfaces"}:
                 print(f"kit/calibrate.py: --kinds {rest[i + 1]}: not compare, grade, surfaces", file=sys.stderr)
                 sys.exit(2)
+            i += 2
+        elif rest[i] == "--rounds" and i + 1 < len(rest) and rest[i + 1].isdigit() and int(rest[i + 1]) > 0:
+            rounds = int(rest[i + 1])
             i += 2
         elif rest[i] == "--public":
             public = True
@@ -853,6 +903,8 @@ def main(argv):
         exercises(only, jobs, commit, build_from, out_file or MATRIX)
     elif mode == "sync-rubric":
         sync_rubric()
+    elif mode == "grading-time":
+        grading_time(chapters, rounds, jobs, out_file)
     else:
         print(f"kit/calibrate.py: unknown mode {mode} (see --help)", file=sys.stderr)
         sys.exit(2)

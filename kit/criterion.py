@@ -7,9 +7,10 @@ usage (by kit/grade.py, in its own process group, killed on the criterion's time
 This is the judge: it runs outside any sandbox, from the instructor's kit/ and tests/ (never the
 submission's copy), and starts every program of the submission through tests/lib.py's
 RUN_PROGRAM, which SANDBOX_JSON ({"binds": [[path, writable], ...], "scratch": DIR, "limits": {...},
-"threads": N}) makes a kit/sandbox.py sandbox: the submission's programs see the graded tree
-read-only and the scratch directory where the tests write their scenes and the programs their
-outputs, nothing else.  Without SANDBOX_JSON (kit/grade.py --unsafe) they run directly.
+"threads": N, "session": {...}}) makes a kit/sandbox.py sandbox: the submission's programs see the
+graded tree read-only and the scratch directory where the tests write their scenes and the programs
+their outputs, nothing else.  With "session" they run in the grading's sandbox (its runner starts
+them; Session.client_spec), else each in a fresh one.  Without SANDBOX_JSON (kit/grade.py --unsafe) they run directly.
 
 SEED is the grading seed: compare criteria render batch b with SEED * 1000 + b;
 grade criteria get it as lib.Context(build, seed=SEED), which shifts every
@@ -136,13 +137,16 @@ def remove_strange_files(scratch):
 def sandboxed_runner(spec):
     """RUN_PROGRAM for tests/lib.py: the program inside a fresh sandbox (kit/sandbox.py)."""
     scratch = spec["scratch"]
-    box = sandbox.Sandbox([tuple(b) for b in spec["binds"]] + [(scratch, True)],
-                          limits=sandbox.Limits(**spec["limits"]), threads=spec["threads"],
-                          mode=spec.get("mode", "bwrap"), uid=spec.get("uid", sandbox.SANDBOX_UID))
+    if spec.get("session"):  # the grading's sandbox (kit/sandbox.py Session): its runner starts the program
+        box = sandbox.Client(spec["session"])
+    else:
+        box = sandbox.Sandbox([tuple(b) for b in spec["binds"]] + [(scratch, True)],
+                              limits=sandbox.Limits(**spec["limits"]), threads=spec["threads"],
+                              mode=spec.get("mode", "bwrap"), uid=spec.get("uid", sandbox.SANDBOX_UID))
 
     # The fallback (mode "user") ends a run by killing every process of its uid, which the grading's
     # runs share: there they run one at a time (compare criteria render two at once otherwise).
-    one_at_a_time = threading.Lock() if box.mode == "user" else contextlib.nullcontext()
+    one_at_a_time = threading.Lock() if spec.get("mode") == "user" else contextlib.nullcontext()
 
     def run(argv, cwd, timeout):
         lend_scratch(scratch, spec.get("uid", sandbox.SANDBOX_UID))

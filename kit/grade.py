@@ -75,6 +75,11 @@ import rubric as rubric_module  # noqa: E402
 import sandbox  # noqa: E402
 
 SKIPPED_DIRS = {"build", "out", ".git", "__pycache__", "node_modules"}  # never graded, never copied
+
+
+def skipped(directory):
+    """SKIPPED_DIRS and build-*/ (`make BUILD=build-x`; git ignores both)."""
+    return directory in SKIPPED_DIRS or directory.startswith("build-")
 SUBMISSION_LIMIT_MIB, SUBMISSION_FILE_LIMIT = 64, 20000
 # What the graded tree never holds: the instructor's kit (references, rubric, calibration), the kit's
 # own tests and the bug corpus.  Only the scenes of kit/ (public inputs) are lent.
@@ -168,7 +173,7 @@ def check_submission(submission):
     real_top, size, count = os.path.realpath(submission), 0, 0
     for top, dirs, files in os.walk(submission, onerror=lambda e: (_ for _ in ()).throw(
             Refused(f"{e.filename}: cannot read: {e.strerror}"))):
-        dirs[:] = [d for d in dirs if d not in SKIPPED_DIRS]
+        dirs[:] = [d for d in dirs if not skipped(d)]
         for name in dirs + files:
             path = os.path.join(top, name)
             info = os.lstat(path)
@@ -196,7 +201,7 @@ def project_files(root):
             return [f for f in r.stdout.decode().split("\0") if f and os.path.isfile(os.path.join(root, f))]
     found = []
     for top, dirs, files in os.walk(root):
-        dirs[:] = sorted(d for d in dirs if d not in SKIPPED_DIRS)
+        dirs[:] = sorted(d for d in dirs if not skipped(d))
         found += [os.path.relpath(os.path.join(top, f), root) for f in sorted(files)]
     return found
 
@@ -251,12 +256,35 @@ def run_submission(argv, src, opts, timeout, writable_build=False):
     if opts.get("unsafe", False):
         code, out, err = run_limited(argv, src, timeout, opts["memory"], dict(os.environ, MAKEFLAGS=""))
         return code, out, err, "" if code is not None else f"time-out after {timeout:.0f} s"
+    if opts.get("session") and not writable_build:
+        r = sandbox.Client(opts["session"].client_spec()).run(argv, src, timeout)
+        return r.returncode, r.stdout, r.stderr, r.stopped
     spec = sandbox_spec(src, opts, writable_build)
     spec["limits"]["cpu_seconds"] = max(spec["limits"]["cpu_seconds"], 2 * timeout * opts["jobs"])
     box = sandbox.Sandbox(spec["binds"], limits=sandbox.Limits(**spec["limits"]), threads=opts["jobs"],
                           mode=spec["mode"], uid=spec["uid"])
     r = box.run(argv, cwd=src, timeout=timeout)
     return r.returncode, r.stdout, r.stderr, r.stopped
+
+
+def fresh_session(src, opts):
+    """Before each criterion: the grading's sandbox (kit/sandbox.py Session, bwrap only) with nothing
+    of the last criterion running in it; a new one where it ended or its runner does not answer."""
+    if opts.get("unsafe", False) or opts["sandbox"] != "bwrap":
+        return
+    session = opts.get("session")
+    if session and session.alive() and sandbox.Client(session.client_spec()).reset():
+        return
+    if session:
+        session.close()
+    spec = sandbox_spec(src, opts, writable_build=False)
+    try:
+        opts["session"] = sandbox.Session([tuple(b) for b in spec["binds"]] +
+                                          [(os.path.join(os.path.dirname(src), "scratch"), True)],
+                                          limits=sandbox.Limits(**spec["limits"]), threads=opts["jobs"])
+    except OSError as e:  # each program then gets a sandbox of its own: as safe, slower
+        opts["session"] = None
+        print(f"kit/grade.py: {e}; a sandbox per program instead", file=sys.stderr)
 
 
 def build(src, chapters, units, opts):
@@ -361,6 +389,8 @@ def run_criterion(src, c, opts, images_dir):
     if not opts.get("unsafe", False):
         spec = sandbox_spec(src, opts, writable_build=False)
         spec["scratch"] = os.path.join(os.path.dirname(src), "scratch")
+        if opts.get("session"):
+            spec["session"] = opts["session"].client_spec()
         cmd.append(json.dumps(spec))
     scratch = os.path.join(os.path.dirname(src), "scratch")  # the tests' temporary files, removed with the grading
     env = dict(os.environ, OMP_NUM_THREADS=str(opts["jobs"]), PYTHONDONTWRITEBYTECODE="1", TMPDIR=scratch)
@@ -596,6 +626,7 @@ def main(argv):
         built = build(src, chapters_run_by(criteria, all_chapters), units, opts)
         results, hung = [], {}
         for c in criteria:
+            fresh_session(src, opts)
             row = {"chapter": c["chapter"], "name": c["name"], "points": 0, "max": c["points"], "passed": False,
                    "p_value": None, "message": "", "exercises": c["exercises"], "kind": c["kind"]}
             if c["kind"] == "grade":
@@ -651,6 +682,8 @@ def main(argv):
         print(f"{report['total']} / {report['max']} points in {report['seconds']} s; report: "
               f"{os.path.join(report_dir, 'report.html')}")
     finally:
+        if opts.get("session"):
+            opts["session"].close()
         if not opts.get("unsafe", False):
             sandbox.remove_groups(tag)
         shutil.rmtree(work, ignore_errors=True)

@@ -36,9 +36,11 @@ an empty environment, and every process of the uid killed after the run.
 The filesystem is not hidden there: the grader must keep what the
 submission must not read unreadable to others (the Gradescope set-up script does).
 """
+import json
 import os
 import shutil
 import signal
+import stat
 import subprocess
 import tempfile
 import time
@@ -122,16 +124,20 @@ class Cgroup:
         return 0.0
 
     def out_of_memory(self):
+        return self.out_of_memory_count() > 0
+
+    def out_of_memory_count(self):
+        """How many processes the memory cap's OOM killer has killed in this cgroup."""
         d = self.dirs["memory"]
-        for name, key in (("memory.events", "oom_kill"), ("memory.oom_control", "oom_kill")):
+        for name in ("memory.events", "memory.oom_control"):
             try:
                 with open(os.path.join(d, name)) as f:
                     for line in f:
-                        if line.startswith(key + " ") and int(line.split()[1]) > 0:
-                            return True
+                        if line.startswith("oom_kill "):
+                            return int(line.split()[1])
             except (OSError, ValueError):
                 continue
-        return False
+        return 0
 
     def processes(self):
         pids = set()
@@ -307,6 +313,165 @@ class Sandbox:
             shutil.rmtree(outputs, ignore_errors=True)
 
 
+# ---- one sandbox for a whole grading ------------------------------------------------------------------
+
+RUNNER = os.path.join(os.path.dirname(os.path.abspath(__file__)), "sandbox_runner.py")
+RUNNER_INSIDE = "/gi-runner/sandbox_runner.py"
+RESPONSE_CAP = 4096  # bytes of a run's ID.done: a small JSON object
+
+
+class Session:
+    """One bwrap sandbox for a grading, with kit/sandbox_runner.py inside starting the programs the
+    judges ask for (Client): the same namespaces, binds, uid and caps as Sandbox, paid once, not per
+    program.  The runner kills every leftover process whenever no run is active, and Client.reset
+    (between criteria) kills everything but the runner."""
+
+    def __init__(self, binds, limits=None, threads=1):
+        self.box = Sandbox(binds, limits=limits, threads=threads)
+        self.base = tempfile.mkdtemp(prefix="gi-kit-session-")
+        os.chmod(self.base, 0o755)
+        self.requests, self.responses = os.path.join(self.base, "requests"), os.path.join(self.base, "responses")
+        os.mkdir(self.requests, 0o755)  # the judge's: read-only inside
+        os.mkdir(self.responses, 0o700)
+        os.chown(self.responses, self.box.uid, self.box.uid)
+        self.cgroup = Cgroup(self.box.limits)
+        self.process = None
+        self.start()
+
+    def start(self):
+        box = self.box
+        box.binds += [(self.requests, False), (self.responses, True)]
+        command = box.bwrap_command(["/usr/bin/python3", "-I", "-S", RUNNER_INSIDE, self.requests, self.responses],
+                                    self.responses)
+        at = command.index("--chdir")
+        command[at:at] = ["--ro-bind", RUNNER, RUNNER_INSIDE]
+        self.process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                        stderr=subprocess.DEVNULL, close_fds=True, start_new_session=True,
+                                        preexec_fn=box._preexec(self.cgroup))
+        deadline = time.monotonic() + 20
+        while not os.path.exists(os.path.join(self.responses, "ready")):  # the runner is up
+            if self.process.poll() is not None or time.monotonic() > deadline:
+                self.close()
+                raise OSError(f"the grading's sandbox did not start (bwrap exit {self.process.returncode})")
+            time.sleep(0.002)
+
+    def alive(self):
+        return self.process is not None and self.process.poll() is None
+
+    def client_spec(self):
+        """What a judge (kit/criterion.py, another process) needs to run programs here: JSON data."""
+        return {"requests": self.requests, "responses": self.responses, "pid": self.process.pid,
+                "cgroup": self.cgroup.dirs, "cpu_seconds": self.box.limits.cpu_seconds,
+                "memory_mib": self.box.limits.memory_mib}
+
+    def close(self):
+        if self.process is not None:
+            try:
+                os.killpg(self.process.pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+            self.process.wait()
+        self.cgroup.kill_and_remove()
+        shutil.rmtree(self.base, ignore_errors=True)
+
+
+class Client:
+    """A judge's side of a Session: run() asks the runner for a program and reads back its result,
+    as data (files opened without following links, size-capped)."""
+
+    def __init__(self, spec):
+        self.spec = spec
+        self.group = Cgroup.__new__(Cgroup)
+        self.group.dirs = spec["cgroup"]
+        self.cpu_at_start = self.group.cpu_seconds()  # the cap is the criterion's: from its first run
+        self.count = 0
+
+    def sandbox_alive(self):
+        try:
+            with open(f"/proc/{self.spec['pid']}/stat") as f:
+                return f.read().rsplit(")", 1)[1].split()[0] not in ("Z", "X")
+        except (OSError, IndexError):
+            return False
+
+    def _ask(self, request):
+        self.count += 1
+        rid = f"{os.getpid()}-{self.count}-{uuid.uuid4().hex[:8]}"
+        path = os.path.join(self.spec["requests"], rid + ".json")
+        with open(os.path.join(self.spec["requests"], "." + rid), "w") as f:
+            json.dump(request, f)
+        os.rename(os.path.join(self.spec["requests"], "." + rid), path)
+        return rid
+
+    def _read(self, rid, suffix, cap):
+        try:
+            fd = os.open(os.path.join(self.spec["responses"], rid + suffix), os.O_RDONLY | os.O_NOFOLLOW)
+        except OSError:
+            return ""
+        with os.fdopen(fd, "rb") as f:
+            if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):
+                return ""
+            return _tail(f, cap)
+
+    def _forget(self, rid):
+        for suffix in (".done", ".out", ".err"):
+            try:
+                os.unlink(os.path.join(self.spec["responses"], rid + suffix))
+            except OSError:
+                pass
+        try:
+            os.unlink(os.path.join(self.spec["requests"], rid + ".json"))
+        except OSError:
+            pass
+
+    def _wait(self, rid, deadline):
+        """The runner's answer for rid, or a reason the sandbox stopped it."""
+        delay = 0.0005
+        while True:
+            text = self._read(rid, ".done", RESPONSE_CAP)
+            if text:
+                try:
+                    answer = json.loads(text)
+                    if isinstance(answer, dict):
+                        return answer
+                except ValueError:
+                    pass
+            if not self.sandbox_alive():
+                log = self._read("runner", ".log", 400).strip().splitlines()
+                return {"returncode": None, "stopped": "the sandbox ended (its runner was killed)" +
+                        (f": {log[-1]}" if log else "")}
+            if self.group.cpu_seconds() - self.cpu_at_start > self.spec["cpu_seconds"]:
+                self.reset()
+                return {"returncode": None, "stopped": f"the sandbox's CPU time cap of {self.spec['cpu_seconds']:.0f} s"}
+            if time.monotonic() > deadline:
+                return {"returncode": None, "stopped": "time-out"}
+            time.sleep(delay)
+            delay = min(2 * delay, 0.005)
+
+    def run(self, argv, cwd, timeout):
+        oom_before = self.group.out_of_memory_count()
+        rid = self._ask({"argv": list(argv), "cwd": os.path.abspath(cwd), "timeout": timeout})
+        answer = self._wait(rid, time.monotonic() + timeout + 10.0)  # the runner enforces timeout itself
+        code = answer.get("returncode")
+        stopped = str(answer.get("stopped", ""))[:300]
+        if stopped == "time-out":
+            stopped = f"time-out after {timeout:.0f} s"
+        if self.group.out_of_memory_count() > oom_before:
+            stopped = stopped or f"the sandbox's memory cap of {self.spec['memory_mib']} MiB"
+        result = Result(code if isinstance(code, int) and not isinstance(code, bool) else None,
+                        self._read(rid, ".out", OUTPUT_CAP), self._read(rid, ".err", OUTPUT_CAP), stopped)
+        self._forget(rid)
+        return result
+
+    def reset(self, timeout=10.0):
+        """Kill every program of the sandbox but its runner; False when the runner did not answer."""
+        if not self.sandbox_alive():
+            return False
+        rid = self._ask({"reset": True})
+        answer = self._wait(rid, time.monotonic() + timeout)
+        self._forget(rid)
+        return answer.get("stopped") == ""
+
+
 def kill_user(uid):
     """SIGKILL every process of uid (the fallback's way to end a run); how many there were."""
     killed = 0
@@ -374,8 +539,8 @@ def _kill_all(group):
         time.sleep(0.02)
 
 
-def _tail(f):
+def _tail(f, cap=OUTPUT_CAP):
     f.seek(0, os.SEEK_END)
     size = f.tell()
-    f.seek(max(0, size - OUTPUT_CAP))
+    f.seek(max(0, size - cap))
     return f.read().decode(errors="replace")

@@ -1,0 +1,164 @@
+"""The runner inside a grading's sandbox: starts the programs the judge asks for (kit/sandbox.py Session).
+
+usage (by kit/sandbox.py, as the sandbox's first process, uid 65534):
+  python3 -I sandbox_runner.py REQUESTS RESPONSES
+
+Starting a bubblewrap sandbox costs 30-80 ms (namespaces, a cgroup), and a
+grading runs hundreds of short programs; so one sandbox serves a whole
+grading and this runner starts its programs.  It is the grader's code but
+runs with the submission's uid, so nothing it reports is trusted more than
+the programs' own output: the judge reads what it writes as data.
+
+Protocol (files only: no descriptor of the grader is open in the sandbox):
+- REQUESTS (read-only here, written by the judge, renamed into place):
+  ID.json = {"argv": [...], "cwd": DIR, "timeout": S} runs a program;
+  {"reset": true} kills every process but this runner's (between criteria).
+- RESPONSES (this runner's): ID.out and ID.err (the program's stdout and
+  stderr), then ID.done = {"returncode": N or null, "stopped": "..."}.
+
+Nothing outlives a run: whenever no run is active, every other process of
+the sandbox's PID namespace is killed (a child that detached with setsid()
+is one), and the run that just ended says how many there were.  Two runs
+share the sandbox only if they run the same program (two renders of one
+criterion): a program of another chapter (an instructor's one a test
+compares with) waits until nothing else is running.
+"""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+POLL_BUSY, POLL_IDLE = 0.001, 0.01  # seconds between looks at REQUESTS: often while programs run
+
+
+def others():
+    """The PIDs of this PID namespace but the runner's and its init's (bwrap's, PID 1)."""
+    me = os.getpid()
+    return {int(p) for p in os.listdir("/proc") if p.isdigit() and int(p) not in (1, me)}
+
+
+def kill_leftovers(active_pids):
+    """Kill every process that is not an active run; how many there were."""
+    left = {p for p in others() - active_pids if not zombie(p)}
+    found = len(left)
+    for _ in range(100 if left else 0):
+        for pid in left:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except (ProcessLookupError, PermissionError):
+                pass
+        time.sleep(0.002)
+        left = {p for p in others() - active_pids if not zombie(p)}
+        if not left:
+            break
+    return found
+
+
+def kill_group(pid):
+    try:
+        os.killpg(pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def zombie(pid):
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().rsplit(")", 1)[1].split()[0] == "Z"
+    except (OSError, IndexError):
+        return True
+
+
+def write_atomically(path, data):
+    with open(path + ".tmp", "w") as f:
+        json.dump(data, f)
+    os.rename(path + ".tmp", path)
+
+
+class Runner:
+    def __init__(self, requests, responses):
+        self.requests, self.responses = requests, responses
+        self.seen, self.waiting, self.active = set(), [], {}  # active: id -> (Popen, deadline, program)
+
+    def read_new_requests(self):
+        for name in sorted(os.listdir(self.requests)):
+            if name.endswith(".json") and name not in self.seen:
+                self.seen.add(name)
+                try:
+                    with open(os.path.join(self.requests, name)) as f:
+                        self.waiting.append((name[:-5], json.load(f)))
+                except (OSError, ValueError):
+                    self.finish(name[:-5], None, "the grader's request could not be read")
+
+    def start_waiting(self):
+        while self.waiting:
+            rid, request = self.waiting[0]
+            if request.get("reset"):  # the judge is done with a criterion, or stops it (a cap)
+                self.waiting.pop(0)
+                self.stop_active("stopped by the grader")
+                kill_leftovers(set())
+                self.finish(rid, 0, "")
+                continue
+            program = request["argv"][0]
+            if any(p != program for _, _, p in self.active.values()):
+                return  # another program is running: this one waits (see the module)
+            self.waiting.pop(0)
+            self.start(rid, request, program)
+
+    def start(self, rid, request, program):
+        base = os.path.join(self.responses, rid)
+        try:
+            with open(base + ".out", "wb") as out, open(base + ".err", "wb") as err:
+                p = subprocess.Popen(request["argv"], cwd=request["cwd"], stdin=subprocess.DEVNULL, stdout=out,
+                                     stderr=err, start_new_session=True)
+        except OSError as e:
+            self.finish(rid, 127, "", f"cannot start {program}: {e.strerror}\n")
+            return
+        self.active[rid] = (p, time.monotonic() + float(request["timeout"]), program)
+
+    def stop_active(self, why):
+        for rid, (p, _, _) in list(self.active.items()):
+            kill_group(p.pid)
+            p.wait()
+            self.finish(rid, None, why)
+        self.active.clear()
+
+    def reap(self):
+        for rid, (p, deadline, _) in list(self.active.items()):
+            code, stopped = p.poll(), ""
+            if code is None and time.monotonic() > deadline:
+                kill_group(p.pid)
+                code, stopped = p.wait(), "time-out"
+            if code is None:
+                continue
+            del self.active[rid]
+            if not self.active:
+                left = kill_leftovers(set())
+                if left and not stopped:
+                    stopped = f"{left} processes outlived the run (killed)"
+            self.finish(rid, None if stopped == "time-out" else code, stopped)
+
+    def finish(self, rid, code, stopped, error=""):
+        if error:
+            with open(os.path.join(self.responses, rid + ".err"), "w") as f:
+                f.write(error)
+        write_atomically(os.path.join(self.responses, rid + ".done"), {"returncode": code, "stopped": stopped})
+
+    def serve(self):
+        last_busy = time.monotonic()
+        while True:
+            self.read_new_requests()
+            self.start_waiting()
+            self.reap()
+            if self.active or self.waiting:
+                last_busy = time.monotonic()
+            time.sleep(POLL_BUSY if time.monotonic() - last_busy < 1.0 else POLL_IDLE)
+
+
+if __name__ == "__main__":
+    log = os.open(os.path.join(sys.argv[2], "runner.log"), os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    os.dup2(log, 2)  # its own errors, for the grader to read; stdin and stdout are /dev/null
+    write_atomically(os.path.join(sys.argv[2], "ready"), {"pid": os.getpid()})
+    Runner(sys.argv[1], sys.argv[2]).serve()
