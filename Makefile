@@ -71,6 +71,7 @@ $(BUILD)/chapters/%_model.o: chapters/%.c
 	rm -f $@.tmp.o
 $(BUILD)/02_whitted: $(BUILD)/chapters/01_local_model.o
 $(BUILD)/05_photonmap: $(BUILD)/chapters/04_pathtrace_model.o
+$(BUILD)/06_bidirectional: $(BUILD)/chapters/04_pathtrace_model.o $(BUILD)/chapters/05_photonmap_model.o
 
 $(BUILD)/bench/%: bench/%.c $(COMMON_OBJ)
 	@mkdir -p $(dir $@)

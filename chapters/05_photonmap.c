@@ -140,7 +140,7 @@ static ray emit_photon(const photonmap_state *st, const scene *s, rng *g, int ph
 /* A photon carries flux, not radiance.  Radiance refracted into glass is
  * squeezed into a smaller solid angle, and chapter 4's weight multiplies it
  * by (n_i / n_t)^2; the flux through the surface is not: undo that factor. */
-static vec3 as_flux(const vertex *v, vec3 radiance_weight, vec3 w_i)
+vec3 as_flux(const vertex *v, vec3 radiance_weight, vec3 w_i)
 {
     if (v->m->kind != MATERIAL_GLASS || v3_dot(w_i, v->n) > 0.0) /* not refracted */
         return radiance_weight;

@@ -1,0 +1,221 @@
+/* 06_bidirectional_support.c — chapter 6's options, light subpath storage,
+ * warnings and stats (06_bidirectional_support.h). */
+#include <stdlib.h>
+#include <string.h>
+
+#include "06_bidirectional_support.h"
+
+static uint64_t dropped_paths, truncated_walks; /* all threads: rare, so atomic adds */
+static int warned_truncation;
+
+void note_dropped_path(void)
+{
+#pragma omp atomic
+    dropped_paths++;
+}
+
+void note_truncated_walk(void)
+{
+#pragma omp atomic
+    truncated_walks++;
+    warn_once(&warned_truncation,
+              "06_bidirectional: a subpath reached %d vertices and was cut there: paths longer than any strategy can "
+              "make are missed (count in stats)",
+              MAX_VERTICES);
+}
+static const char *const method_names[] = {"light", "bdpt", "vcm"};
+
+/* --strategy S,T: 0 <= S, T <= MAX_VERTICES, a path of at least one edge. */
+static int parse_strategy(void *state, const char *value, int argv_index, char *why, size_t why_size)
+{
+    bidir_state *st = state;
+    char *end;
+    long s = strtol(value, &end, 10), t = *end == ',' ? strtol(end + 1, &end, 10) : -1;
+    (void)argv_index;
+    if (*end || s < 0 || t < 0 || s > MAX_VERTICES || t > MAX_VERTICES || s + t < 2) {
+        snprintf(why, why_size, "wants S,T with 0 <= S, T <= %d and S + T >= 2, not '%s'", MAX_VERTICES, value);
+        return 2;
+    }
+    st->single_strategy = true, st->strategy_s = (int)s, st->strategy_t = (int)t;
+    return 0;
+}
+
+#define STATE(field) offsetof(bidir_state, field)
+const option BIDIR_OPTIONS[] = {
+    {"--method", NULL, OPTION_CHOICE, STATE(method), .choices = "light|bdpt|vcm", .default_text = "vcm",
+     .help = "light tracing (t = 1), bidirectional path tracing, or vertex connection and merging"},
+    {"--merge", NULL, OPTION_CHOICE, STATE(merge_off), .choices = "on|off", .default_text = "on",
+     .help = "vcm: merge at eye vertices (off: bdpt)"},
+    {"--connect", NULL, OPTION_CHOICE, STATE(connect_off), .choices = "on|off", .default_text = "on",
+     .help = "vcm: join subpaths (off: progressive photon mapping, chapter 5's --maps global)"},
+    {"--strategy", "S,T", OPTION_CUSTOM, 0, .parse = parse_strategy,
+     .help = "only strategy (S, T): S light and T eye vertices, unweighted (a path of S + T - 1 edges)"},
+    {"--radius", "R", OPTION_DOUBLE, STATE(radius), .min = 0.0, .min_exclusive = true, .max = 1e300,
+     .help = "first pass's merging radius (default: 1/200 of the scene's bounding-box diagonal)"},
+    {"--alpha", "A", OPTION_DOUBLE, STATE(alpha), .min = 0.0, .min_exclusive = true, .max = 1.0,
+     .default_text = "0.666667", .help = "radius shrink per pass (R12)"},
+    {"--check", "N", OPTION_INT, STATE(check_paths), .min = 0, .max = 1 << 24, .default_text = "0",
+     .help = "self-check on N random path pairs: weights add to 1, f / p (R13, R14) is what subpaths carry"},
+    {0},
+};
+#undef STATE
+
+/* Append n items of `size` bytes to a growing array: 0, or 2 when out of memory. */
+static int append(void **items, size_t *count, size_t *capacity, size_t size, const void *item, size_t n)
+{
+    if (*count + n > *capacity) {
+        size_t grown = 2 * (*count + n) + 64;
+        void *p = realloc(*items, grown * size);
+        if (!p)
+            return 2;
+        *items = p, *capacity = grown;
+    }
+    memcpy((char *)*items + *count * size, item, n * size);
+    *count += n;
+    return 0;
+}
+
+int chunk_add_vertices(chunk *c, const path_vertex *v, int n)
+{
+    return append((void **)&c->vertices, &c->vertex_count, &c->vertex_capacity, sizeof *v, v, (size_t)n);
+}
+
+int chunk_add_splat(chunk *c, int pixel, vec3 value)
+{
+    splat s = {pixel, value};
+    return append((void **)&c->splats, &c->splat_count, &c->splat_capacity, sizeof s, &s, 1);
+}
+
+static int join_chunks(bidir_state *st, chunk *chunks, int n)
+{
+    size_t total = 0;
+    for (int c = 0; c < n; c++)
+        total += chunks[c].vertex_count;
+    path_vertex *all = realloc(st->light_vertices, (total + 1) * sizeof *all);
+    if (all)
+        st->light_vertices = all;
+    memset(st->light_image, 0, (size_t)st->light_paths * sizeof *st->light_image);
+    for (int c = 0, base = 0; c < n; base += (int)chunks[c].vertex_count, c++) {
+        if (all)
+            memcpy(all + base, chunks[c].vertices, chunks[c].vertex_count * sizeof *all);
+        for (int p = c * CHUNK; p < st->light_paths && p < (c + 1) * CHUNK; p++)
+            st->path_first[p] += base;
+        for (size_t i = 0; i < chunks[c].splat_count; i++)
+            st->light_image[chunks[c].splats[i].pixel] =
+                v3_add(st->light_image[chunks[c].splats[i].pixel], chunks[c].splats[i].value);
+        st->light_rays += chunks[c].rays;
+        free(chunks[c].vertices), free(chunks[c].splats);
+    }
+    photon_grid_free(&st->grid);
+    if (!all)
+        return 2;
+    return st->merge ? photon_grid_build(&st->grid, &all[0].x, sizeof *all, total, st->current_radius) : 0;
+}
+
+int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *trace)
+{
+    int n = (st->light_paths + CHUNK - 1) / CHUNK, failed = 0;
+    chunk *chunks = calloc((size_t)n, sizeof *chunks);
+    if (chunks && s->emitter_count + s->light_count > 0) {
+#pragma omp parallel for schedule(dynamic, 1) reduction(| : failed)
+        for (int c = 0; c < n; c++)
+            for (int p = c * CHUNK; p < st->light_paths && p < (c + 1) * CHUNK; p++)
+                failed |= trace(st, s, pass, p, &chunks[c]);
+    }
+    failed |= !chunks || join_chunks(st, chunks, n);
+    free(chunks);
+    return failed ? 2 : 0;
+}
+
+int bidir_allocate(bidir_state *st, const scene *s, int width, int height, char *err, size_t err_size)
+{
+    camera_frame f = camera_frame_make(&s->camera, width, height);
+    vec3 forward = v3_normalize(v3_sub(s->camera.look, s->camera.eye));
+    st->camera = (pinhole){s->camera.eye, forward, f, v3_length(f.step_x) * v3_length(f.step_y), width, height};
+    st->light_paths = width * height;
+    st->light_probability = calloc((size_t)(s->surface_count + s->light_count) + 1, sizeof(double));
+    st->path_first = calloc((size_t)st->light_paths, sizeof(int));
+    st->path_count = calloc((size_t)st->light_paths, sizeof(int));
+    st->light_image = calloc((size_t)st->light_paths, sizeof(vec3));
+    if (!st->light_probability || !st->path_first || !st->path_count || !st->light_image) {
+        snprintf(err, err_size, "argv:0: out of memory for %d light subpaths", st->light_paths);
+        return 2;
+    }
+    double total = total_light_power(s); /* chapter 4's: pi L_e A per emitter, 4 pi I per point light */
+    for (int e = 0; e < s->emitter_count && total > 0.0; e++)
+        st->light_probability[s->emitters[e]] =
+            M_PI * v3_average(material_of(s, s->emitters[e])->emission) * s->surfaces[s->emitters[e]].area / total;
+    for (int l = 0; l < s->light_count && total > 0.0; l++)
+        st->light_probability[s->surface_count + l] = 4.0 * M_PI * v3_average(s->lights[l].intensity) / total;
+    return 0;
+}
+
+int pick_light(const bidir_state *st, const scene *s, double u)
+{
+    int i = 0, lights = s->surface_count + s->light_count;
+    for (; i < lights - 1 && u >= st->light_probability[i]; i++)
+        u -= st->light_probability[i];
+    return i;
+}
+
+bool pixel_seen(const pinhole *c, vec3 w, int *pixel, double *cos_theta)
+{
+    *cos_theta = v3_dot(w, c->forward);
+    vec3 q = v3_sub(v3_scale(w, 1.0 / *cos_theta), c->frame.top_left);
+    double px = v3_dot(q, c->frame.step_x) / v3_dot(c->frame.step_x, c->frame.step_x);
+    double py = v3_dot(q, c->frame.step_y) / v3_dot(c->frame.step_y, c->frame.step_y);
+    if (!(*cos_theta > 0.0 && px >= 0.0 && px < c->width && py >= 0.0 && py < c->height))
+        return false;
+    *pixel = (int)py * c->width + (int)px;
+    return true;
+}
+
+void bidir_warn_impossible(const bidir_state *st, const scene *s)
+{
+    bool specular = false;
+    for (int i = 0; i < s->material_count; i++)
+        specular |= is_specular(&s->materials[i]);
+    if (st->single_strategy && st->strategy_t == 0)
+        fprintf(stderr,
+                "warning: 06_bidirectional: strategy (%d,0) needs light paths that hit the camera by chance, but "
+                "the camera is a pinhole (its W_e is a delta in position): no light path does, the image is black\n",
+                st->strategy_s);
+    if (st->method == METHOD_LIGHT && specular && !st->single_strategy)
+        fprintf(stderr, "warning: 06_bidirectional: light tracing joins light vertices to the pinhole camera (t = 1), "
+                        "never through a mirror or glass (their f is a delta): what the camera sees in them is black "
+                        "(--method bdpt or vcm render it)\n");
+    if (!st->merge && !st->connect)
+        fprintf(stderr, "warning: 06_bidirectional: --connect off without merging leaves no strategy: black\n");
+    if (s->emitter_count + s->light_count == 0)
+        fprintf(stderr, "warning: 06_bidirectional: the scene has no light: the image is black\n");
+}
+
+void bidir_write_stats(const void *state, FILE *json)
+{
+    const bidir_state *st = state;
+    fprintf(json, ",\n  \"method\": \"%s\",\n  \"merge\": %s,\n  \"connect\": %s", method_names[st->method],
+            st->merge ? "true" : "false", st->connect ? "true" : "false");
+    if (st->single_strategy)
+        fprintf(json, ",\n  \"strategy\": [%d, %d]", st->strategy_s, st->strategy_t);
+    json_field_number(json, "light_paths_per_pass", st->light_paths);
+    json_field_number(json, "light_rays", (double)st->light_rays);
+    json_field_number(json, "dropped_paths", (double)dropped_paths);
+    json_field_number(json, "truncated_paths", (double)truncated_walks);
+    json_field_number(json, "alpha", st->alpha);
+    json_field_number(json, "last_radius", st->current_radius);
+    if (st->check_paths > 0) {
+        fprintf(json, ",\n  \"check\": {\"paths\": %d, \"connections\": %ld", st->check_paths, st->check_connections);
+        fprintf(json, ", \"worst_weight_sum_error\": %.17g, \"worst_f_over_p_error\": %.17g}", st->check_worst_sum,
+                st->check_worst_ratio);
+    }
+}
+
+void bidir_finish(void *state)
+{
+    bidir_state *st = state;
+    photon_grid_free(&st->grid);
+    free(st->light_probability), free(st->path_first), free(st->path_count), free(st->light_image);
+    free(st->light_vertices);
+    st->light_probability = NULL, st->light_vertices = NULL, st->light_image = NULL;
+    st->path_first = st->path_count = NULL;
+}
