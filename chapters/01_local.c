@@ -148,18 +148,24 @@ vec3 direct_light(const local_model *lm, const scene *s, vec3 x, vec3 n, vec3 w_
     return total;
 }
 
+vec3 direct_irradiance(const local_model *lm, const scene *s, vec3 x, vec3 n, int samples_per_emitter, rng *g,
+                       render_counters *counters)
+{
+    return direct_light(lm, s, x, n, n, NULL, samples_per_emitter, g, counters); /* no material: cos(theta_i) */
+}
+
 /* ---- radiance along a camera ray ---------------------------------------------------------- */
 
 typedef struct {
-    local_model local;          /* --model --normalised --ambient --light-samples --no-shadows */
-    int probe_samples;          /* points per emitter for a probe's irradiance */
-    int bounce_min, bounce_max; /* --bounces A:B, copied from the driver in prepare() */
+    local_model local;     /* --model --normalised --ambient --light-samples --no-shadows */
+    int probe_samples;     /* points per emitter for a probe's irradiance */
+    bounce_window bounces; /* --bounces A:B, copied from the driver in prepare() */
 } local_state;
 
 static int warned_specular_materials, warned_no_light; /* warn_once flags */
 
 /* Is Neumann term k (R6) inside the --bounces window? */
-static bool keep(const local_state *state, int k) { return k >= state->bounce_min && k <= state->bounce_max; }
+static bool keep(const local_state *state, int k) { return bounces_keep(state->bounces, k); }
 
 /* Emission seen directly (E), plus the light of every source reflected once
  * (R1, the term KE), plus the ambient stand-in for all the other bounces
@@ -188,8 +194,7 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
     vec3 direct = keep(state, 1) ? direct_light(&state->local, s, h.point, n, w_o, &shaded, state->local.light_samples,
                                                 g, counters)
                                  : zero; /* KE (R1) */
-    bool keep_all_from_2 = state->bounce_min <= 2 && state->bounce_max == RENDER_BOUNCES_UNLIMITED;
-    vec3 ambient = keep_all_from_2 ? ambient_light(&state->local, &shaded) : zero; /* rho La */
+    vec3 ambient = bounces_keep_all_from(state->bounces, 2) ? ambient_light(&state->local, &shaded) : zero; /* rho La */
     return v3_add(emitted, v3_add(ambient, direct));
 }
 
@@ -197,8 +202,7 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
 {
     local_state *state = state_pointer;
     (void)err, (void)err_size;
-    state->bounce_min = o->bounce_min;
-    state->bounce_max = o->bounce_max;
+    state->bounces = bounce_window_of(o);
     if (s->light_count == 0 && s->emitter_count == 0)
         warn_once(&warned_no_light, "01_local: the scene has no light (no point light, no emitter): "
                                     "only the ambient term and the background are seen");
@@ -209,23 +213,22 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
 
 /* Direct irradiance E = sum_lights I cos / r^2 + Int_emitters L cos cos' / r^2 V dA,
  * the latter by probe_samples points per emitter; the standard error is
- * estimated from 32 independent batches of the samples. */
+ * estimated from PROBE_BATCHES independent batches of the samples. */
 static probe_result probe_irradiance(const void *state_pointer, const scene *s, const probe *p, uint64_t seed,
                                      render_counters *counters)
 {
     const local_state *state = state_pointer;
-    enum { BATCHES = 32 };
-    int per_batch = state->probe_samples / BATCHES > 0 ? state->probe_samples / BATCHES : 1;
-    vec3 batch[BATCHES];
+    int per_batch = state->probe_samples / PROBE_BATCHES > 0 ? state->probe_samples / PROBE_BATCHES : 1;
+    vec3 batch[PROBE_BATCHES];
     uint64_t probe_index = (uint64_t)(p - s->probes);
 #pragma omp parallel for schedule(dynamic, 1)
-    for (int b = 0; b < BATCHES; b++) {
-        rng g = rng_for(seed ^ 0x70726f6265ull, probe_index, (uint64_t)b);
+    for (int b = 0; b < PROBE_BATCHES; b++) {
+        rng g = rng_for(probe_seed(seed), probe_index, (uint64_t)b);
         render_counters ignored = {{0}};
-        batch[b] = direct_light(&state->local, s, p->position, p->normal, p->normal, NULL, per_batch, &g, &ignored);
+        batch[b] = direct_irradiance(&state->local, s, p->position, p->normal, per_batch, &g, &ignored);
     }
     (void)counters;
-    probe_result result = batch_mean_and_error(batch, BATCHES);
+    probe_result result = batch_mean_and_error(batch, PROBE_BATCHES);
     if (s->emitter_count == 0)
         result.standard_error = v3_splat(0.0); /* point lights alone are exact */
     return result;
@@ -233,14 +236,19 @@ static probe_result probe_irradiance(const void *state_pointer, const scene *s, 
 
 /* ---- options and main --------------------------------------------------------------------- */
 
+void local_model_write_stats(const local_model *lm, FILE *json)
+{
+    fprintf(json, ",\n  \"model\": \"%s\",\n  \"normalised\": %s,\n  \"shadows\": %s,\n  \"light_samples\": %d",
+            lm->model == SPECULAR_PHONG ? "phong" : "blinn", lm->normalised ? "true" : "false",
+            lm->no_shadows ? "false" : "true", lm->light_samples);
+    fprintf(json, ",\n  \"ambient\": ");
+    json_vec3(json, v3_splat(lm->ambient));
+}
+
 static void write_stats(const void *state_pointer, FILE *json)
 {
     const local_state *state = state_pointer;
-    fprintf(json, ",\n  \"model\": \"%s\",\n  \"normalised\": %s,\n  \"shadows\": %s,\n  \"light_samples\": %d",
-            state->local.model == SPECULAR_PHONG ? "phong" : "blinn", state->local.normalised ? "true" : "false",
-            state->local.no_shadows ? "false" : "true", state->local.light_samples);
-    fprintf(json, ",\n  \"ambient\": ");
-    json_vec3(json, v3_splat(state->local.ambient));
+    local_model_write_stats(&state->local, json);
 }
 
 #define MODEL(field) offsetof(local_model, field)

@@ -46,7 +46,7 @@ typedef struct {
     int max_depth;              /* --max-depth: deepest ray of the tree (camera ray = 0) */
     double min_weight;          /* --min-weight: prune branches weighing less (Hall & Greenberg 1983) */
     double absorption_distance; /* --absorption D: > 0 turns a glass tint into Beer-Lambert absorption */
-    int bounce_min, bounce_max; /* --bounces A:B, copied from the driver's options in prepare() */
+    bounce_window bounces;      /* --bounces A:B, copied from the driver's options in prepare() */
     /* Histogram of the ray-tree depth per camera ray, max_depth + 1 bins.
      * The only memory radiance() writes to, with atomic adds: the pointer in
      * the read-only state stays the same, the counts behind it change. */
@@ -190,10 +190,7 @@ typedef struct {
 
 /* Does a contribution that reached the eye after `bounces` interactions
  * belong to the Neumann terms K^A E .. K^B E kept by --bounces A:B (R6)? */
-static bool keep_term(const ray_tree *tree, int bounces)
-{
-    return bounces >= tree->state->bounce_min && bounces <= tree->state->bounce_max;
-}
+static bool keep_term(const ray_tree *tree, int bounces) { return bounces_keep(tree->state->bounces, bounces); }
 
 static vec3 trace(ray_tree *tree, ray r, int depth, vec3 weight);
 
@@ -293,7 +290,7 @@ static vec3 trace(ray_tree *tree, ray r, int depth, vec3 weight)
             L, direct_light(&state->local, s, h.point, n, w_o, m, state->local.light_samples, tree->g, tree->counters));
     /* The ambient term stands in for all terms from K^(depth+2) E on; it is
      * kept only when --bounces keeps all of those. */
-    if (state->bounce_min <= depth + 2 && state->bounce_max == RENDER_BOUNCES_UNLIMITED)
+    if (bounces_keep_all_from(state->bounces, depth + 2))
         L = v3_add(L, ambient_light(&state->local, m));
     return L;
 }
@@ -318,8 +315,7 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
     if (s->light_count == 0 && s->emitter_count == 0)
         warn_once(&warned_no_light, "02_whitted: the scene has no light (no point light, no emitter): "
                                     "the image shows only the ambient term and the background");
-    state->bounce_min = o->bounce_min;
-    state->bounce_max = o->bounce_max;
+    state->bounces = bounce_window_of(o);
     state->depth_histogram = calloc((size_t)state->max_depth + 1, sizeof *state->depth_histogram);
     if (!state->depth_histogram) {
         snprintf(err, err_size, "argv:%d: out of memory for the depth histogram", o->scene_argv);
@@ -336,11 +332,7 @@ static void write_stats(const void *state_pointer, FILE *json)
             state->glass_shadows == GLASS_OPAQUE ? "opaque" : "filtered", state->max_depth);
     json_number(json, state->min_weight);
     json_field_number(json, "absorption_distance", state->absorption_distance);
-    fprintf(json, ",\n  \"model\": \"%s\",\n  \"normalised\": %s,\n  \"shadows\": %s,\n  \"light_samples\": %d",
-            state->local.model == SPECULAR_PHONG ? "phong" : "blinn", state->local.normalised ? "true" : "false",
-            state->local.no_shadows ? "false" : "true", state->local.light_samples);
-    fprintf(json, ",\n  \"ambient\": ");
-    json_vec3(json, v3_splat(state->local.ambient));
+    local_model_write_stats(&state->local, json);
     /* depth_histogram[k]: camera samples whose deepest ray was at depth k */
     fprintf(json, ",\n  \"depth_histogram\": [");
     for (int k = 0; k <= state->max_depth; k++)

@@ -33,7 +33,7 @@ static const char *const estimator_names[] = {"hemisphere", "cosine", "light", "
 typedef struct {
     int estimator;                                           /* estimator_kind */
     int rr_depth, max_depth, probe_samples, surface_samples; /* the options of the same names */
-    int bounce_min, bounce_max; /* from here on filled by prepare; --bounces A:B keeps K^A E .. K^B E (R6) */
+    bounce_window bounces; /* from here on filled by prepare; --bounces A:B keeps K^A E .. K^B E (R6) */
     uint64_t seed;
     double total_power;                /* of all lights */
     surface_average *surface_averages; /* --surface-samples, to compare with radiosity (R10) */
@@ -100,15 +100,15 @@ vec3 specular_scatter(const vertex *v, rng *g, vec3 *w_i)
 
 /* Light reflected k times on its way from an emitter to the eye (or probe)
  * is the term K^k E (R6); --bounces A:B keeps it only if A <= k <= B. */
-static bool keep(const pathtrace_state *st, int k) { return k >= st->bounce_min && k <= st->bounce_max; }
+static bool keep(const pathtrace_state *st, int k) { return bounces_keep(st->bounces, k); }
 
 /* May a walk scatter for the k-th time?  Not beyond B (nothing is kept), nor
  * beyond --max-depth, a cap that biases the image low: cuts are reported. */
 static bool may_scatter(const pathtrace_state *st, int k)
 {
-    if (k <= st->max_depth && k <= st->bounce_max)
+    if (k <= st->max_depth && k <= st->bounces.last)
         return true;
-    if (k > st->max_depth && st->max_depth < st->bounce_max) {
+    if (k > st->max_depth && st->max_depth < st->bounces.last) {
 #pragma omp atomic
         truncated_walks++;
         warn_once(&warned_truncation,
@@ -401,7 +401,7 @@ static probe_result probe_irradiance(const void *state_pointer, const scene *s, 
 {
     const pathtrace_state *st = state_pointer;
     walk_source w = {reflected, st, s, false};
-    return walk_probe(&w, p, seed ^ 0x70726f6265ull, st->probe_samples, &counters->value[COUNT_PROBE_RAYS]);
+    return walk_probe(&w, p, probe_seed(seed), st->probe_samples, &counters->value[COUNT_PROBE_RAYS]);
 }
 
 /* ---- main ---------------------------------------------------------------------------------------- */
@@ -410,7 +410,7 @@ static probe_result probe_irradiance(const void *state_pointer, const scene *s, 
 static int prepare(void *state_pointer, const scene *s, const render_options *o, char *err, size_t err_size)
 {
     pathtrace_state *st = state_pointer;
-    st->bounce_min = o->bounce_min, st->bounce_max = o->bounce_max, st->seed = o->seed, st->scene = s;
+    st->bounces = bounce_window_of(o), st->seed = o->seed, st->scene = s;
     truncated_walks = 0;
     st->total_power = total_light_power(s);
     if (s->light_count > 0 && (st->estimator == ESTIMATOR_HEMISPHERE || st->estimator == ESTIMATOR_COSINE)) {

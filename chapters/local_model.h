@@ -2,7 +2,8 @@
  * uses it too.
  *
  * Defined in chapters/01_local.c, where lecture 1 reads it: the BRDFs
- * (reflected_fraction) and the sum over the lights of (R1) (direct_light).
+ * (reflected_fraction) and the sum over the lights of (R1) (direct_light,
+ * and direct_irradiance for probes).
  * Chapter 2 (Whitted) shades every non-specular hit with exactly this
  * model; the Makefile links chapter 1's object into it (with chapter 1's
  * main renamed), so neither chapter includes the other.
@@ -11,6 +12,7 @@
 #define CHAPTERS_LOCAL_MODEL_H
 
 #include <stdbool.h>
+#include <stdio.h>
 
 #include "options.h"
 #include "render.h"
@@ -53,10 +55,18 @@ vec3 reflected_fraction(const local_model *lm, const material *m, vec3 n, vec3 w
 
 /* Radiance reflected at x (unit normal n, facing the viewer) toward w_o
  * from every point light (R1) and every emitter (area form, samples_per_emitter
- * points each).  With m = NULL it returns the irradiance instead (probes):
- * the same sums with f cos(theta_i) replaced by cos(theta_i). */
+ * points each). */
 vec3 direct_light(const local_model *lm, const scene *s, vec3 x, vec3 n, vec3 w_o, const material *m,
                   int samples_per_emitter, rng *g, render_counters *counters);
+
+/* The irradiance at x (unit normal n) from the same lights (probes): the
+ * sums of direct_light() with f cos(theta_i) replaced by cos(theta_i). */
+vec3 direct_irradiance(const local_model *lm, const scene *s, vec3 x, vec3 n, int samples_per_emitter, rng *g,
+                       render_counters *counters);
+
+/* The model's members of the stats object (model, normalised, shadows,
+ * light_samples, ambient), each preceded by ",\n  ": chapters 1 and 2 write the same. */
+void local_model_write_stats(const local_model *lm, FILE *json);
 
 /* The ambient term: a Lambertian surface under uniform radiance La reflects
  * rho La (its albedo integrates to rho over the hemisphere). */

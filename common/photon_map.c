@@ -50,28 +50,29 @@ int photon_maps_merge(photon_map *lists, int n, photon_map *global, photon_map *
 
 void photon_tally_add(photon_tally *t, const photon_map *global, int bounce_min, int bounce_max)
 {
+    const bounce_window window = {.first = bounce_min, .last = bounce_max};
     for (size_t i = 0; i < global->count; i++) {
         const photon *p = &global->photons[i];
-        size_t b = p->path % PHOTON_BATCHES;
+        size_t b = p->path % PROBE_BATCHES;
         t->global[b] = v3_add(t->global[b], p->power);
         if (p->caustic)
             t->caustic[b] = v3_add(t->caustic[b], p->power), t->stored_caustic++;
         /* reflected there, its light is the term K^(bounces + 1) E */
-        if (p->front && p->bounces + 1 >= bounce_min && p->bounces + 1 <= bounce_max)
-            t->surface[(size_t)p->surface * PHOTON_BATCHES + b] =
-                v3_add(t->surface[(size_t)p->surface * PHOTON_BATCHES + b], p->power);
+        if (p->front && bounces_keep(window, p->bounces + 1))
+            t->surface[(size_t)p->surface * PROBE_BATCHES + b] =
+                v3_add(t->surface[(size_t)p->surface * PROBE_BATCHES + b], p->power);
     }
     t->stored_global += global->count;
     t->passes++;
 }
 
-/* A batch holds 1/PHOTON_BATCHES of the photons: times PHOTON_BATCHES, per pass. */
+/* A batch holds 1/PROBE_BATCHES of the photons: times PROBE_BATCHES, per pass. */
 static probe_result batch_estimate(const vec3 *batch, int passes, vec3 factor, vec3 offset)
 {
-    vec3 scaled[PHOTON_BATCHES];
-    for (int b = 0; b < PHOTON_BATCHES; b++)
-        scaled[b] = v3_add(offset, v3_mul(factor, v3_scale(batch[b], (double)PHOTON_BATCHES / (passes ? passes : 1))));
-    return batch_mean_and_error(scaled, PHOTON_BATCHES);
+    vec3 scaled[PROBE_BATCHES];
+    for (int b = 0; b < PROBE_BATCHES; b++)
+        scaled[b] = v3_add(offset, v3_mul(factor, v3_scale(batch[b], (double)PROBE_BATCHES / (passes ? passes : 1))));
+    return batch_mean_and_error(scaled, PROBE_BATCHES);
 }
 
 static void write_estimate(FILE *json, const char *key, const char *error_key, probe_result r)
@@ -99,7 +100,7 @@ void photon_tally_write(FILE *json, const photon_tally *t, const scene *s, bool 
         if (m->kind != MATERIAL_DIFFUSE && m->kind != MATERIAL_EMITTER)
             continue;
         vec3 emitted = m->kind == MATERIAL_EMITTER && keep_emission ? m->emission : v3_splat(0.0);
-        probe_result r = batch_estimate(t->surface + (size_t)i * PHOTON_BATCHES, t->passes,
+        probe_result r = batch_estimate(t->surface + (size_t)i * PROBE_BATCHES, t->passes,
                                         v3_scale(m->albedo, 1.0 / (M_PI * s->surfaces[i].area)), emitted);
         fprintf(json, "%s\n    {\"name\": ", written++ ? "," : "");
         json_string(json, s->surfaces[i].name);

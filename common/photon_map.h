@@ -13,6 +13,7 @@
 #include <stdio.h>
 
 #include "photon_grid.h"
+#include "render.h"
 #include "scene.h"
 #include "vec.h"
 
@@ -46,13 +47,13 @@ void photon_map_free(photon_map *map);
 int photon_maps_merge(photon_map *lists, int n, photon_map *global, photon_map *caustic);
 
 /* Running sums over the passes, per batch of emitted photons (photon.path
- * modulo PHOTON_BATCHES: independent batches, whose spread is the standard
- * error): the stored power of each map, and the power landing on the front
- * of each surface after a number of bounces the --bounces window keeps. */
-enum { PHOTON_BATCHES = 32 };
+ * modulo PROBE_BATCHES of render.h: independent batches, whose spread is the
+ * standard error): the stored power of each map, and the power landing on
+ * the front of each surface after a number of bounces the --bounces window keeps. */
+#define PHOTON_BATCHES PROBE_BATCHES /* the old name, until 05_photonmap.c says PROBE_BATCHES */
 typedef struct {
-    vec3 global[PHOTON_BATCHES], caustic[PHOTON_BATCHES];
-    vec3 *surface; /* surface_count x PHOTON_BATCHES */
+    vec3 global[PROBE_BATCHES], caustic[PROBE_BATCHES];
+    vec3 *surface; /* surface_count x PROBE_BATCHES */
     uint64_t stored_global, stored_caustic;
     int passes;
 } photon_tally;

@@ -96,8 +96,32 @@ typedef struct chapter {
  * status: 0, or 2 after printing one "file:line: message" line to stderr. */
 int render_main(int argc, char **argv, const chapter *ch, void *state);
 
-/* Is bounce count k inside the --bounces window (R6)? */
-static inline bool bounces_keep(const render_options *o, int k) { return k >= o->bounce_min && k <= o->bounce_max; }
+/* --bounces A:B as a chapter keeps it (its radiance function does not see
+ * the options): the Neumann terms K^A E .. K^B E (R6). */
+typedef struct {
+    int first, last; /* A and B; last = RENDER_BOUNCES_UNLIMITED for "A:" */
+} bounce_window;
+
+static inline bounce_window bounce_window_of(const render_options *o)
+{
+    return (bounce_window){.first = o->bounce_min, .last = o->bounce_max};
+}
+
+/* Is the term K^k E (light reflected k times) inside the window (R6)? */
+static inline bool bounces_keep(bounce_window w, int k) { return k >= w.first && k <= w.last; }
+
+/* Does the window keep every term from K^k E on (what an ambient term
+ * standing in for "all the other bounces" needs)? */
+static inline bool bounces_keep_all_from(bounce_window w, int k)
+{
+    return w.first <= k && w.last == RENDER_BOUNCES_UNLIMITED;
+}
+
+/* Probes are estimated from PROBE_BATCHES independent batches, whose spread
+ * gives the standard error (batch_mean_and_error), with random numbers
+ * seeded by probe_seed(--seed): a stream of their own, apart from the image's. */
+enum { PROBE_BATCHES = 32 };
+static inline uint64_t probe_seed(uint64_t seed) { return seed ^ 0x70726f6265ull; /* "probe" in ASCII */ }
 
 /* The mean of `count` independent batch estimates and its standard error
  * (the batches' standard deviation over sqrt(count)). */

@@ -11,7 +11,7 @@
  *     averaged over its area, L_avg = 1/A Int_A ( L_e(y) + rho/pi E(y) ) dA_y,
  *     from points y drawn uniformly on it, leaving along the normal (the
  *     stats key "surfaces", to compare with radiosity's patches, R10).
- * Each is the mean of WALK_BATCHES independent batch means, whose spread
+ * Each is the mean of PROBE_BATCHES (render.h) independent batch means, whose spread
  * gives the standard error without assuming anything about the walks'
  * distribution.  Walk j of batch b draws from rng_for(seed, index, b n + j),
  * so the results do not depend on the number of threads.
@@ -22,8 +22,6 @@
 #include <stdlib.h>
 
 #include "render.h"
-
-enum { WALK_BATCHES = 32 };
 
 typedef vec3 walk_reflected_fn(const void *state, const scene *s, vec3 x, vec3 n, vec3 w_o, const material *m, int k,
                                rng *g, render_counters *counters);
@@ -54,16 +52,16 @@ static inline vec3 walk_stats_sample(const walk_source *w, const probe *p, int i
     return m->kind == MATERIAL_EMITTER && w->emission ? v3_add(L, m->emission) : L;
 }
 
-/* Mean and standard error of WALK_BATCHES batch means of n walks each (at
+/* Mean and standard error of PROBE_BATCHES batch means of n walks each (at
  * probe p, or on surface i); returns the rays traced (all counters). */
 static inline uint64_t walk_batch_mean(const walk_source *w, const probe *p, int i, uint64_t seed, int n, vec3 *mean,
                                        vec3 *standard_error)
 {
     uint64_t index = p ? (uint64_t)(p - w->scene->probes) : (uint64_t)i, rays = 0;
-    vec3 batch[WALK_BATCHES];
-    render_counters counters[WALK_BATCHES] = {{{0}}};
+    vec3 batch[PROBE_BATCHES];
+    render_counters counters[PROBE_BATCHES] = {{{0}}};
 #pragma omp parallel for schedule(dynamic, 1)
-    for (int b = 0; b < WALK_BATCHES; b++) {
+    for (int b = 0; b < PROBE_BATCHES; b++) {
         vec3 batch_sum = v3_splat(0.0);
         for (int j = 0; j < n; j++) {
             rng g = rng_for(seed, index, (uint64_t)b * (uint64_t)n + (uint64_t)j);
@@ -73,19 +71,19 @@ static inline uint64_t walk_batch_mean(const walk_source *w, const probe *p, int
         }
         batch[b] = v3_scale(batch_sum, 1.0 / n);
     }
-    for (int b = 0; b < WALK_BATCHES; b++)
+    for (int b = 0; b < PROBE_BATCHES; b++)
         for (int c = 0; c < RENDER_MAX_COUNTERS; c++)
             rays += counters[b].value[c];
-    probe_result r = batch_mean_and_error(batch, WALK_BATCHES);
+    probe_result r = batch_mean_and_error(batch, PROBE_BATCHES);
     *mean = r.irradiance, *standard_error = r.standard_error;
     return rays;
 }
 
-/* A probe's irradiance from `walks` walks (in WALK_BATCHES batches); adds the rays traced to *rays. */
+/* A probe's irradiance from `walks` walks (in PROBE_BATCHES batches); adds the rays traced to *rays. */
 static inline probe_result walk_probe(const walk_source *w, const probe *p, uint64_t seed, int walks, uint64_t *rays)
 {
     probe_result r;
-    *rays += walk_batch_mean(w, p, -1, seed, walks / WALK_BATCHES, &r.irradiance, &r.standard_error);
+    *rays += walk_batch_mean(w, p, -1, seed, walks / PROBE_BATCHES, &r.irradiance, &r.standard_error);
     return r;
 }
 
@@ -97,7 +95,7 @@ static inline int walk_surface_averages(const walk_source *w, uint64_t seed, int
                                         int *count, uint64_t *rays, char *err, size_t err_size)
 {
     const scene *s = w->scene;
-    int per_batch = walks / WALK_BATCHES > 0 ? walks / WALK_BATCHES : 1;
+    int per_batch = walks / PROBE_BATCHES > 0 ? walks / PROBE_BATCHES : 1;
     *count = 0;
     *out = calloc((size_t)s->surface_count + 1, sizeof **out);
     if (!*out) {
