@@ -3,6 +3,8 @@
 #include <unistd.h>
 
 #include "../common/image.h"
+#include "../common/options.h"
+#include "../common/render.h"
 #include "../common/rng.h"
 #include "../common/sampling.h"
 #include "../common/vec.h"
@@ -232,6 +234,55 @@ static void test_psnr_is_not_fooled_by_a_bright_light(void)
     image_free(&bright_reference), image_free(&noisy), image_free(&dim_reference), image_free(&close);
 }
 
+/* An alias without a value in alias_of ("--live-time" for "--budget") takes
+ * the next word as its option's value, with the option's range check; one
+ * with a value ("--smooth" for "--shading smooth") takes none. */
+static void test_option_aliases(void)
+{
+    typedef struct {
+        double budget;
+        int shading;
+    } settings;
+    static const option table[] = {
+        {"--budget", "SECONDS", OPTION_DOUBLE, offsetof(settings, budget), .min = 0.01, .max = 100,
+         .default_text = "30", .help = "a budget"},
+        {"--live-time", "SECONDS", OPTION_DOUBLE, 0, .alias_of = "--budget"},
+        {"--shading", NULL, OPTION_CHOICE, offsetof(settings, shading), .choices = "flat|smooth", .help = "shading"},
+        {"--smooth", NULL, OPTION_FLAG, 0, .alias_of = "--shading smooth"},
+        {0},
+    };
+    settings st;
+    option_group group = {table, &st};
+    char err[256] = "", *argv[] = {"program", "--live-time", "7.5", "--smooth", "--live-time", "1000", "--live-time"};
+    int i = 1;
+    CHECK(options_set_defaults(&group, 1, err, sizeof err) == 0 && st.budget == 30, "default: %s", err);
+    CHECK(options_parse_one(&group, 1, 7, argv, &i, err, sizeof err) == 1 && i == 2 && st.budget == 7.5,
+          "--live-time 7.5 -> budget %g, i %d: %s", st.budget, i, err);
+    i = 3;
+    CHECK(options_parse_one(&group, 1, 7, argv, &i, err, sizeof err) == 1 && i == 3 && st.shading == 1,
+          "--smooth -> shading %d, i %d: %s", st.shading, i, err);
+    i = 4;
+    CHECK(options_parse_one(&group, 1, 7, argv, &i, err, sizeof err) == 2 && strstr(err, "argv:5: --budget wants"),
+          "--live-time 1000 must be refused by --budget's range: %s", err);
+    i = 6;
+    CHECK(options_parse_one(&group, 1, 7, argv, &i, err, sizeof err) == 2 && strstr(err, "argv:6: --live-time needs"),
+          "--live-time at the end needs a value: %s", err);
+}
+
+/* --bounces A:B keeps the terms K^A E .. K^B E; "A:" all from A on. */
+static void test_bounce_window(void)
+{
+    bounce_window one_two = {1, 2}, from_two = {2, RENDER_BOUNCES_UNLIMITED};
+    CHECK(!bounces_keep(one_two, 0) && bounces_keep(one_two, 1) && bounces_keep(one_two, 2) &&
+              !bounces_keep(one_two, 3),
+          "1:2 keeps exactly the terms 1 and 2");
+    CHECK(bounces_keep(from_two, 1000) && !bounces_keep(from_two, 1), "2: keeps every term from 2 on");
+    CHECK(bounces_keep_all_from(from_two, 2) && bounces_keep_all_from(from_two, 3) &&
+              !bounces_keep_all_from(from_two, 1),
+          "2: keeps all terms from 2 and from 3 on, not all from 1 on");
+    CHECK(!bounces_keep_all_from(one_two, 2), "1:2 does not keep all terms from 2 on");
+}
+
 int main(void)
 {
     RUN_TEST(test_vector_algebra);
@@ -245,5 +296,7 @@ int main(void)
     RUN_TEST(test_failed_write_leaves_nothing);
     RUN_TEST(test_metrics);
     RUN_TEST(test_psnr_is_not_fooled_by_a_bright_light);
+    RUN_TEST(test_option_aliases);
+    RUN_TEST(test_bounce_window);
     return CHECK_EXIT_STATUS();
 }
