@@ -190,20 +190,10 @@ static int window_loop(char *err, size_t err_size)
     return 0;
 }
 
-int main(int argc, char **argv)
+/* The backend: the window when there is a display, else headless (EGL,
+ * then OSMesa).  0, 2 (no display and nothing to write) or 3, with a message. */
+static int open_context(char *err, size_t err_size)
 {
-    char err[1024] = "";
-    setvbuf(stdout, NULL, _IOLBF, 0);
-    int status = parse_options(argc, argv, err, sizeof err);
-    if (status) {
-        fprintf(stderr, "%s\n", err);
-        return status;
-    }
-    signal(SIGINT, on_signal);
-    signal(SIGTERM, on_signal);
-    signal(SIGPIPE, SIG_IGN);
-
-    /* The backend: the window when there is a display, else headless. */
     bool display =
         (getenv("DISPLAY") && *getenv("DISPLAY")) || (getenv("WAYLAND_DISPLAY") && *getenv("WAYLAND_DISPLAY"));
     if (!V.backend_given)
@@ -211,46 +201,25 @@ int main(int argc, char **argv)
     if (V.backend != BACKEND_GLFW)
         V.headless = true;
     if (V.headless && !V.out_path && !V.frames && !V.panel_out_path && !V.exit_after_updates) {
-        fprintf(stderr, "argv:0: no display ($DISPLAY is unset): give --out FILE.png to render headless\n");
+        snprintf(err, err_size, "argv:0: no display ($DISPLAY is unset): give --out FILE.png to render headless");
         return 2;
     }
-    status = backend_open(V.backend, V.width, V.height, "viewer", err, sizeof err);
+    int status = backend_open(V.backend, V.width, V.height, "viewer", err, err_size);
     if (status == 3 && !V.backend_given && V.backend == BACKEND_EGL) {
         fprintf(stderr, "%s; trying osmesa\n", err);
         V.backend = BACKEND_OSMESA;
-        status = backend_open(V.backend, V.width, V.height, "viewer", err, sizeof err);
+        status = backend_open(V.backend, V.width, V.height, "viewer", err, err_size);
     }
-    if (status) {
-        fprintf(stderr, "%s\n", err);
-        return status;
-    }
-    if (V.backend == BACKEND_GLFW) {
+    if (!status && V.backend == BACKEND_GLFW) {
         int fw, fh;
         glfwGetFramebufferSize(backend_window(), &fw, &fh);
         V.width = fw, V.height = fh;
     }
-    status = gfx_init(V.raster_shader, V.font_path, V.font_px, err, sizeof err);
-    if (!status) {
-        printf("backend %s: %s\n", backend_name(V.backend), gfx_renderer());
-        printf("font: %s, %d px\n", gfx_font(), V.font_px);
-        print_gl_libraries();
-        status = set_up(err, sizeof err);
-    }
-    if (!status) {
-        if (((V.diff || V.split) && V.reference >= V.panel_count) ||
-            (V.split && (V.split_b >= V.panel_count || V.split_b == V.reference))) {
-            snprintf(err, sizeof err, "argv:0: --diff / --split name a panel that does not exist (there are %d)",
-                     V.panel_count);
-            status = 2;
-        }
-    }
-    if (!status)
-        status = start_children(err, sizeof err);
-    if (!status)
-        status = V.headless ? headless_loop(err, sizeof err) : window_loop(err, sizeof err);
-    if (status)
-        fprintf(stderr, "%s\n", err);
+    return status;
+}
 
+static void free_everything(void)
+{
     for (int i = 0; i < V.panel_count; i++)
         panel_free(&V.panels[i]);
     remove_temp_dir();
@@ -260,5 +229,42 @@ int main(int argc, char **argv)
         scene_free(&V.scene);
     gfx_shutdown();
     backend_close();
+}
+
+int main(int argc, char **argv)
+{
+    char err[1024] = "";
+    setvbuf(stdout, NULL, _IOLBF, 0);
+    int status = parse_options(argc, argv, err, sizeof err);
+    if (!status) {
+        signal(SIGINT, on_signal);
+        signal(SIGTERM, on_signal);
+        signal(SIGPIPE, SIG_IGN);
+        status = open_context(err, sizeof err);
+    }
+    if (status) {
+        fprintf(stderr, "%s\n", err);
+        return status;
+    }
+    status = gfx_init(V.raster_shader, V.font_path, V.font_px, err, sizeof err);
+    if (!status) {
+        printf("backend %s: %s\n", backend_name(V.backend), gfx_renderer());
+        printf("font: %s, %d px\n", gfx_font(), V.font_px);
+        print_gl_libraries();
+        status = set_up(err, sizeof err);
+    }
+    if (!status && (((V.diff || V.split) && V.reference >= V.panel_count) ||
+                    (V.split && (V.split_b >= V.panel_count || V.split_b == V.reference)))) {
+        snprintf(err, sizeof err, "argv:0: --diff / --split name a panel that does not exist (there are %d)",
+                 V.panel_count);
+        status = 2;
+    }
+    if (!status)
+        status = start_children(err, sizeof err);
+    if (!status)
+        status = V.headless ? headless_loop(err, sizeof err) : window_loop(err, sizeof err);
+    if (status)
+        fprintf(stderr, "%s\n", err);
+    free_everything();
     return status;
 }
