@@ -38,10 +38,15 @@ The graded tree is this project's files (without the instructor's kit, tests
 of the kit and references) with the submission's versions of the files that
 hold the graded chapters' exercises: a submission changes those files and
 nothing else (not the Makefile, not common/'s other files, not the tests).
+The chapters after those graded and those their criteria run (chapter 4's
+compare with chapter 3) have their exercises stubbed there, as in a handout:
+the sandbox lends no later chapter's solution.
 Everything of the submission's runs inside a sandbox (kit/sandbox.py:
 bubblewrap, its own namespaces, uid 65534, caps on processes, memory, CPU
 time and file size): its build, its unit tests, every program a criterion
-starts.  The judging (kit/criterion.py, the tests, the comparisons) runs
+starts; one sandbox serves the grading (kit/sandbox.py Session: its runner
+starts the programs, and kills whatever a run leaves behind), so what it
+costs is paid once, not per program.  The judging (kit/criterion.py, the tests, the comparisons) runs
 outside, from this project's kit/ and tests/, on the output files read back
 as data.  A crash, hang, NaN pixel or missing output fails its criterion
 with a message; after a criterion times out the chapter's other criteria
@@ -212,16 +217,40 @@ def submitted_files(chapters):
     return sorted({e.file for e in markers.all_exercises(ROOT) if names.get(e.lecture) in chapters})
 
 
-def prepare(submission, work, chapters):
+def later_chapters(needed):
+    """The chapters after every chapter in `needed` (the graded ones and those their criteria run):
+    their solutions are not lent (stubbed_later).  A chapter builds on earlier ones only (chapter 2
+    links chapter 1's model, chapter 5 chapter 4's), so these are never needed."""
+    names = sorted(markers.chapter_names(ROOT).values())
+    return [c for c in names if c > max(needed)]
+
+
+def stubbed_later(rel, stubbed_chapters):
+    """The text of project file rel with the exercises of stubbed_chapters stubbed as in a handout,
+    or None where it holds none: a grading's sandbox must not lend a later chapter's solution."""
+    names = markers.chapter_names(ROOT)
+    mine = [e for e in markers.all_exercises(ROOT) if e.file == rel and names.get(e.lecture) in stubbed_chapters]
+    if not mine:
+        return None
+    with open(os.path.join(ROOT, rel)) as f:
+        return markers.stub_file(f.read(), mine)
+
+
+def prepare(submission, work, chapters, stubbed_chapters=()):
     """work/src: this project's files but the instructor's (NOT_LENT), with the submission's versions
-    of the files that hold the graded chapters' exercises; everything root's and read-only but an
-    empty build/ (the sandbox user's).  Returns (src, the submitted files that are missing)."""
+    of the files that hold the graded chapters' exercises and the exercises of stubbed_chapters
+    (later_chapters) stubbed; everything root's and read-only but an empty build/ (the sandbox
+    user's).  Returns (src, the submitted files that are missing)."""
     src = os.path.join(work, "src")
     lent = [f for f in project_files(ROOT) if not f.startswith(NOT_LENT) or f.startswith(LENT_FROM_KIT)]
     submitted, missing = submitted_files(chapters), []
     for rel in lent:
         os.makedirs(os.path.dirname(os.path.join(src, rel)), exist_ok=True)
-        if rel not in submitted:
+        stubbed = stubbed_later(rel, stubbed_chapters) if rel not in submitted else None
+        if stubbed is not None:
+            with open(os.path.join(src, rel), "w") as f:
+                f.write(stubbed)
+        elif rel not in submitted:
             shutil.copyfile(os.path.join(ROOT, rel), os.path.join(src, rel))
     for rel in submitted:
         mine = os.path.join(submission, rel)
@@ -347,15 +376,15 @@ def submission_hash(submission):
 TODO_CALL = re.compile(r'\bTODO_ONCE\(\s*"(\w+)"\s*\)')
 
 
-def stubs_in_source(src):
-    """{(file, line, name)} of every TODO_ONCE("name") call in the submission's C sources: the
-    stubs a handout starts with that are still there, even those no run reached (a stub that
-    calls another)."""
+def stubs_in_source(src, submitted):
+    """{(file, line, name)} of every TODO_ONCE("name") call in the submission's C sources (the
+    files it hands in): the stubs a handout starts with that are still there, even those no run
+    reached (a stub that calls another); not the later chapters' stubs (later_chapters)."""
     found = set()
     for folder in ("chapters", "common"):
         top = os.path.join(src, folder)
         for name in sorted(os.listdir(top)) if os.path.isdir(top) else []:
-            if not name.endswith((".c", ".h")):
+            if not name.endswith((".c", ".h")) or f"{folder}/{name}" not in submitted:
                 continue
             try:
                 with open(os.path.join(top, name), errors="replace") as f:
@@ -614,7 +643,9 @@ def main(argv):
     digest, files = submission_hash(submission)
     work = tempfile.mkdtemp(prefix="gi-grade-")
     try:
-        src, missing = prepare(submission, work, chapters)
+        names = sorted(markers.chapter_names(ROOT).values())
+        needed = set(chapters) | set(chapters_run_by(criteria, names))
+        src, missing = prepare(submission, work, chapters, later_chapters(needed))
         if not opts.get("unsafe", False):  # the sandbox user writes the build and nothing else of the tree
             os.chown(os.path.join(src, "build"), opts["uid"], opts["uid"])
         absent = {c for c in chapters for f in missing if f == f"chapters/{c}.c"}
@@ -665,7 +696,7 @@ def main(argv):
                   flush=True)
         report = {"submission": submission, "total": sum(r["points"] for r in results),
                   "max": sum(r["max"] for r in results), "criteria": results, "chapters": chapters,
-                  "still_to_write": still_to_write(results, stubs_in_source(src)), "date": date,
+                  "still_to_write": still_to_write(results, stubs_in_source(src, submitted_files(chapters))), "date": date,
                   "submission_sha256": digest, "submission_files": files,
                   "seed": opts["seed"], "family_alpha": rub["family_alpha"],
                   "sandbox": "none: graded with --unsafe (UNSAFE=1), the submission's code ran unconfined"

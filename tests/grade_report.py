@@ -67,7 +67,7 @@ def test_report_names_stubs_and_says_which_way_each_criterion_is_off(ctx):
     tree = handout(os.path.join(tempfile.mkdtemp(prefix="gi-report-"), "student"))
     with open(os.path.join(tree, "kit", "handout.json")) as f:
         stubbed = {s.split(":")[-1] for s in json.load(f)["stubbed"]}
-    found = {name for _, _, name in grade.stubs_in_source(tree)}
+    found = {name for _, _, name in grade.stubs_in_source(tree, grade.submitted_files([CHAPTER]))}
     assert found == stubbed, f"the stubs in the handout's source {sorted(found)}, the handout's {sorted(stubbed)}"
 
     write_back(tree, ["point_lights", "area_light"], WRONG_POINT_LIGHT)

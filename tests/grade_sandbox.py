@@ -261,6 +261,30 @@ def test_a_secret_included_at_build_time_stays_secret(ctx):
     assert SECRET_LINE not in json.dumps(report), "a line of the instructor's rubric reached the report"
 
 
+def test_the_graded_tree_lends_no_later_chapter_solution(ctx):
+    """What the sandbox can read is the graded tree: for chapter 1 it holds no answer of a later
+    chapter (a submission could print one into its report), but chapter 4's grading lends chapter
+    3's solution, which its criteria compare with."""
+    sys.path.insert(0, os.path.join(ROOT, "kit"))
+    import grade as kit_grade
+    import markers
+    names = markers.chapter_names(ROOT)
+    exercises = markers.all_exercises(ROOT)
+    for graded, needed in ((["01_local"], {"01_local"}), (["04_pathtrace"], {"03_radiosity", "04_pathtrace"})):
+        work = ctx.path("prepared-" + graded[0])
+        os.makedirs(work)
+        src, _ = kit_grade.prepare(ctx.path("no-submission"), work, graded, kit_grade.later_chapters(needed))
+        files = kit_grade.project_files(src)
+        later = [e for e in exercises if names.get(e.lecture) > max(needed)]
+        assert later, f"no chapter after {max(needed)} has exercises: the test checks nothing"
+        found = markers.answers_in_tree(src, later, files)
+        assert not found, f"grading {graded[0]} lends later answers: " + \
+            ", ".join(f"{e.id} {e.name} in {fn.file}" for fn, e in found[:5])
+        earlier = [e for e in exercises if names.get(e.lecture) in needed - set(graded)]
+        assert len(markers.answers_in_tree(src, earlier, files)) >= len(earlier), \
+            f"grading {graded[0]}: the solution of {sorted(needed - set(graded))} its criteria run is not lent"
+
+
 def test_submissions_the_kit_refuses(ctx):
     """A file, a missing path, devices, FIFOs, sockets, links out of the tree, too large: exit 2 and
     one line naming the path; nothing graded."""
