@@ -259,7 +259,7 @@ def run_compare(root, build, c, rub, seed, jobs, images_dir):
     p_value = adjusted[worst]
     marks, strength = failing_tiles(tests, adjusted, alpha, sub, ref)
     message = compare_sentence(c, tests, adjusted, alpha, marks, ref, sub, command, seeds)
-    record_compare(tests, adjusted, alpha, marks, ref["tiles_x"] * ref["tiles_y"], command)
+    record_compare(tests, adjusted, alpha, marks, ref["tiles_x"] * ref["tiles_y"], command, bool(c.get("heldout")))
     images = write_pictures(root, build, c, jobs, images_dir, ref, sub, marks, strength) if images_dir else {}
     return not failing, p_value, message, images
 
@@ -373,6 +373,10 @@ def compare_sentence(c, tests, adjusted, alpha, marks, ref, sub, command, seeds)
     per_channel = ", ".join(f"{lib.CHANNELS[test[4]]} {lib.number(test[6])} vs {lib.number(test[7])} "
                             f"± {test[8]:.2g} ({t_text(test[5])})" for _, test in means)
     mean_text = lib.deviation("image mean", a, b) or "equal"
+    if c.get("heldout"):  # the held-out solution's numbers stay the instructor's: only which way
+        per_channel = ", ".join(f"{lib.CHANNELS[test[4]]} {'darker' if test[6] < test[7] else 'brighter'}"
+                                for _, test in means)
+        mean_text = "darker" if a < b else "brighter" if a > b else "equal"
     if failed_means:
         parts.append(f"the image mean is {mean_text}: {per_channel}")
     noisy = [test for i, test in enumerate(tests) if test[3] == "noise" and adjusted[i] < alpha]
@@ -388,6 +392,8 @@ def compare_sentence(c, tests, adjusted, alpha, marks, ref, sub, command, seeds)
         return (text[0].upper() + text[1:] + f". {ran}. ({statistic}; smallest adjusted p = {min(adjusted):.2g})")
     within = "equal" if a == b else (f"{lib.percent((a - b) / b) if b else lib.number(a - b)} "
                                      f"{'brighter' if a > b else 'darker'}, within the noise")
+    if c.get("heldout"):
+        within = "within the noise"
     return (f"All {nt} tiles and the image mean agree with the solution's (the image mean {within}: "
             f"{per_channel}). {ran}. ({statistic}; smallest adjusted p = {min(adjusted):.3g})")
 
@@ -397,10 +403,18 @@ def t_text(t):
     return f"t = {t:.1f}" if abs(t) < 1000 else ("t > 1000" if t > 0 else "t < -1000")
 
 
-def record_compare(tests, adjusted, alpha, marks, nt, command):
-    """The image means per channel and the number of differing tiles, into lib.MEASURED."""
+def record_compare(tests, adjusted, alpha, marks, nt, command, heldout=False):
+    """The image means per channel and the number of differing tiles, into lib.MEASURED; for a
+    held-out variant the solution's means are not given, only whether they agree."""
     for i, test in enumerate(tests):
-        if test[3] == "mean":
+        if test[3] == "mean" and heldout:
+            word = "agrees" if adjusted[i] >= alpha else "darker" if test[6] < test[7] else "brighter"
+            lib.MEASURED.append({"quantity": "image mean", "where": lib.CHANNELS[test[4]], "measured": test[6],
+                                 "expected": None, "standard_error": test[8], "allowed": None, "limit": None,
+                                 "passed": adjusted[i] >= alpha, "command": command,
+                                 "text": f"Image mean {lib.CHANNELS[test[4]]}: measured {lib.number(test[6])} ± "
+                                         f"{test[8]:.2g}; against the held-out solution's (not shown): {word}"})
+        elif test[3] == "mean":
             lib.measurement("image mean", test[6], test[7], adjusted[i] >= alpha,
                             f"Welch's t, Holm-adjusted p >= {alpha:.2g} (p = {adjusted[i]:.2g})",
                             where=lib.CHANNELS[test[4]], se=test[8], by="the solution's renders", command=command)

@@ -128,6 +128,9 @@ def test_replaying_the_public_reference_fails_the_heldout_grading(ctx):
     assert not passed, f"the replay passed the instructor's held-out grading: {row['message']}"
     assert "held-out camera" in row.get("reference", ""), f"instructor: graded with {row.get('reference')}"
     assert "held-out camera" in row["message"], row["message"]
+    shown = [m for m in row.get("measured", []) if m["quantity"] == "image mean" and m.get("expected") is not None]
+    assert not shown and " vs " not in row["message"], \
+        f"the held-out solution's image mean reached the report: {shown[:1] or row['message']}"
 
     passed, row = graded(ctx, handout, solution, "solution-self-check", "--statistical-only")
     assert passed, f"the solution fails the handout's self-check: {row['message']}"
