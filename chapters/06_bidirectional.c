@@ -392,7 +392,7 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
     double cos_theta;
     pixel_seen(&st->camera, r.direction, &pixel, &cos_theta);
     vec3 L = st->light_image[pixel];
-    if (st->method == METHOD_LIGHT && !st->single_strategy)
+    if (st->single_strategy ? st->strategy_t == 1 : st->method == METHOD_LIGHT) /* light tracing only */
         return L;
     path_vertex z[MAX_VERTICES] = {{.x = r.origin, .alpha = v3_splat(1.0), .kind = AT_CAMERA}};
     int t_count =

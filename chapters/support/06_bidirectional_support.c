@@ -116,7 +116,8 @@ int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *tra
 {
     int n = (st->light_paths + CHUNK - 1) / CHUNK, failed = 0;
     chunk *chunks = calloc((size_t)n, sizeof *chunks);
-    if (chunks && s->emitter_count + s->light_count > 0) {
+    bool needed = !(st->single_strategy && st->strategy_s == 0); /* no strategy reads light subpaths */
+    if (chunks && needed && s->emitter_count + s->light_count > 0) {
 #pragma omp parallel for schedule(dynamic, 1) reduction(| : failed)
         for (int c = 0; c < n; c++)
             for (int p = c * CHUNK; p < st->light_paths && p < (c + 1) * CHUNK; p++)

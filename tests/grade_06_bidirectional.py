@@ -1,0 +1,302 @@
+"""Grading chapter 6 (bidirectional methods) against closed forms and the other methods.
+
+Truth comes from outside the chapter: the furnace (L = Le / (1 - rho), and Le rho^k for the
+term K^k E), the path tracer (chapter 4: every strategy's image must agree with it, unweighted
+and weighted), radiosity (chapter 3) on a diffuse scene, chapter 5's progressive photon mapping
+(what --connect off must equal in expectation, blur and all), and the chapter's own --check
+(on random paths, the weights of all strategies add to 1, and each join carries the path
+integral's integrand over the density that (R14) says it was drawn with).
+
+Standard errors.  Pixels of one render are not independent (light tracing adds a light path to
+any pixel; merging reads every light vertex of the pass), so image statistics come from R
+renders with different seeds: the standard error of their mean is their spread over sqrt(R),
+with R - 1 degrees of freedom.  A comparison of two methods adds the two squared standard errors
+and keeps the smaller degrees of freedom.  Tolerances are t_bound(df, m) standard errors: the
+Student's t quantile at CRITERION_ALPHA / m for the m comparisons of a test.  Each test also asks
+for its standard errors to be small, so that a tolerance cannot hide a real error.
+
+The comparisons are over tiles of the image (2 x 2 or 4 x 4 of them, each channel), not over
+surfaces: the chapter reports no per-surface means or probes (its estimates are tied to the
+camera).
+"""
+import math
+import os
+
+from lib import CRITERION_ALPHA, ROOT, check_bad_input, check_thread_independence, finite_image, t_bound
+from lib import CHANNELS, expect, expect_at_most, expect_estimate
+
+CHAPTER = "06_bidirectional"
+RENDERS = 16  # seeds behind every image mean: 15 degrees of freedom
+
+
+def furnace_scene(ctx, rho, emission=1.0, name="furnace"):
+    """scenes/furnace-pt.scene with wall material `emitter E E E diffuse rho rho rho`."""
+    with open(os.path.join(ROOT, "scenes", "furnace-pt.scene")) as f:
+        lines = f.read().splitlines()
+    text = [f"material wall emitter {emission} {emission} {emission}  diffuse {rho} {rho} {rho}"
+            if line.startswith("material wall") else line for line in lines]
+    return ctx.write(f"{name}.scene", "\n".join(text) + "\n")
+
+
+# An open stage: a floor, a back wall 0.3 above it, a light above both, nothing touching.  An
+# unweighted join of two surface points (G ~ 1 / d^2) has infinite variance where surfaces meet (a
+# room's corners); here d is bounded below, so every single strategy has a finite variance, and the
+# light is large enough for the strategies (0, t) (the eye subpath hits it by chance).
+STAGE = """\
+camera eye 0 1.2 -4  look 0 0.8 1  up 0 1 0  fov 50
+background 0 0 0
+material white diffuse 0.8 0.8 0.8
+material red diffuse 0.8 0.3 0.2
+material light emitter 4 4 4
+quad floor white  -2 0 -2  -2 0 2  2 0 2  2 0 -2
+quad back red  2 0.3 2  -2 0.3 2  -2 2.3 2  2 2.3 2
+quad light light  -0.75 2.5 -0.75  0.75 2.5 -0.75  0.75 2.5 0.75  -0.75 2.5 0.75
+"""
+
+
+def mean_and_error(values):
+    n = len(values)
+    m = sum(values) / n
+    return m, math.sqrt(sum((v - m) ** 2 for v in values) / (n - 1) / n)
+
+
+def tile_values(img, tiles):
+    """{(tile x, tile y, channel): mean} over a tiles x tiles grid of the image."""
+    w, h = img.width // tiles, img.height // tiles
+    out = {}
+    for ty in range(tiles):
+        for tx in range(tiles):
+            pixels = [img.at(x, y) for y in range(ty * h, (ty + 1) * h) for x in range(tx * w, (tx + 1) * w)]
+            for c in range(3):
+                out[(tx, ty, c)] = sum(p[c] for p in pixels) / len(pixels)
+    return out
+
+
+def tile_estimates(ctx, chapter, scene, args, name, renders=RENDERS, tiles=2):
+    """{tile: (mean, standard error)} over `renders` seeds; and the first image's command.  One thread:
+    the renders are small, and an image does not depend on the thread count (a test checks it)."""
+    images = [ctx.render(chapter, scene, "--seed", 100 + i, "--threads", 1, *args, name=f"{name}{i}")[0]
+              for i in range(renders)]
+    for img in images:
+        expect(finite_image(img), f"{chapter} {' '.join(map(str, args))}: the image has non-finite pixels",
+               command=img.command)
+    per = [tile_values(img, tiles) for img in images]
+    return {key: mean_and_error([p[key] for p in per]) for key in per[0]}, images[0].command
+
+
+def channel_means(tiles):
+    """The image's mean per channel, from the tile means of tile_values or tile_estimates."""
+    value = {key: v[0] if isinstance(v, tuple) else v for key, v in tiles.items()}
+    return [sum(v for (tx, ty, c), v in value.items() if c == channel) / (len(value) // 3) for channel in range(3)]
+
+
+def expect_tiles_agree(quantity, got, reference, comparisons, by, max_relative_se, command, df=RENDERS - 1):
+    """Each tile mean of `got` within t_bound(df, comparisons) combined standard errors of `reference`'s,
+    each standard error below max_relative_se of the image's mean in that channel."""
+    bound, scale = t_bound(df, comparisons), channel_means(reference)
+    for key, (mean, se) in got.items():
+        ref_mean, ref_se = reference[key]
+        tx, ty, c = key
+        expect_estimate(quantity, mean, ref_mean, math.hypot(se, ref_se), bound, max_relative_se * scale[c],
+                        where=f"in tile ({tx}, {ty}), {CHANNELS[c]}", by=by, command=command)
+
+
+# ---- bad input ----------------------------------------------------------------------------------
+
+def test_bad_options_exit_2(ctx):
+    """Values out of range: one argv:N line, exit 2, no output."""
+    for args in (["--method", "photon"], ["--merge", "maybe"], ["--connect"], ["--strategy", "1"],
+                 ["--strategy", "-1,2"], ["--strategy", "1,2,3"], ["--strategy", "0,1"], ["--strategy", "1,99"],
+                 ["--radius", "0"], ["--radius", "nan"], ["--alpha", "0"], ["--alpha", "1.5"], ["--check", "-1"],
+                 ["--bounces", "3:2"]):
+        check_bad_input(ctx, CHAPTER, ["scenes/cornell.scene", "--size", "8x8", *args])
+
+
+def test_pinhole_and_specular_are_explained_not_nan(ctx):
+    """The camera is a pinhole: strategy (s, 0), a light path hitting it by chance, cannot happen.
+    --strategy 2,0 says so in a warning and renders black (not NaN); light tracing alone says it
+    cannot see mirrors and glass."""
+    img, stats = ctx.render(CHAPTER, "scenes/cornell.scene", "--size", "8x8", "--spp", 2, "--strategy", "2,0")
+    expect(finite_image(img) and max(max(p) for p in img.pixels) == 0.0 and stats["nonfinite_samples"] == 0,
+           "--strategy 2,0 (a light path that hits the pinhole): expected a black, finite image")
+    r = ctx.run(CHAPTER, "scenes/cornell.scene", "--size", "8x8", "--spp", 1, "--strategy", "2,0", "--quiet",
+                "--out", ctx.path("s20.pfm"))
+    expect("pinhole" in r.stderr and "warning" in r.stderr,
+           f"--strategy 2,0: expected a warning that names the pinhole camera, got {r.stderr.strip()!r}")
+    r = ctx.run(CHAPTER, "scenes/cornell-spheres.scene", "--size", "8x8", "--spp", 1, "--method", "light",
+                "--quiet", "--out", ctx.path("light.pfm"))
+    expect("mirror" in r.stderr and "warning" in r.stderr,
+           f"--method light on a scene with a mirror: expected a warning, got {r.stderr.strip()!r}")
+
+
+# ---- the furnace ------------------------------------------------------------------------------
+
+def test_furnace_every_method(ctx):
+    """The furnace with rho = 0.5, Le = 1: L = 2 everywhere, and the term K^2 E alone (--bounces 2:2)
+    is 0.25.  Light tracing, BDPT, VCM and --connect off (progressive photon mapping: exact in the
+    furnace, where the light is uniform, on the central half of the image, more than the radius
+    from the walls' edges).  Image means over RENDERS seeds (the central half), within
+    t_bound(RENDERS - 1, 5) standard errors of the closed form, each below 1 %."""
+    scene = furnace_scene(ctx, 0.5)
+    cases = [("light", ["--method", "light", "--spp", 48], 2.0), ("bdpt", ["--method", "bdpt"], 2.0), ("vcm", [], 2.0),
+             ("ppm", ["--connect", "off", "--radius", 0.4, "--spp", 8], 2.0), ("bdpt 2:2", ["--method", "bdpt", "--bounces", "2:2", "--spp", 12], 0.25)]
+    bound = t_bound(RENDERS - 1, len(cases))
+    for label, args, expected in cases:
+        values = []
+        for i in range(RENDERS):
+            img, stats = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", 4, "--seed", 10 + i, "--threads", 1,
+                                    *args,
+                                    name=f"f{i}")
+            centre = [img.at(x, y)[0] for y in range(4, 12) for x in range(4, 12)]
+            values.append(sum(centre) / len(centre))
+        mean, se = mean_and_error(values)
+        expect_estimate("furnace radiance (central half)", mean, expected, se, bound, 0.01 * expected,
+                        where=f"by {label}", by="Le rho^k summed over the kept terms (R6)", command=img.command)
+
+
+# ---- the chapter's self-check: weights add to 1, densities are the samplers' -------------------------
+
+def test_weights_add_to_one_and_densities_match_sampling(ctx):
+    """--check N draws N pairs of subpaths (no Russian roulette, so a subpath's weight is exactly the
+    product of f cos / p) and makes every join (s, t).  For each, the power-heuristic weights of all
+    the strategies the method has for that path must add to 1 (|sum - 1| < 1e-9), and its value must
+    be the path integral's integrand over the density (R14) gives it (|C p / f - 1| < 1e-4; paths
+    through mirrors or glass are skipped there, f being a delta).  The Cornell box (diffuse), the
+    point light with the Phong floor, the spheres (mirror, glass); each method's set of strategies."""
+    runs = [("scenes/cornell.scene", []), ("scenes/cornell-point.scene", []),
+            ("scenes/cornell-spheres.scene", []), ("scenes/cornell-spheres.scene", ["--method", "bdpt"]),
+            ("scenes/cornell.scene", ["--method", "light"])]
+    for scene, args in runs:
+        _, stats = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", 1, "--bounces", "0:5", "--check", 1500,
+                              *args, name="check")
+        check = stats["check"]
+        where = f"on {os.path.basename(scene)} {' '.join(args)}".rstrip()
+        expect(check["connections"] > 1000, f"--check 1500 {where}: {check['connections']} joins tested, "
+                                            "expected more than 1000")
+        expect_at_most("largest |sum of the weights - 1|", check["worst_weight_sum_error"], 1e-9, where=where,
+                       by="1e-9: the weights of a path over all strategies add to 1 (R15)")
+        expect_at_most("largest |C p / f - 1|", check["worst_f_over_p_error"], 1e-4, where=where,
+                       by="1e-4: a join carries (R13)'s integrand over (R14)'s density")
+
+
+# ---- agreement with the other methods -----------------------------------------------------------
+
+def test_agrees_with_path_tracing_on_cornell_box(ctx):
+    """scenes/cornell.scene at 16 x 16: light tracing alone, BDPT and VCM against chapter 4 (MIS), the
+    means of 2 x 2 tiles (each channel) over RENDERS seeds each, within t_bound(RENDERS - 1, 36)
+    combined standard errors; each standard error below 4 % of the image's mean.  VCM's merging is
+    biased by its radius, but weighted against the joins it is a small part of a diffuse scene."""
+    scene = "scenes/cornell.scene"
+    reference, _ = tile_estimates(ctx, "04_pathtrace", scene, ["--size", "16x16", "--spp", 64,
+                                                               "--probe-samples", 32], "pt")
+    for method, spp in (("light", 16), ("bdpt", 8), ("vcm", 8)):
+        got, command = tile_estimates(ctx, CHAPTER, scene, ["--size", "16x16", "--spp", spp, "--method", method],
+                                      method)
+        expect_tiles_agree(f"mean radiance by --method {method}", got, reference, 36, "chapter 4's (MIS)", 0.04,
+                           command)
+
+
+def test_agrees_with_radiosity_on_diffuse_box(ctx):
+    """A diffuse room (the Cornell box without its blocks, 16 x 16): BDPT's tile means (4 x 4 tiles,
+    RENDERS seeds) against build/03_radiosity's image at 60 and 30 mm patches, both --bounces 1:
+    (the light seen directly would compare the two images' antialiasing of its edges, not the light
+    transport).  The bound is grade_04's: radiosity's discretisation error at 30 mm is at most
+    2 |I_60 - I_30| per tile, plus t_bound(RENDERS - 1, 48) standard errors of BDPT's mean (each
+    below 4 % of the image's mean)."""
+    text = open(os.path.join(ROOT, "scenes", "cornell.scene")).read()
+    room = ctx.write("room.scene", "\n".join(line for line in text.splitlines()
+                                             if not line.startswith(("quad short", "quad tall", "probe"))) + "\n")
+    radiosity = {}
+    for h in (60, 30):
+        img, _ = ctx.render("03_radiosity", room, "--size", "16x16", "--spp", 4, "--bounces", "1:", "--patch-size",
+                            h, "--tol", "1e-7", "--iterations", 10000, name=f"radiosity{h}")
+        radiosity[h] = tile_values(img, 4)
+    got, command = tile_estimates(ctx, CHAPTER, room, ["--size", "16x16", "--spp", 8, "--method", "bdpt",
+                                                       "--bounces", "1:"], "bd", tiles=4)
+    bound, scale = t_bound(RENDERS - 1, 48), channel_means(radiosity[30])
+    for key, (mean, se) in got.items():
+        r25, r50 = radiosity[30][key], radiosity[60][key]
+        tx, ty, c = key
+        expect_estimate("mean radiance", mean, r25, se, bound + 2 * abs(r50 - r25) / max(se, 1e-12),
+                        0.04 * scale[c], where=f"in tile ({tx}, {ty}), {CHANNELS[c]}",
+                        by=f"radiosity at 30 mm patches (60 mm: {r50:.5g}), within twice their difference + "
+                           f"{bound:.2f} standard errors", command=command)
+
+
+def test_each_strategy_alone_is_unbiased(ctx):
+    """A path of k edges is the term K^(k-1) E.  For k = 3 every strategy (s, t) with s + t = 4, each
+    alone and unweighted (--strategy s,t), is an unbiased estimate of it: its 2 x 2 tile means agree
+    with chapter 4's --bounces 2:2 (STAGE, RENDERS seeds each), within
+    t_bound(RENDERS - 1, 48) combined standard errors, each below 6 %.  And k = 2 for (0, 3), (1, 2), (2, 1)."""
+    scene = ctx.write("stage.scene", STAGE)
+    for k, strategies, spp in ((3, ((0, 4), (1, 3), (2, 2), (3, 1)), (256, 8, 8, 8)),
+                               (2, ((0, 3), (1, 2), (2, 1)), (64, 8, 8))):
+        window = f"{k - 1}:{k - 1}"
+        reference, _ = tile_estimates(ctx, "04_pathtrace", scene, ["--size", "16x16", "--spp", 64, "--bounces",
+                                                                   window, "--probe-samples", 32], f"pt{k}-")
+        for (s, t), n in zip(strategies, spp):
+            got, command = tile_estimates(ctx, CHAPTER, scene, ["--size", "16x16", "--spp", n, "--bounces", window,
+                                                                "--strategy", f"{s},{t}"], f"s{s}t{t}-")
+            expect_tiles_agree(f"mean radiance of strategy ({s},{t}) alone", got, reference, 84,
+                               f"chapter 4's --bounces {window} (the same term K^{k - 1} E)", 0.06, command)
+
+
+def test_merge_off_is_bdpt_and_connect_off_is_progressive_photon_mapping(ctx):
+    """--method vcm --merge off is BDPT: the same image, byte for byte.  --connect off is chapter 5's
+    --maps global (progressive photon mapping: the same photons per pass, one per pixel, the same
+    radius and alpha, so the same blur): on cornell-spheres (caustics) their 2 x 2 tile means over
+    RENDERS seeds agree within t_bound(RENDERS - 1, 12) combined standard errors, each below 5 %."""
+    outputs = []
+    for args in (["--method", "bdpt"], ["--merge", "off"]):
+        pfm = ctx.path("same.pfm")
+        r = ctx.run(CHAPTER, "scenes/cornell-spheres.scene", "--size", "12x12", "--spp", 2, "--quiet", "--out", pfm,
+                    *args)
+        expect(r.returncode == 0, f"{CHAPTER} {' '.join(args)}: exit {r.returncode}: {r.stderr.strip()}")
+        with open(pfm, "rb") as f:
+            outputs.append(f.read())
+    expect(outputs[0] == outputs[1], "--merge off and --method bdpt gave different images; expected the same bytes")
+    scene, common = "scenes/cornell-spheres.scene", ["--size", "32x32", "--spp", 4, "--radius", 15, "--alpha", 0.7]
+    reference, _ = tile_estimates(ctx, "05_photonmap", scene, common + ["--maps", "global", "--photons", 1024,
+                                                                       "--probe-photons", 32], "pm")
+    got, command = tile_estimates(ctx, CHAPTER, scene, common + ["--connect", "off"], "ppm")
+    expect_tiles_agree("mean radiance by --connect off", got, reference, 12, "chapter 5's --maps global", 0.05,
+                       command)
+
+
+# ---- plumbing -----------------------------------------------------------------------------------
+
+def test_threads_give_identical_bytes(ctx):
+    """Light subpaths are stored and added in a fixed order: the image does not depend on the thread count."""
+    check_thread_independence(ctx, CHAPTER, "scenes/cornell-spheres.scene", "--size", "24x24", "--spp", 3)
+
+
+def test_extreme_scales_stay_finite(ctx):
+    """The Cornell box scaled by 1e-60 and 1e60 (densities per unit area of 1e120 and 1e-120): every
+    pixel finite, no sample rejected as non-finite, and the image mean within 1 % of the box's at
+    scale 1 with the same seed (the same paths)."""
+    text = open(os.path.join(ROOT, "scenes", "cornell.scene")).read().splitlines()
+
+    def scaled(line, factor):
+        """Positions times factor: a quad's or triangle's numbers, a probe's, the camera's eye and look."""
+        words, out, last = line.split(), [], ""
+        for i, w in enumerate(words):
+            scale = i >= {"quad": 3, "triangle": 3, "probe": 2}.get(words[0], 1 << 30) or last in ("eye", "look")
+            try:
+                out.append(repr(float(w) * factor) if scale else w)
+            except ValueError:
+                out.append(w)
+            last = w if not w[-1].isdigit() else last
+        return " ".join(out)
+
+    means = {}
+    for factor in (1.0, 1e-60, 1e60):
+        scene = ctx.write(f"scaled{factor:g}.scene", "\n".join(scaled(line, factor) for line in text) + "\n")
+        img, stats = ctx.render(CHAPTER, scene, "--size", "12x12", "--spp", 4, "--radius", 5 * factor,
+                                name="scaled")
+        expect(finite_image(img) and stats["nonfinite_samples"] == 0,
+               f"the Cornell box scaled by {factor:g}: non-finite pixels or samples", command=img.command)
+        means[factor] = sum(p[0] for p in img.pixels) / len(img.pixels)
+    for factor in (1e-60, 1e60):
+        expect(abs(means[factor] - means[1.0]) <= 0.01 * means[1.0],
+               f"image mean of the Cornell box scaled by {factor:g}: {means[factor]:.6g}, expected "
+               f"{means[1.0]:.6g} (scale 1) within 1 %")
