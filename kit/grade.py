@@ -336,12 +336,67 @@ def build(src, chapters, units, opts):
     return result
 
 
+def test_includes_submitted(test, chapters):
+    """Whether tests/TEST.c includes a file the submission hands in (common/optics.h): then the
+    submission's code runs in the test's process and could print its "ok" lines itself."""
+    r = subprocess.run(["cc", "-std=c17", "-MM", "-Icommon", f"tests/{test}.c"], cwd=ROOT, capture_output=True,
+                       text=True)
+    return bool(set(r.stdout.replace("\\\n", " ").split()) & set(submitted_files(chapters)))
+
+
+def trusted_sites(test, work, timeout):
+    """The "site" lines (tests/check.h) of tests/TEST.c built from this tree (the solution's
+    headers) and run here, outside the sandbox: the values the submission's run must reproduce.
+    None where it does not build alone (a test that needs common/'s objects)."""
+    exe = os.path.join(work, "trusted", test)
+    os.makedirs(os.path.dirname(exe), exist_ok=True)
+    built = subprocess.run(["cc", "-std=c17", "-O2", "-D_POSIX_C_SOURCE=200809L", "-Icommon", f"tests/{test}.c",
+                            "-o", exe, "-lm"], cwd=ROOT, capture_output=True, text=True)
+    if built.returncode != 0:
+        return None
+    code, out, _ = run_limited([exe], ROOT, timeout, 1024)
+    return parse_sites(out) if code == 0 else None
+
+
+def parse_sites(out):
+    """{"file:line": (checks, held, sum of values, sum of tolerances)} from a test's stdout."""
+    sites = {}
+    for line in out.splitlines():
+        words = line.split()
+        if len(words) == 6 and words[0] == "site":
+            try:
+                sites[words[1]] = (int(words[2]), int(words[3]), float(words[4]), float(words[5]))
+            except ValueError:
+                continue
+    return sites
+
+
+def sites_that_differ(mine, solution):
+    """The check sites whose counts or values differ from the solution's beyond what the checks
+    allow (each value within its tolerance of the expected: two such sums differ by at most twice
+    the tolerances' sum)."""
+    differ = []
+    for where, (checks, held, values, tolerances) in sorted(solution.items()):
+        got = mine.get(where)
+        if got is None or got[0] != checks or got[1] != held or \
+                not abs(got[2] - values) <= 2 * tolerances + 1e-12 * max(1.0, abs(values)):
+            differ.append(where)
+    return differ
+
+
 def run_unit(src, c, opts):
-    """(passed, message, measured): every case of the C unit test, against the submission's common/."""
+    """(passed, message, measured): every case of the C unit test, against the submission's common/;
+    where the test holds submitted code, the values behind its checks against the solution's."""
     exe = os.path.join(src, "build", "tests", c["test"])
     code, out, err, stopped = run_submission([exe], src, opts, opts["timeout"])
     if code is None:
         return False, f"stopped: {stopped}", []
+    if c.get("trusted_sites"):
+        differ = sites_that_differ(parse_sites(out), c["trusted_sites"])
+        if differ:
+            return False, (f"the values behind {len(differ)} of the test's {len(c['trusted_sites'])} checks differ "
+                           f"from the solution's run of the same test ({', '.join(differ[:4])}): its \"ok\" lines "
+                           "are not what the checks computed"), []
     failed = [ln[5:] for ln in out.splitlines() if ln.startswith("FAIL ")]
     passed = [ln for ln in out.splitlines() if ln.startswith("ok   ")]
     measured = [{"quantity": "cases passed", "measured": len(passed), "expected": len(passed) + len(failed),
@@ -677,6 +732,8 @@ def main(argv):
                     row["message"] = f"tests/{c['test']}.c does not compile against the submission's common/:\n" + \
                         built[f"build/tests/{c['test']}"][:1500]
                 else:
+                    if test_includes_submitted(c["test"], chapters):
+                        c = dict(c, trusted_sites=trusted_sites(c["test"], work, opts["timeout"]) or {})
                     row["passed"], row["message"], row["measured"] = run_unit(src, c, opts)
                     row["commands"] = [f"build/tests/{c['test']}"]
             else:

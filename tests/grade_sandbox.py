@@ -261,6 +261,45 @@ def test_a_secret_included_at_build_time_stays_secret(ctx):
     assert SECRET_LINE not in json.dumps(report), "a line of the instructor's rubric reached the report"
 
 
+def test_unit_test_ok_lines_forged_from_a_submitted_header_fail(ctx):
+    """common/optics.h is handed in (chapter 2's exercises) and included by tests/test_optics.c, so
+    its code runs in the unit test's process: a constructor there can print every "ok" line and
+    exit.  The grader compares the values behind the checks with the solution's run (tests/check.h
+    "site" lines): the forgery fails, the solution's header passes."""
+    if "asan" in ctx.build:
+        return
+    sys.path.insert(0, os.path.join(ROOT, "kit"))
+    import markers
+    with open(SECRET) as f:
+        rub = json.load(f)
+    rub["criteria"] = [c for c in rub["criteria"] if c["name"] == "unit tests test_optics" and
+                       c["chapter"] == "02_whitted"]
+    rubric = ctx.write("rubric-optics.json", json.dumps(rub))
+    with open(os.path.join(ROOT, "tests", "test_optics.c")) as f:
+        names = re.findall(r"RUN_TEST\((\w+)\)", f.read())
+    with open(os.path.join(ROOT, "common", "optics.h")) as f:
+        header = f.read()
+    stubbed = markers.stub_file(header, [e for e in markers.all_exercises(ROOT) if e.file == "common/optics.h"])
+    lines = "".join(f'puts("ok   {n}");' for n in names)
+    forged = stubbed.replace("#endif", "#include <stdio.h>\n#include <stdlib.h>\n__attribute__((constructor)) "
+                             "static void forge(void) { " + lines + " exit(0); }\n#endif")
+    results = {}
+    for name, text in (("forged", forged), ("solution", header)):
+        top = ctx.path(name)
+        for rel in ("chapters/02_whitted.c", "common/optics.h"):
+            os.makedirs(os.path.dirname(os.path.join(top, rel)), exist_ok=True)
+            with open(os.path.join(top, rel), "w") as f:
+                f.write(text if rel == "common/optics.h" else open(os.path.join(ROOT, rel)).read())
+        report = ctx.path(name + "-report")
+        r = subprocess.run(GRADE + [top, "--report", report, "--chapters", "02_whitted", "--rubric", rubric],
+                           cwd=ROOT, capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, f"{name}: exit {r.returncode}: {r.stderr[-800:]}"
+        results[name] = read_report(report)["criteria"][0]
+    assert results["solution"]["passed"], f"the solution's optics.h: {results['solution']['message']}"
+    assert not results["forged"]["passed"] and "values behind" in results["forged"]["message"], \
+        f"forged ok lines were taken: {results['forged']['message']}"
+
+
 def test_the_graded_tree_lends_no_later_chapter_solution(ctx):
     """What the sandbox can read is the graded tree: for chapter 1 it holds no answer of a later
     chapter (a submission could print one into its report), but chapter 4's grading lends chapter
