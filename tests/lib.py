@@ -26,7 +26,7 @@ import stats as kit_stats  # noqa: E402  (kit/stats.py: Student's t, F, Welch; s
 # README.md states and ASSIGNMENT.md computes, kept below the 1 % the kit promises (the
 # instructor's calibration measures it).
 CRITERION_ALPHA = 0.0002
-# Probes' and surfaces' standard errors come from 32 batch means (common/walk_stats.h WALK_BATCHES,
+# Probes' and surfaces' standard errors come from 32 batch means (common/render.h PROBE_BATCHES,
 # chapters/01_local.c): 31 degrees of freedom.
 BATCH_DF = 31
 
