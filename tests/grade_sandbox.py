@@ -200,6 +200,34 @@ def test_hostile_submission_is_contained(ctx):
         f"the grading left {sorted(tmp_after - tmp_before)} {sorted(groups_after - groups_before)}"
 
 
+def test_the_fallback_sandbox_contains_the_hostile_submission(ctx):
+    """--sandbox user (Gradescope's Docker: no user namespaces) hides no file, so what a submission
+    may not read must be unreadable to others there (the archive's set-up does it); the rest holds
+    as under bubblewrap: no forged result, no classmate's report changed, nothing left running."""
+    if "asan" in ctx.build:
+        return
+    victim_dir = ctx.path("fallback-reports")
+    os.makedirs(victim_dir)
+    victim = os.path.join(victim_dir, "report.json")
+    with open(victim, "w") as f:
+        f.write('{"total": 100}')
+    os.chmod(victim, 0o644)
+    hostile = submission(ctx, "fallback-hostile", hostile_constructor(victim))
+    report_dir = ctx.path("fallback-report")
+    r = grade(ctx, hostile, report_dir, "--sandbox", "user")
+    time.sleep(6)  # the detached process would have written by now
+    assert r.returncode == 0, f"grading with --sandbox user: exit {r.returncode}: {r.stderr[-800:]}"
+    report = read_report(report_dir)
+    row = report["criteria"][0]
+    assert not row["passed"] and report["total"] == 0 and row["message"] != "forged", row
+    assert "a separate user" in report["sandbox"], report["sandbox"]
+    assert "WROTE" not in json.dumps(report), f"the submission wrote a grader's file: {row['message'][:600]}"
+    with open(victim) as f:
+        assert f.read() == '{"total": 100}', "the classmate's report changed"
+    left = subprocess.run(["pgrep", "-f", "sleep 7777"], capture_output=True, text=True).stdout.split()
+    assert not left, f"processes of the hostile submission outlived its grading: {left}"
+
+
 def test_caps_stop_fork_bombs_memory_and_huge_files(ctx):
     """A fork bomb, a 2 GiB file, 3 GiB of memory: the sandbox's caps (processes, file size,
     memory) stop each, the criterion fails and says which cap stopped the run."""
