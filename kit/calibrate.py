@@ -797,7 +797,7 @@ def grading_time(chapters, rounds, jobs, out_file):
     finally:
         shutil.rmtree(work, ignore_errors=True)
     median = {m: statistics.median(r["seconds"] for r in rows if r["mode"] == m) for m in ("sandbox", "unsafe")}
-    print(f"median: sandboxed {median['sandbox']} s, unsafe {median['unsafe']} s; "
+    print(f"median: sandboxed {median['sandbox']:.1f} s, unsafe {median['unsafe']:.1f} s; "
           f"ratio {median['sandbox'] / median['unsafe']:.3f} ({' '.join(chapters)}, {rounds} rounds, jobs {jobs})")
     out_file = out_file or os.path.join(ROOT, "out", "calibration", "grading_time.csv")
     os.makedirs(os.path.dirname(out_file), exist_ok=True)
