@@ -1,19 +1,18 @@
 /* 05_photonmap.c — Lecture 5: photon mapping.
  *
- * A path tracer (chapter 4) walks from the eye and finds the light by
- * chance.  Light that reaches a diffuse floor through a glass ball (a
- * caustic: light -> specular -> diffuse -> eye, "L S+ D E") can only be found
- * by a walk that leaves the floor in exactly the direction the ball focuses
- * the light from: the noisiest part of chapter 4's image.  Photon mapping
+ * A path tracer (chapter 4) walks from the eye and finds the light by chance.  Light that
+ * reaches a diffuse floor through a glass ball (a caustic: light -> specular -> diffuse -> eye,
+ * "L S+ D E") can only be found by a walk that leaves the floor in exactly the direction the
+ * ball focuses the light from: the noisiest part of chapter 4's image.  Photon mapping
  * (Jensen 1996) turns the walk around:
  *
- *   1. photon pass: shoot photons from the lights, each carrying a share of
- *      the emitted power (flux), bounce them through mirrors, glass and
- *      diffuse surfaces (Russian roulette decides when they are absorbed)
- *      and store where they land on non-specular surfaces;
- *   2. eye pass: follow camera rays through mirrors and glass to the first
- *      non-specular point x and estimate the light reflected there from the
- *      photons near x, by density estimation:
+ *   1. photon pass: shoot photons from the lights, each carrying a share of the emitted
+ *      power (flux), bounce them through mirrors, glass and diffuse surfaces (Russian
+ *      roulette decides when they are absorbed) and store where they land on non-specular
+ *      surfaces;
+ *   2. eye pass: follow camera rays through mirrors and glass to the first non-specular
+ *      point x and estimate the light reflected there from the photons near x, by density
+ *      estimation:
  *
  *   (R11)  L_r(x, w_o) ~= sum over photons p within r of x of f(x, w_p, w_o) Phi_p / (pi r^2)
  *
@@ -28,19 +27,16 @@
  *                    from the caustic map, the rest from the global map, at x
  *                    or after one more bounce (--gather N: final gathering).
  *
- * Progressive photon mapping (Hachisuka, Ogaki & Jensen 2008; in the
- * memoryless form of Knaus & Zwicker 2011): every pass shoots a new photon
- * map and shrinks the radius,
+ * Progressive photon mapping (Hachisuka, Ogaki & Jensen 2008; in the memoryless form of
+ * Knaus & Zwicker 2011): every pass shoots a new photon map and shrinks the radius,
  *
  *   (R12)  r_{i+1}^2 = r_i^2 (i + alpha) / (i + 1),   0 < alpha < 1,
  *
- * slowly enough that the photons per disc still grow, fast enough that the
- * blur vanishes: the average of the passes converges to the true image.
- * (alpha = 1 keeps the radius: classic photon mapping, whose bias stays.)
+ * slowly enough that the photons per disc still grow, fast enough that the blur vanishes: the average
+ * of the passes converges to the true image.  (alpha = 1 keeps the radius: classic photon mapping, whose bias stays.)
  *
- * The materials (f, drawing a direction like f cos, mirrors and glass),
- * Russian roulette and direct light by light sampling (R9) are chapter 4's,
- * through chapters/pathtrace_model.h: the same functions, written once.
+ * The materials (f, drawing a direction like f cos, mirrors and glass), Russian roulette and direct
+ * light by light sampling (R9) are chapter 4's, through chapters/pathtrace_model.h: written once.
  *
  * Sections: state, options · lights, photon emission · the photon pass · density
  * estimation (R11) · eye pass · probes · passes (R12), main.
@@ -48,9 +44,10 @@
 #include <stdlib.h>
 
 #include "pathtrace_model.h" /* chapter 4's: vertex, bsdf_f, scatter, survives_roulette, next_event */
-#include "photon_map.h"
+#include "photon_stats.h"    /* and photon_map.h: the photon, the maps, the tally */
 #include "render.h"
 #include "sampling.h"
+#include "walk_stats.h" /* walk_probe: batches of one-sample probe estimates */
 
 /* ---- state and options ------------------------------------------------------------ */
 
@@ -79,7 +76,7 @@ typedef struct {
     photon_tally tally;         /* stored power over all passes, for the stats */
 } photonmap_state;
 
-enum { COUNT_LOOKUPS, COUNT_PHOTONS_VISITED, COUNT_SHADOW_RAYS, COUNT_WALK_RAYS };
+enum { COUNT_LOOKUPS, COUNT_PHOTONS_VISITED, COUNT_SHADOW_RAYS, COUNT_WALK_RAYS, COUNT_PROBE_RAYS };
 
 #define STATE(field) offsetof(photonmap_state, field)
 static const option PHOTONMAP_OPTIONS[] = {
@@ -96,7 +93,7 @@ static const option PHOTONMAP_OPTIONS[] = {
     {"--nearest", "K", OPTION_INT, STATE(nearest), .min = 0, .max = PHOTON_GRID_MAX_NEAREST, .default_text = "0",
      .help = "use the K nearest photons within the radius (0: all photons within it)"},
     {"--probe-photons", "N", OPTION_INT, STATE(probe_photons), .min = PHOTON_BATCHES, .max = 1 << 28,
-     .default_text = "262144", .help = "photons per probe estimate, in 32 batches"},
+     .default_text = "262144", .help = "light samples and photons per probe estimate, in 32 batches"},
     {0},
 };
 #undef STATE
@@ -118,21 +115,21 @@ static const light_source *pick_light(const photonmap_state *st, rng *g)
     return &st->lights[st->light_count - 1];
 }
 
-/* A photon leaving a light: a point and a direction drawn in proportion to
- * the emitted power (uniform over the sphere for a point light; uniform over
- * the area and cosine-weighted for a Lambertian emitter), so every photon
- * carries the same share Phi_p = Phi_light / (probability * photons) of (R11). [exercise 5.1] */
-static ray emit_photon(const photonmap_state *st, const scene *s, rng *g, int photons, vec3 *power)
+/* A photon leaving a light: a point and a direction drawn in proportion to the emitted power (uniform
+ * over the sphere for a point light; uniform over the area and cosine-weighted for a Lambertian emitter,
+ * whose normal there goes to *normal), so every photon carries the same share
+ * Phi_p = Phi_light / (probability * photons) of (R11). [exercise 5.1] */
+static ray emit_photon(const photonmap_state *st, const scene *s, rng *g, int photons, vec3 *power, vec3 *normal)
 {
     const light_source *light = pick_light(st, g);
     *power = v3_scale(light->power, 1.0 / (light->probability * photons));
     double u1 = rng_uniform(g), u2 = rng_uniform(g);
     if (light->point_light >= 0)
         return (ray){s->lights[light->point_light].position, uniform_sample_sphere(u1, u2)};
-    vec3 y, n;
-    surface_sample_point(s, light->surface, u1, u2, rng_uniform(g), &y, &n);
-    vec3 w = onb_to_world(onb_from_normal(n), cosine_sample_hemisphere(rng_uniform(g), rng_uniform(g)));
-    return (ray){scene_offset_origin(s, y, n, w), w};
+    vec3 y;
+    surface_sample_point(s, light->surface, u1, u2, rng_uniform(g), &y, normal);
+    vec3 w = onb_to_world(onb_from_normal(*normal), cosine_sample_hemisphere(rng_uniform(g), rng_uniform(g)));
+    return (ray){scene_offset_origin(s, y, *normal, w), w};
 }
 
 /* ---- the photon pass -------------------------------------------------------------------------- */
@@ -148,24 +145,45 @@ vec3 as_flux(const vertex *v, vec3 radiance_weight, vec3 w_i)
     return v3_scale(radiance_weight, n_t_over_n_i * n_t_over_n_i);
 }
 
+/* What one photon tells a probe, a sensor at x (not a surface: photons fly past it).  Its irradiance
+ * E(x) = Int L cos dw (R2), split by the last vertex x' of the light's path before x:
+ *   - a light, or a non-specular surface where a photon lands: photons sample the light leaving the
+ *     lights and arriving at surfaces (R11: flux per area), so the sum of f(x', w_p, x' -> x) Phi_p
+ *     G(x, x') V(x, x') (R8) over them estimates (R9)'s integral over A' with no radius: no blur, no
+ *     bias (a disc near a crease would pass behind the wall).  At a light (v NULL) f is the share of
+ *     its power per steradian: cos / pi (Lambertian emitter), 1 / (4 pi) (point light, n zero);
+ *   - a mirror or glass, a delta no shadow ray can aim at x: the photon's flux through a disc of the
+ *     eye pass's radius around x (R11, f = 1), blurred like the image's caustics, shrinking by (R12). */
+static vec3 light_sent_to_probe(const scene *s, const probe *p, vec3 from, vec3 n, const vertex *v, vec3 power)
+{
+    double d = v3_length(v3_sub(p->position, from));
+    vec3 w = v3_scale(v3_sub(p->position, from), 1.0 / d);
+    double cos_probe = -v3_dot(w, p->normal), cos_from = v3_dot(n, n) > 0.0 ? v3_dot(w, n) : 1.0;
+    if (!(cos_probe > 0.0 && cos_from > 0.0) || scene_occluded(s, from, p->position)) /* V(x, x') */
+        return v3_splat(0.0);
+    vec3 f = v ? bsdf_f(v, w) : v3_splat(v3_dot(n, n) > 0.0 ? 1.0 / M_PI : 0.25 / M_PI);
+    return v3_scale(v3_mul(f, power), cos_probe * cos_from / (d * d)); /* f Phi_p G (R8) */
+}
+
 /* Follow one photon from a light until Russian roulette absorbs it or it leaves the scene, storing
  * it (into `out`) at every non-specular surface it lands on, caustic while it met only mirrors and
- * glass (L S+ D); each bounce multiplies its power by f cos / p (R2).  A probe's estimate passes a
- * `sensor` instead: the flux crossing its disc of radius r from the front (after a --bounces number
- * of bounces) is added to *crossed.  Returns the rays traced, or -1 if out of memory. [exercise 5.2] */
+ * glass (L S+ D); each bounce multiplies its power by f cos / p (R2).  For a probe (`sensor`) it adds
+ * its irradiance from this photon to *received.  Returns the rays traced, or -1 if out of memory. [exercise 5.2] */
 static int trace_photon(const photonmap_state *st, const scene *s, int photons, uint32_t path, rng *g, photon_map *out,
-                        const probe *sensor, vec3 *crossed)
+                        const probe *sensor, vec3 *received)
 {
-    vec3 power = v3_splat(0.0); /* emit_photon sets it; zero while emit_photon is a handout stub */
-    ray r = emit_photon(st, s, g, photons, &power);
-    bool caustic = true;
+    vec3 power = v3_splat(0.0), normal = v3_splat(0.0); /* emit_photon sets them; zero while it is a stub */
+    ray r = emit_photon(st, s, g, photons, &power, &normal);
+    if (sensor && keeps(st, 0)) /* the light itself */
+        *received = v3_add(*received, light_sent_to_probe(s, sensor, r.origin, normal, NULL, power));
+    bool caustic = true, after_specular = false;
     int bounces;
     for (bounces = 0; bounces < MAX_BOUNCES; bounces++) {
         hit h;
         bool found = scene_intersect(s, r, INFINITY, &h);
-        if (sensor && keeps(st, bounces) &&
-            ray_crosses_disc(r, found ? h.t : INFINITY, sensor->position, sensor->normal, st->initial_radius))
-            *crossed = v3_add(*crossed, power);
+        if (sensor && after_specular && keeps(st, bounces) && /* the disc, (R11) with f = 1 */
+            ray_crosses_disc(r, found ? h.t : INFINITY, sensor->position, sensor->normal, st->current_radius))
+            *received = v3_add(*received, v3_scale(power, 1.0 / (M_PI * st->current_radius * st->current_radius)));
         if (!found)
             break;
         vertex v = vertex_at(h.point, h.normal, v3_neg(r.direction), material_of(s, h.surface));
@@ -173,8 +191,11 @@ static int trace_photon(const photonmap_state *st, const scene *s, int photons, 
             photon p = {v.x, v.w_o, v.n, power, bounces, caustic && bounces > 0, v.front, h.surface, path};
             if (out && photon_map_add(out, &p))
                 return -1;
+            if (sensor && keeps(st, bounces + 1))
+                *received = v3_add(*received, light_sent_to_probe(s, sensor, v.x, v.n, &v, power));
             caustic = false;
         }
+        after_specular = is_specular(v.m);
         vec3 w_i;
         double pdf;
         vec3 weight = as_flux(&v, scatter(&v, sample_bsdf, g, &w_i, &pdf), w_i); /* f cos / p (R2) */
@@ -358,28 +379,27 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
 
 /* ---- probes -------------------------------------------------------------------------------------- */
 
-/* A probe is a sensor, not a surface: photons fly through it.  Its
- * irradiance is the flux crossing a disc of radius r around it (from the
- * side its normal faces) per unit area, Phi / (pi r^2): (R11) with f = 1,
- * the irradiance averaged over the disc.  PHOTON_BATCHES independent batches
- * of photons; the spread of their estimates is the standard error. */
+/* One sample of E / pi, what a white Lambertian point x at a probe reflects (walk_probe, which asks
+ * for k = 0, multiplies it by pi): one photon's light at x (see above). */
+static vec3 probe_light(const void *state_pointer, const scene *s, vec3 x, vec3 n, vec3 w_o, const material *white,
+                        int k, rng *g, render_counters *counters)
+{
+    const photonmap_state *st = state_pointer;
+    vec3 E = v3_splat(0.0);
+    (void)w_o;
+    (void)white;
+    if (st->light_count > 0 && k == 0)
+        counters->value[COUNT_WALK_RAYS] +=
+            (uint64_t)trace_photon(st, s, 1, 0, g, NULL, &(probe){.position = x, .normal = n}, &E);
+    return v3_scale(E, 1.0 / M_PI);
+}
+
 static probe_result probe_irradiance(const void *state_pointer, const scene *s, const probe *p, uint64_t seed,
                                      render_counters *counters)
 {
     const photonmap_state *st = state_pointer;
-    int per_batch = st->probe_photons / PHOTON_BATCHES;
-    vec3 batch[PHOTON_BATCHES];
-    (void)counters;
-#pragma omp parallel for schedule(dynamic, 1)
-    for (int b = 0; b < PHOTON_BATCHES; b++) {
-        vec3 crossed = v3_splat(0.0);
-        for (int k = 0; k < per_batch && st->light_count > 0; k++) {
-            rng g = rng_for(seed ^ 0x70726f6265ull, (uint64_t)(p - s->probes), (uint64_t)(b * per_batch + k));
-            trace_photon(st, s, per_batch, (uint32_t)k, &g, NULL, p, &crossed);
-        }
-        batch[b] = v3_scale(crossed, 1.0 / (M_PI * st->initial_radius * st->initial_radius));
-    }
-    return batch_mean_and_error(batch, PHOTON_BATCHES);
+    walk_source w = {probe_light, st, s, false};
+    return walk_probe(&w, p, seed ^ 0x70726f6265ull, st->probe_photons, &counters->value[COUNT_PROBE_RAYS]);
 }
 
 /* ---- passes (R12), stats and main ----------------------------------------------------------------- */
@@ -430,11 +450,9 @@ static int begin_pass(void *state_pointer, const scene *s, const render_options 
     (void)o;
     if (pass > 1)
         shrink_radius(st, pass - 1);
-    double *radii = realloc(st->radius_per_pass, (size_t)pass * sizeof *radii);
-    if (radii)
-        st->radius_per_pass = radii, radii[pass - 1] = st->current_radius;
-    if (!radii || (st->light_count > 0 && photon_pass(st, s, pass)) ||
-        photon_map_index(&st->global, st->current_radius) || photon_map_index(&st->caustic, st->current_radius)) {
+    if (photon_radius_record(&st->radius_per_pass, pass, st->current_radius) ||
+        (st->light_count > 0 && photon_pass(st, s, pass)) || photon_map_index(&st->global, st->current_radius) ||
+        photon_map_index(&st->caustic, st->current_radius)) {
         snprintf(err, err_size, "argv:0: out of memory for the photons of pass %d", pass);
         return 2;
     }
@@ -445,16 +463,9 @@ static int begin_pass(void *state_pointer, const scene *s, const render_options 
 static void write_stats(const void *state_pointer, FILE *json)
 {
     const photonmap_state *st = state_pointer;
-    fprintf(json, ",\n  \"maps\": \"%s\",\n  \"photons_per_pass\": %d,\n  \"gather\": %d,\n  \"nearest\": %d",
-            maps_names[st->maps], st->photons, st->gather, st->nearest);
-    json_field_number(json, "alpha", st->alpha);
-    json_field_number(json, "photon_rays", (double)st->photon_rays);
-    fprintf(json, ",\n  \"radius_per_pass\": [");
-    for (int i = 0; i < st->tally.passes; i++)
-        fprintf(json, "%s%.17g", i ? ", " : "", st->radius_per_pass[i]);
-    fprintf(json, "],\n  \"emitted_power\": ");
-    json_vec3(json, st->emitted_power);
-    photon_tally_write(json, &st->tally, st->scene, keeps(st, 0));
+    photon_run run = {maps_names[st->maps], st->photons,         st->gather,        st->nearest, st->alpha,
+                      st->photon_rays,      st->radius_per_pass, st->emitted_power, &st->tally};
+    photon_run_write(json, &run, st->scene, keeps(st, 0));
 }
 
 static void finish(void *state_pointer)
@@ -474,7 +485,7 @@ int main(int argc, char **argv)
         .description = "photon mapping: density estimation (R11) of photons shot from the lights; progressive (R12)",
         .options = {{PHOTONMAP_OPTIONS, &state}},
         .default_spp = 16,
-        .counter_names = {"photon_lookups", "photons_visited", "shadow_rays", "walk_rays", NULL},
+        .counter_names = {"photon_lookups", "photons_visited", "shadow_rays", "walk_rays", "probe_rays", NULL},
         .prepare = prepare,
         .begin_pass = begin_pass,
         .radiance = radiance,
