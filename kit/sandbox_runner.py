@@ -12,7 +12,8 @@ the programs' own output: the judge reads what it writes as data.
 Protocol (files only: no descriptor of the grader is open in the sandbox):
 - REQUESTS (read-only here, written by the judge, renamed into place):
   ID.json = {"argv": [...], "cwd": DIR, "timeout": S} runs a program;
-  {"reset": true} kills every process but this runner's (between criteria).
+  {"reset": true} kills every process but this runner's and drops the other
+  requests read so far (between criteria, or a criterion stopped by a cap).
 - RESPONSES (this runner's): ID.out and ID.err (the program's stdout and
   stderr), then ID.done = {"returncode": N or null, "stopped": "..."}.
 
@@ -95,12 +96,13 @@ class Runner:
     def start_waiting(self):
         while self.waiting:
             rid, request = self.waiting[0]
-            if request.get("reset"):  # the judge is done with a criterion, or stops it (a cap)
-                self.waiting.pop(0)
-                self.stop_active("stopped by the grader")
+            if any(r.get("reset") for _, r in self.waiting):  # a criterion is over, or stopped (a cap):
+                self.stop_active("stopped by the grader")      # its runs and requests with it
+                for other, r in self.waiting:
+                    self.finish(other, 0 if r.get("reset") else None, "" if r.get("reset") else "stopped by the grader")
+                self.waiting.clear()
                 kill_leftovers(set())
-                self.finish(rid, 0, "")
-                continue
+                return
             program = request["argv"][0]
             if any(p != program for _, _, p in self.active.values()):
                 return  # another program is running: this one waits (see the module)
