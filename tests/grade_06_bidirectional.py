@@ -26,7 +26,7 @@ from lib import CRITERION_ALPHA, ROOT, check_bad_input, check_thread_independenc
 from lib import CHANNELS, expect, expect_at_most, expect_estimate
 
 CHAPTER = "06_bidirectional"
-RENDERS = 16  # seeds behind every image mean: 15 degrees of freedom
+RENDERS = 32  # seeds behind every image mean: 31 degrees of freedom
 
 
 def furnace_scene(ctx, rho, emission=1.0, name="furnace"):
