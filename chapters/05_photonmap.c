@@ -181,8 +181,9 @@ static int trace_photon(const photonmap_state *st, const scene *s, int photons, 
     for (bounces = 0; bounces < MAX_BOUNCES; bounces++) {
         hit h;
         bool found = scene_intersect(s, r, INFINITY, &h);
+        double t_max = found ? h.t + s->epsilon : INFINITY;   /* a probe on a wall: what lands in its disc */
         if (sensor && after_specular && keeps(st, bounces) && /* the disc, (R11) with f = 1 */
-            ray_crosses_disc(r, found ? h.t : INFINITY, sensor->position, sensor->normal, st->current_radius))
+            ray_crosses_disc(r, t_max, sensor->position, sensor->normal, st->current_radius))
             *received = v3_add(*received, v3_scale(power, 1.0 / (M_PI * st->current_radius * st->current_radius)));
         if (!found)
             break;
