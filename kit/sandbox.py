@@ -344,7 +344,7 @@ class Session:
         command = box.bwrap_command(["/usr/bin/python3", "-I", "-S", RUNNER_INSIDE, self.requests, self.responses],
                                     self.responses)
         at = command.index("--chdir")
-        command[at:at] = ["--ro-bind", RUNNER, RUNNER_INSIDE]
+        command[at:at] = ["--ro-bind", RUNNER, RUNNER_INSIDE, "--as-pid-1"]
         self.process = subprocess.Popen(command, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
                                         stderr=subprocess.DEVNULL, close_fds=True, start_new_session=True,
                                         preexec_fn=box._preexec(self.cgroup))

@@ -17,8 +17,9 @@ Protocol (files only: no descriptor of the grader is open in the sandbox):
 - RESPONSES (this runner's): ID.out and ID.err (the program's stdout and
   stderr), then ID.done = {"returncode": N or null, "stopped": "..."}.
 
-Nothing outlives a run: whenever no run is active, every other process of
-the sandbox's PID namespace is killed (a child that detached with setsid()
+The runner is the sandbox's PID 1 (a run cannot kill it: the kernel drops
+its signals).  Nothing outlives a run: whenever no run is active, every
+other process of the sandbox's PID namespace is killed (a child that detached with setsid()
 is one), and the run that just ended says how many there were.  Two runs
 share the sandbox only if they run the same program (two renders of one
 criterion): a program of another chapter (an instructor's one a test
@@ -35,9 +36,22 @@ POLL_BUSY, POLL_IDLE = 0.001, 0.01  # seconds between looks at REQUESTS: often w
 
 
 def others():
-    """The PIDs of this PID namespace but the runner's and its init's (bwrap's, PID 1)."""
+    """The PIDs of this PID namespace but the runner's (PID 1: bwrap --as-pid-1)."""
     me = os.getpid()
     return {int(p) for p in os.listdir("/proc") if p.isdigit() and int(p) not in (1, me)}
+
+
+def reap_orphans():
+    """Collect the exit status of every process that ended: the runner is the sandbox's PID 1, so
+    the children of ended runs (a daemon's) become its own.  Only while no run is active: a run's
+    status is its Popen's."""
+    while True:
+        try:
+            pid, _ = os.waitpid(-1, os.WNOHANG)
+        except ChildProcessError:
+            return
+        if pid == 0:
+            return
 
 
 def kill_leftovers(active_pids):
@@ -51,6 +65,8 @@ def kill_leftovers(active_pids):
             except (ProcessLookupError, PermissionError):
                 pass
         time.sleep(0.002)
+        if not active_pids:
+            reap_orphans()
         left = {p for p in others() - active_pids if not zombie(p)}
         if not left:
             break
@@ -160,6 +176,9 @@ class Runner:
 
 
 if __name__ == "__main__":
+    # The sandbox's PID 1: the kernel drops every signal its processes send it that it has no
+    # handler for (SIGKILL always), so a run cannot kill the runner; Python's SIGINT handler goes.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
     log = os.open(os.path.join(sys.argv[2], "runner.log"), os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     os.dup2(log, 2)  # its own errors, for the grader to read; stdin and stdout are /dev/null
     write_atomically(os.path.join(sys.argv[2], "ready"), {"pid": os.getpid()})
