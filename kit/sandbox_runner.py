@@ -19,8 +19,8 @@ Protocol (files only: no descriptor of the grader is open in the sandbox):
 
 The runner is the sandbox's PID 1 (a run cannot kill it: the kernel drops
 its signals).  Nothing outlives a run: whenever no run is active, every
-other process of the sandbox's PID namespace is killed (a child that detached with setsid()
-is one), and the run that just ended says how many there were.  Two runs
+other process of the sandbox's PID namespace is killed (a child that detached into a session
+of its own is one), and the run that just ended says how many there were.  Two runs
 share the sandbox only if they run the same program (two renders of one
 criterion): a program of another chapter (an instructor's one a test
 compares with) waits until nothing else is running.

@@ -98,6 +98,9 @@ def test_report_names_stubs_and_says_which_way_each_criterion_is_off(ctx):
         if c["passed"]:
             assert c["kind"] == "unit" or "measured" in message or " vs " in message, \
                 f"{c['name']} passed without its measured value: {message}"
+        elif "held-out" in c.get("reference", ""):  # the held-out solution's numbers are not given
+            assert " vs " not in message and re.search(r"image mean is (darker|brighter)", message), \
+                f"{c['name']}: a held-out criterion must say which way, without the solution's means: {message!r}"
         else:
             assert ("measured" in message and "expected" in message) or " vs " in message, \
                 f"{c['name']}: no measured and expected value in {message!r}"
