@@ -67,7 +67,8 @@ typedef struct {
     double radius, alpha;
     /* From prepare and begin_pass. */
     const scene *scene;
-    int bounce_min, bounce_max, light_count;
+    bounce_window bounces; /* --bounces A:B (R6) */
+    int light_count;
     uint64_t seed, photon_rays;
     light_source *lights;
     vec3 emitted_power; /* of all lights; its mean channel is what next_event picks lights by */
@@ -92,14 +93,14 @@ static const option PHOTONMAP_OPTIONS[] = {
      .help = "final-gather rays per eye sample (0: read the global map at the first diffuse point)"},
     {"--nearest", "K", OPTION_INT, STATE(nearest), .min = 0, .max = PHOTON_GRID_MAX_NEAREST, .default_text = "0",
      .help = "use the K nearest photons within the radius (0: all photons within it)"},
-    {"--probe-photons", "N", OPTION_INT, STATE(probe_photons), .min = PHOTON_BATCHES, .max = 1 << 28,
+    {"--probe-photons", "N", OPTION_INT, STATE(probe_photons), .min = PROBE_BATCHES, .max = 1 << 28,
      .default_text = "262144", .help = "light samples and photons per probe estimate, in 32 batches"},
     {0},
 };
 #undef STATE
 
 /* Is the Neumann term K^k E (R6) inside the --bounces window? */
-static bool keeps(const photonmap_state *st, int k) { return k >= st->bounce_min && k <= st->bounce_max; }
+static bool keeps(const photonmap_state *st, int k) { return bounces_keep(st->bounces, k); }
 
 /* ---- lights and photon emission ----------------------------------------------------------- */
 
@@ -316,7 +317,7 @@ static vec3 indirect_walk(const photonmap_state *st, const scene *s, hit at, vec
                           rng *g, render_counters *counters)
 {
     vec3 L = v3_splat(0.0), w_i;
-    while (k < st->bounce_max) {
+    while (k < st->bounces.last) {
         vertex v = vertex_at(at.point, normal, out, material_of(s, at.surface));
         double pdf;
         weight = v3_mul(weight, scatter(&v, sample_bsdf, g, &w_i, &pdf)); /* f cos / p (R2) */
@@ -400,7 +401,7 @@ static probe_result probe_irradiance(const void *state_pointer, const scene *s, 
 {
     const photonmap_state *st = state_pointer;
     walk_source w = {probe_light, st, s, false};
-    return walk_probe(&w, p, seed ^ 0x70726f6265ull, st->probe_photons, &counters->value[COUNT_PROBE_RAYS]);
+    return walk_probe(&w, p, probe_seed(seed), st->probe_photons, &counters->value[COUNT_PROBE_RAYS]);
 }
 
 /* ---- passes (R12), stats and main ----------------------------------------------------------------- */
@@ -409,9 +410,9 @@ static probe_result probe_irradiance(const void *state_pointer, const scene *s, 
 static int prepare(void *state_pointer, const scene *s, const render_options *o, char *err, size_t err_size)
 {
     photonmap_state *st = state_pointer;
-    st->scene = s, st->seed = o->seed, st->bounce_min = o->bounce_min, st->bounce_max = o->bounce_max;
+    st->scene = s, st->seed = o->seed, st->bounces = bounce_window_of(o);
     st->lights = calloc((size_t)(s->emitter_count + s->light_count) + 1, sizeof *st->lights);
-    st->tally.surface = calloc((size_t)s->surface_count * PHOTON_BATCHES + 1, sizeof *st->tally.surface);
+    st->tally.surface = calloc((size_t)s->surface_count * PROBE_BATCHES + 1, sizeof *st->tally.surface);
     if (!st->lights || !st->tally.surface) {
         snprintf(err, err_size, "argv:0: out of memory");
         return 2;
@@ -457,7 +458,7 @@ static int begin_pass(void *state_pointer, const scene *s, const render_options 
         snprintf(err, err_size, "argv:0: out of memory for the photons of pass %d", pass);
         return 2;
     }
-    photon_tally_add(&st->tally, &st->global, st->bounce_min, st->bounce_max);
+    photon_tally_add(&st->tally, &st->global, st->bounces.first, st->bounces.last);
     return 0;
 }
 
