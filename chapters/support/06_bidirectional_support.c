@@ -96,7 +96,7 @@ static int join_chunks(bidir_state *st, chunk *chunks, int n)
         st->light_vertices = all;
     memset(st->light_image, 0, (size_t)st->light_paths * sizeof *st->light_image);
     for (int c = 0, base = 0; c < n; base += (int)chunks[c].vertex_count, c++) {
-        if (all)
+        if (all && chunks[c].vertex_count > 0)
             memcpy(all + base, chunks[c].vertices, chunks[c].vertex_count * sizeof *all);
         for (int p = c * CHUNK; p < st->light_paths && p < (c + 1) * CHUNK; p++)
             st->path_first[p] += base;
