@@ -6,9 +6,9 @@ What is checked:
     render by the current executables (out/slides/figures.json);
   - slides and code cannot drift: a deck naming a function that does not
     exist, code citing an equation the deck does not state, and a label that
-    is not R1..R12 each fail the build with deck:line;
+    is not one the notes define each fail the build with deck:line;
   - every equation label is the lecture's: the rendering-equation deck states
-    R1..R12, and the labels a deck states are the ones docs/lecture-notes.md defines;
+    R1..R10, and the labels a deck states are the ones docs/lecture-notes.md defines;
   - headless Chromium (Debian's chromium driven by playwright-core) opens
     every deck offline: no console or page errors, no request that is not
     file:, KaTeX present and no .katex-error, every image loaded, no slide
