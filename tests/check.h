@@ -72,7 +72,7 @@ static int check_record(const char *file, int line, int held, double value, doub
 #define CHECK_NEAR(actual, expected, tolerance, what)                                                                  \
     do {                                                                                                               \
         double a_ = (actual), e_ = (expected), t_ = (tolerance);                                                       \
-        CHECK_AT(fabs(a_ - e_) <= t_, isfinite(a_) ? a_ : 1e300, t_, "%s: got %.10g, expected %.10g +- %.3g", what,   \
+        CHECK_AT(fabs(a_ - e_) <= t_, isfinite(a_) ? a_ : 1e300, t_, "%s: got %.10g, expected %.10g +- %.3g", what,    \
                  a_, e_, t_);                                                                                          \
     } while (0)
 
