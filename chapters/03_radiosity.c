@@ -368,6 +368,7 @@ static int compute_form_factors(radiosity_state *st, const scene *s, char *err, 
         radiosity_stats *r = &st->stats; /* and the checks: row sums, reciprocity (mesh_io.h) */
         r->visibility_rays += rays, r->have_matrix_checks = true;
         form_factor_checks(st->form_factors, &st->mesh, &r->reciprocity_error, &r->row_sum_min, &r->row_sum_max);
+        radiosity_warn_row_sums(st->form_factors, &st->mesh, s, &st->opt);
     }
     st->stats.formfactor_s += omp_get_wtime() - start;
     return 0;

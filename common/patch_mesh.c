@@ -344,6 +344,26 @@ static int split_cell(patch_mesh *m, int cell_index)
     return 0;
 }
 
+void patch_mesh_child_values(int vertex_count, const vec3 *parent, int child, vec3 *out)
+{
+    vec3 mid[4], centre = v3_splat(0.0); /* the values at split_cell's midpoints and centre */
+    for (int k = 0; k < vertex_count; k++) {
+        mid[k] = v3_scale(v3_add(parent[k], parent[(k + 1) % vertex_count]), 0.5);
+        centre = v3_madd(centre, parent[k], 1.0 / vertex_count);
+    }
+    if (vertex_count == 4) {
+        const vec3 children[4][4] = {{parent[0], mid[0], centre, mid[3]},
+                                     {mid[0], parent[1], mid[1], centre},
+                                     {centre, mid[1], parent[2], mid[2]},
+                                     {mid[3], centre, mid[2], parent[3]}};
+        memcpy(out, children[child], sizeof children[child]);
+    } else {
+        const vec3 children[4][3] = {
+            {parent[0], mid[0], mid[2]}, {mid[0], parent[1], mid[1]}, {mid[2], mid[1], parent[2]}, {mid[0], mid[1], mid[2]}};
+        memcpy(out, children[child], sizeof children[child]);
+    }
+}
+
 int patch_mesh_split(patch_mesh *m, int cell)
 {
     if (split_cell(m, cell))
@@ -720,10 +740,19 @@ vec3 patch_mesh_irradiance(const patch_mesh *m, const scene *s, const vec3 *radi
         double f = point_to_polygon(x, n, p->corner, p->corner_count);
         if (f <= 0.0)
             continue;
-        int visible = 0;
-        for (int k = 0; k < p->point_count; k++)
-            visible += !scene_occluded(s, x, m->points[p->first_point + k]);
-        total = v3_madd(total, radiance[j], M_PI * f * visible / p->point_count);
+        /* Visibility by rays to the points of j in front of x, the part f counts
+         * (a ray to the part clipped away, behind the probe, meets the probe's own
+         * solid: a probe on a box's side 1 mm above the floor read 15 % low). */
+        int visible = 0, in_front = 0;
+        for (int k = 0; k < p->point_count; k++) {
+            vec3 y = m->points[p->first_point + k];
+            if (v3_dot(n, v3_sub(y, x)) <= s->epsilon)
+                continue;
+            in_front++;
+            visible += !scene_occluded(s, x, y);
+        }
+        if (in_front > 0)
+            total = v3_madd(total, radiance[j], M_PI * f * visible / in_front);
     }
     return total;
 }

@@ -91,6 +91,12 @@ int patch_mesh_build(patch_mesh *m, const scene *s, double patch_size, const boo
  * array may move: hold indices, not pointers, across calls. */
 int patch_mesh_split(patch_mesh *m, int cell);
 
+/* A function known at a cell's corners (parent: vertex_count values in the
+ * order of its vertices), interpolated (linearly along the edges, the mean of
+ * the corners at a quad's centre) at the corners of its child number `child`
+ * as patch_mesh_split makes them, into out. */
+void patch_mesh_child_values(int vertex_count, const vec3 *parent, int child, vec3 *out);
+
 /* A point of one of the mesh's cells put on its surface: itself on a flat
  * surface, lifted along the radius onto a sphere. */
 vec3 patch_mesh_on_surface(const patch_mesh *m, int surface, vec3 p);

@@ -27,6 +27,13 @@ static const double BRIGHTNESS_CAP = 256.0;
  * everywhere, 2 does not). */
 static const double DISC_FACTOR = 4.0;
 
+/* No element smaller than the scene's diagonal over this (1.9 mm in the
+ * Cornell box, whose floor reaches --levels 8 at 2.2 mm): two faces 1 mm
+ * apart (a box just above the floor) see each other at F ~ 1 at every level,
+ * and without it would split to --levels whatever the scene's size. */
+static const double SMALLEST_PART = 512.0;
+
+
 /* The fraction of up to four rays between the two elements that nothing
  * blocks.  Only pairs of sample points in front of each other's element
  * count: a ray to a point behind the receiver's plane would run into the
@@ -90,8 +97,10 @@ static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq)
  * nearest ancestor the first pass made, at most BRIGHTNESS_CAP) is at
  * least --eps: the light's shadows are followed down to F of about
  * eps / 165, a dim wall's hardly at all (the first pass tested those). */
-static bool worth_shadow_test(const refiner *r, int q, const patch *eq, double f)
+static bool worth_shadow_test(const refiner *r, int p, int q, const patch *eq, double f)
 {
+    if (r->h->covered[p])  /* a contact shadow across p, whatever the source; under a cover */
+        return r->h->covered[p] == COVERED_PART; /* p sees the rest through a slit, all of it alike */
     if (!r->radiance)
         return f >= r->eps / 8.0;
     int known = q;
@@ -131,23 +140,39 @@ static double spread_bound(const refiner *r, int p, int q, const patch *ep, doub
 
 enum verdict { NO_LINK, LINK, SPLIT_RECEIVER, SPLIT_SOURCE };
 
-/* The oracle's form factors both ways, from each element's centroid, no
- * visibility.  Far apart (more than DISC_FACTOR radii, each in front of the
- * other): the disc approximation A cos cos / (pi r^2 + A), as in Hanrahan et
- * al.'s oracle, with no arc tangents (the oracle is asked millions of
- * times).  Closer: Lambert's formula (R10's inner integral), exact. */
-static void estimate_form_factors(const refiner *r, const patch *ep, const patch *eq, double *fpq, double *fqp)
+/* The point form factor F_dx->q at x on the receiver ep (normal ep->normal):
+ * Lambert's formula near, the disc approximation far (the oracle is asked
+ * millions of times); 0 when x is behind the one-sided q. */
+static double point_form_factor(const refiner *r, vec3 x, const patch *ep, const patch *eq, bool far)
 {
-    vec3 d = v3_sub(eq->centroid, ep->centroid);
+    vec3 d = v3_sub(eq->centroid, x);
     double distance = v3_length(d);
     double cos_p = v3_dot(ep->normal, d) / distance, cos_q = -v3_dot(eq->normal, d) / distance;
-    if (distance > DISC_FACTOR * (ep->radius + eq->radius) && cos_p > 0.0 && cos_q > 0.0) {
-        *fpq = eq->area * cos_p * cos_q / (M_PI * distance * distance + eq->area);
-        *fqp = ep->area * cos_p * cos_q / (M_PI * distance * distance + ep->area);
-        return;
-    }
-    *fpq = r->point_to_polygon(ep->centroid, ep->normal, eq->corner, eq->corner_count);
-    *fqp = r->point_to_polygon(eq->centroid, eq->normal, ep->corner, ep->corner_count);
+    if (!far)
+        return cos_q * distance <= r->s->epsilon ? 0.0
+                                                 : r->point_to_polygon(x, ep->normal, eq->corner, eq->corner_count);
+    return cos_p > 0.0 && cos_q > 0.0 ? eq->area * cos_p * cos_q / (M_PI * distance * distance + eq->area) : 0.0;
+}
+
+/* The oracle's F_pq: the largest point form factor at p's centroid and
+ * corners.  At the centroid alone a pair that nearly touches (a box 1 mm
+ * above the floor) reads F ~ 0 while a corner of p sees q at F ~ 1/2, and a
+ * link there would spread over p what only its corner receives. */
+static double largest_form_factor(const refiner *r, const patch *ep, const patch *eq)
+{
+    bool far = v3_length(v3_sub(eq->centroid, ep->centroid)) > DISC_FACTOR * (ep->radius + eq->radius);
+    double largest = point_form_factor(r, ep->centroid, ep, eq, far);
+    for (int k = 0; k < ep->corner_count && !far; k++)
+        largest = fmax(largest, point_form_factor(r, ep->corner[k], ep, eq, far));
+    return largest;
+}
+
+/* Below --levels, and its children would be at least the refiner's smallest
+ * size across (by default the scene's diagonal / SMALLEST_PART: the same
+ * hierarchy in metres and in millimetres). */
+static bool can_split(const refiner *r, int e)
+{
+    return r->h->level[e] < r->levels && sqrt(r->h->element[e].area / 4.0) >= r->smallest;
 }
 
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  A
@@ -161,16 +186,16 @@ static enum verdict judge(const refiner *r, int p, int q)
     const patch *ep = &r->h->element[p], *eq = &r->h->element[q];
     if (!patches_facing(ep, eq, r->s->epsilon))
         return NO_LINK; /* one-sided: they cannot exchange light */
-    double fpq, fqp;
-    estimate_form_factors(r, ep, eq, &fpq, &fqp);
+    double fpq = largest_form_factor(r, ep, eq), fqp = largest_form_factor(r, eq, ep);
     double bright = brightness(r, q);
     bool link = fpq * bright < r->eps && fqp * bright < r->eps;
     link = link && spread_bound(r, p, q, ep, fpq) <= r->eps_spread;
-    if (link && worth_shadow_test(r, q, eq, fmax(fpq, fqp)))
-        link = !shadow_edge(r, ep, eq);
-    bool can_p = r->h->level[p] < r->levels, can_q = r->h->level[q] < r->levels;
-    if (link || (!can_p && !can_q))
+    bool shadowed = link && worth_shadow_test(r, p, q, eq, fmax(fpq, fqp)) && shadow_edge(r, ep, eq);
+    bool can_p = can_split(r, p), can_q = can_split(r, q);
+    if ((link && !shadowed) || (!can_p && !can_q))
         return LINK;
+    if (shadowed && r->h->covered[p] == COVERED_PART && can_p)
+        return SPLIT_RECEIVER; /* the shadow's edge is on p, whatever the source */
     return can_q && (fpq > fqp || !can_p) ? SPLIT_SOURCE : SPLIT_RECEIVER;
 }
 
@@ -260,6 +285,47 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
     return total;
 }
 
+/* The shape of link e <- q across the receiver e: its point form factor
+ * times visibility (one ray to q's centroid) at e's corners, from points
+ * EDGE_INSET of the way out extrapolated to the corners (a ray from a corner
+ * itself would start on the next surface's edge), as multiples of their
+ * mean; constant 1 / exposure when no corner sees q.  A leaf then receives
+ * from its ancestors' links what their linear interpolation gives at its
+ * corners instead of their mean: at a concave corner, where F grows from 0
+ * at the other wall's plane, an inherited constant gave the leaves along the
+ * corner twice their share (row sums to 1.4, the corner 20 % bright). */
+static void shape_link(const hierarchy *h, const patch_mesh *m, const scene *s, point_to_polygon_fn F, int e, long k)
+{
+    const patch *ep = &h->element[e], *eq = &h->element[h->link_source[k]];
+    vec3 mean_corner = element_corner_mean(ep);
+    double g[4] = {0.0, 0.0, 0.0, 0.0}, mean = 0.0, shaped = 0.0;
+    for (int j = 0; j < ep->corner_count; j++) {
+        vec3 x = element_toward_corner(m, ep, mean_corner, j, EDGE_INSET);
+        if (v3_dot(eq->normal, v3_sub(x, eq->centroid)) > s->epsilon && !scene_occluded(s, x, eq->centroid))
+            g[j] = F(x, ep->normal, eq->corner, eq->corner_count);
+        mean += g[j] / ep->corner_count;
+    }
+    for (int j = 0; j < ep->corner_count; j++) {
+        g[j] = fmax(0.0, mean + (g[j] - mean) / EDGE_INSET); /* out to the corner */
+        shaped += g[j] / ep->corner_count;
+    }
+    double exposure = h->exposure[e];
+    for (int j = 0; j < 4; j++)
+        h->link_shape[4 * k + j] = (float)(shaped > 0.0 ? g[j] / shaped : exposure > 0.0 ? 1.0 / exposure : 0.0);
+}
+
+static int link_shapes(hierarchy *h, const patch_mesh *m, const scene *s, point_to_polygon_fn F)
+{
+    free(h->link_shape);
+    if (!(h->link_shape = malloc(4 * (size_t)h->link_count * sizeof *h->link_shape + 1)))
+        return -1;
+#pragma omp parallel for schedule(dynamic, 64)
+    for (int e = 0; e < h->element_count; e++)
+        for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
+            shape_link(h, m, s, F, e, k);
+    return 0;
+}
+
 /* The links grouped by receiver (a counting sort, stable) with their form
  * factors: computed, unless the first pass has one for the pair. */
 static int store_links(hierarchy *h, refiner *r, const radiosity_options *o, radiosity_stats *stats)
@@ -277,28 +343,35 @@ static int store_links(hierarchy *h, refiner *r, const radiosity_options *o, rad
     return 0;
 }
 
-/* Push-pull, on the exposed part of each element (hierarchy_exposure): what e
- * and its ancestors gathered (down) is pushed to its leaves, which add
- * their source; e's term is the mean of its children's over their exposed
- * area, pulled up.  An element's gathered light is a mean over its whole
- * area, which is 0 where the element is buried: over the exposed part it is
- * gathered / exposure.  source: 0 emission, 1 first_shot, 2 none. */
-static vec3 push_pull(hierarchy *h, const patch_mesh *m, int e, vec3 down, int source, const vec3 *first_shot)
+/* Push-pull.  What an element gathers is known at its corners (each link's
+ * F shaped by link_shapes: linear across the element, not constant), so
+ * what e and its ancestors gathered (down, at e's corners) is pushed to
+ * e's children interpolated at theirs (patch_mesh_child_values), and a leaf
+ * receives the mean of its corners' values (the mean of a bilinear or linear
+ * function over the cell) and adds its source.  e's term is the mean of its
+ * children's over their exposed area, pulled up.  source: 0 emission,
+ * 1 first_shot, 2 none. */
+static vec3 push_pull(hierarchy *h, const patch_mesh *m, int e, const vec3 *down, int source, const vec3 *first_shot)
 {
-    double exposure = h->exposure[e];
-    if (exposure > 0.0)
-        down = v3_madd(down, h->gathered[e], 1.0 / exposure);
     const mesh_cell *c = &m->cells[e];
-    vec3 up = v3_splat(0.0);
+    vec3 here[4], up = v3_splat(0.0);
+    for (int k = 0; k < c->vertex_count; k++)
+        here[k] = v3_add(down[k], h->gathered[4 * (size_t)e + (size_t)k]);
     if (c->first_child < 0) {
-        up = source == 0   ? v3_add(down, h->element[e].emission)
-             : source == 1 ? v3_madd(down, first_shot[c->patch], exposure > 0.0 ? 1.0 / exposure : 0.0)
-                           : down;
+        double exposure = h->exposure[e];
+        vec3 received = v3_splat(0.0);
+        for (int k = 0; k < c->vertex_count; k++)
+            received = v3_madd(received, here[k], 1.0 / c->vertex_count);
+        up = source == 0   ? v3_add(received, h->element[e].emission)
+             : source == 1 ? v3_madd(received, first_shot[c->patch], exposure > 0.0 ? 1.0 / exposure : 0.0)
+                           : received;
     } else {
         double exposed_area = 0.0;
-        for (int k = c->first_child; k < c->first_child + 4; k++) {
-            double weight = h->element[k].area * h->exposure[k];
-            up = v3_madd(up, push_pull(h, m, k, down, source, first_shot), weight);
+        for (int k = 0; k < 4; k++) {
+            vec3 child_down[4];
+            patch_mesh_child_values(c->vertex_count, here, k, child_down);
+            double weight = h->element[c->first_child + k].area * h->exposure[c->first_child + k];
+            up = v3_madd(up, push_pull(h, m, c->first_child + k, child_down, source, first_shot), weight);
             exposed_area += weight;
         }
         up = v3_scale(up, exposed_area > 0.0 ? 1.0 / exposed_area : 0.0);
@@ -307,15 +380,18 @@ static vec3 push_pull(hierarchy *h, const patch_mesh *m, int e, vec3 down, int s
     return up;
 }
 
-/* Gather: every element receives rho Sum_links F_pq term_q (one more bounce, R6). */
-static void gather(hierarchy *h)
+/* Gather: every element receives rho Sum_links F_pq term_q (one more bounce,
+ * R6) at each of its corners: F times the link's shape there. */
+static void gather(hierarchy *h, const patch_mesh *m)
 {
 #pragma omp parallel for schedule(dynamic, 256)
     for (int e = 0; e < h->element_count; e++) {
-        vec3 sum = v3_splat(0.0);
+        vec3 sum[4] = {v3_splat(0.0), v3_splat(0.0), v3_splat(0.0), v3_splat(0.0)};
         for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
-            sum = v3_madd(sum, h->term[h->link_source[k]], h->link_F[k]);
-        h->gathered[e] = v3_mul(h->element[e].albedo, sum);
+            for (int j = 0; j < 4; j++)
+                sum[j] = v3_madd(sum[j], h->term[h->link_source[k]], h->link_F[k] * hierarchy_link_shape(h, e, k, j));
+        for (int j = 0; j < m->cells[e].vertex_count; j++)
+            h->gathered[4 * (size_t)e + (size_t)j] = v3_mul(h->element[e].albedo, sum[j]);
     }
 }
 
@@ -323,7 +399,7 @@ static void push_pull_all(hierarchy *h, const patch_mesh *m, int source, const v
 {
 #pragma omp parallel for schedule(dynamic, 1)
     for (int root = 0; root < h->root_count; root++)
-        push_pull(h, m, root, v3_splat(0.0), source, first_shot);
+        push_pull(h, m, root, (vec3[4]){{0}}, source, first_shot);
 }
 
 /* B per element (all bounces of the emission, summed until a term's power
@@ -332,7 +408,7 @@ static void first_pass_solution(hierarchy *h, const patch_mesh *m, vec3 *B, vec3
 {
     int n = h->element_count;
     vec3 *lowest = spread, *highest = B + n; /* B has room for 2n: the second half is scratch */
-    memset(h->gathered, 0, (size_t)n * sizeof *h->gathered);
+    memset(h->gathered, 0, 4 * (size_t)n * sizeof *h->gathered);
     memset(B, 0, (size_t)n * sizeof *B);
     push_pull_all(h, m, 0, NULL);
     double first_power = 0.0;
@@ -346,7 +422,7 @@ static void first_pass_solution(hierarchy *h, const patch_mesh *m, vec3 *B, vec3
         first_power = k == 0 ? power : first_power;
         if (!(power > 1e-3 * first_power))
             break;
-        gather(h);
+        gather(h, m);
         push_pull_all(h, m, 2, NULL);
     }
     for (int e = n - 1; e >= 0; e--) { /* children come after their parent; buried leaves do not count */
@@ -370,10 +446,10 @@ static int refine_again(hierarchy *h, refiner *r, const radiosity_options *o, ra
 {
     int n = h->element_count;
     vec3 *B = malloc(3 * (size_t)n * sizeof *B), *spread = B ? B + 2 * (size_t)n : NULL;
-    h->gathered = calloc(2 * (size_t)n + 1, sizeof *h->gathered);
+    h->gathered = calloc(5 * (size_t)n + 1, sizeof *h->gathered);
     if (!B || !h->gathered)
         return free(B), -1;
-    h->term = h->gathered + n;
+    h->term = h->gathered + 4 * (size_t)n;
     first_pass_solution(h, r->m, B, spread);
     free(h->gathered), h->gathered = h->term = NULL;
     double area = 0.0, reflected = 0.0; /* the scene's mean reflected radiance, B - Le over the leaves */
@@ -400,6 +476,7 @@ static int refine_again(hierarchy *h, refiner *r, const radiosity_options *o, ra
     return r->failed || store_links(h, r, o, stats) ? -1 : 0;
 }
 
+
 /* Elements when every one of the roots is split to the last level. */
 static double worst_case_elements(int roots, int levels) { return roots * (pow(4.0, levels + 1) - 1.0) / 3.0; }
 
@@ -425,7 +502,8 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
                  .point_to_polygon = point_to_polygon,
                  .eps = o->eps_spread > 0.0 ? FIRST_PASS_COARSER * o->eps : o->eps,
                  .eps_spread = o->eps_spread,
-                 .levels = levels};
+                 .levels = levels,
+                 .smallest = v3_length(v3_sub(s->bounds.hi, s->bounds.lo)) / SMALLEST_PART};
     pair *todo = malloc((size_t)h->root_count * h->root_count * sizeof *todo + 1);
     long count = 0;
     if (hierarchy_track_new_cells(h, m, s) || !todo)
@@ -452,9 +530,11 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
         return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d links (the limit); raise --eps",
                         o->eps_argv, o->eps, LINK_LIMIT),
                2;
-    if (r.failed || !(h->gathered = calloc(2 * (size_t)h->element_count + 1, sizeof *h->gathered)))
+    if (!r.failed && link_shapes(h, m, s, point_to_polygon))
+        r.failed = 1;
+    if (r.failed || !(h->gathered = calloc(5 * (size_t)h->element_count + 1, sizeof *h->gathered)))
         return snprintf(err, err_size, "argv:0: out of memory for the hierarchy"), 2;
-    h->term = h->gathered + h->element_count;
+    h->term = h->gathered + 4 * (size_t)h->element_count;
     hierarchy_report(h, m, stats);
     return radiosity_collect_patches(m, s, o, err, err_size); /* the leaves become the patches */
 }
@@ -462,13 +542,13 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
 int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, int first, int last,
                     const radiosity_options *o, radiosity_stats *r, double source_norm, vec3 *L)
 {
-    memset(h->gathered, 0, (size_t)h->element_count * sizeof *h->gathered);
+    memset(h->gathered, 0, 4 * (size_t)h->element_count * sizeof *h->gathered);
     push_pull_all(h, m, 0, first_shot); /* term 0: E at the leaves, pulled up */
     for (int k = 0;; k++) {
         if (k >= first) /* a patch's radiance is its mean over its whole area */
             for (int i = 0; i < m->patch_count; i++)
                 L[i] = v3_madd(L[i], h->term[m->patches[i].cell], h->exposure[m->patches[i].cell]);
-        gather(h);
+        gather(h, m);
         push_pull_all(h, m, k == 0 ? 1 : 2, first_shot); /* term k + 1 */
         double power = 0.0;
         for (int i = 0; i < m->patch_count; i++) {
@@ -485,7 +565,7 @@ int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, i
 
 void hierarchy_free(hierarchy *h)
 {
-    free(h->element), free(h->level), free(h->parent), free(h->exposure), free(h->gathered), free(h->link_start),
-        free(h->link_source), free(h->link_F);
+    free(h->element), free(h->level), free(h->covered), free(h->parent), free(h->exposure), free(h->gathered), free(h->link_start),
+        free(h->link_source), free(h->link_F), free(h->link_shape);
     *h = (hierarchy){0};
 }

@@ -26,19 +26,23 @@
 #include "03_radiosity_support.h"
 #include "patch_mesh.h"
 
+enum { COVERED_PART = 1, COVERED_ALL = 2 };
+
 typedef struct {
     int element_count, root_count, capacity;
     patch *element;       /* per cell of the mesh: its geometry, albedo and emission */
     unsigned char *level; /* depth below its root */
     int *parent;          /* -1 for a root */
     float *exposure;      /* the fraction of its area outside every solid (not buried) */
+    unsigned char *covered; /* 0, COVERED_PART or COVERED_ALL: something close above (hierarchy_track_new_cells) */
     int exposure_count;   /* elements whose exposure is known (hierarchy_exposure) */
-    vec3 *gathered;       /* per element: rho Sum_links F L (one Neumann term) */
+    vec3 *gathered;       /* per element, at each of its 4 (or 3) corners: rho Sum_links F L (one Neumann term) */
     vec3 *term;           /* per element: the term, pulled up from the leaves */
     long link_count;
     long *link_start; /* links of receiver e: link_start[e] .. link_start[e + 1] - 1 */
     int *link_source;
     float *link_F;
+    float *link_shape; /* per link, at the receiver's 4 (or 3) corners: F there over F (link_shapes) */
 } hierarchy;
 
 /* Refine the roots (the mesh's top-level cells, albedo and emission given

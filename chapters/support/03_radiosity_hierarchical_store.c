@@ -5,6 +5,30 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* How far above an element, in its radii, something covers it (COVER_REACH),
+ * and where the rays start (as the oracle's EDGE_INSET). */
+static const double COVER_REACH = 2.0, COVER_INSET = 0.9;
+
+/* Is something close above e (a box resting on, or 1 mm above, a floor
+ * element)?  Rays along the normal from its centroid and near its corners,
+ * COVER_REACH radii long: COVERED_PART when some are blocked and some not,
+ * COVERED_ALL when all are, else 0 (hierarchical.h). */
+static unsigned char covered(const patch_mesh *m, const scene *s, const patch *e)
+{
+    vec3 mean = element_corner_mean(e);
+    int blocked = 0, open = 0;
+    for (int k = -1; k < e->corner_count; k++) {
+        vec3 x = k < 0 ? e->centroid : element_toward_corner(m, e, mean, k, COVER_INSET);
+        hit first;
+        ray up = {scene_offset_origin(s, x, e->normal, e->normal), e->normal};
+        if (scene_intersect(s, up, COVER_REACH * e->radius, &first))
+            blocked++;
+        else
+            open++;
+    }
+    return !blocked ? 0 : open ? COVERED_PART : COVERED_ALL;
+}
+
 int hierarchy_track_new_cells(hierarchy *h, const patch_mesh *m, const scene *s)
 {
     if (m->cell_count > h->capacity) {
@@ -17,10 +41,13 @@ int hierarchy_track_new_cells(hierarchy *h, const patch_mesh *m, const scene *s)
         unsigned char *level = realloc(h->level, (size_t)capacity);
         if (level)
             h->level = level;
+        unsigned char *covered = realloc(h->covered, (size_t)capacity);
+        if (covered)
+            h->covered = covered;
         int *parent = realloc(h->parent, (size_t)capacity * sizeof *parent);
         if (parent)
             h->parent = parent;
-        if (!element || !level || !parent)
+        if (!element || !level || !covered || !parent)
             return -1;
         h->capacity = capacity;
     }
@@ -28,6 +55,7 @@ int hierarchy_track_new_cells(hierarchy *h, const patch_mesh *m, const scene *s)
         patch *e = &h->element[h->element_count];
         patch_mesh_cell_geometry(m, h->element_count, e);
         radiosity_material(s, e->surface, &e->albedo, &e->emission);
+        h->covered[h->element_count] = covered(m, s, e);
         h->level[h->element_count] = 0, h->parent[h->element_count] = -1;
     }
     return 0;
@@ -182,16 +210,35 @@ int hierarchy_exposure(hierarchy *h, const patch_mesh *m, const scene *s)
     return 0;
 }
 
-static void hierarchy_row_sums(const hierarchy *h, const patch_mesh *m, int e, double above, radiosity_stats *stats)
+double hierarchy_link_shape(const hierarchy *h, int e, long k, int j)
 {
-    for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
-        above += h->link_F[k];
-    if (m->cells[e].first_child < 0) {
-        stats->row_sum_min = fmin(stats->row_sum_min, above), stats->row_sum_max = fmax(stats->row_sum_max, above);
-        return;
+    if (h->link_shape)
+        return h->link_shape[4 * k + j];
+    return h->exposure[e] > 0.0 ? 1.0 / h->exposure[e] : 0.0;
+}
+
+/* Each exposed leaf's row sum: what it gathers, as push_pull gives it,
+ * when every element has radiance 1 and albedo 1 (in x). */
+static void hierarchy_row_sums(const hierarchy *h, const patch_mesh *m, int e, const vec3 *above, radiosity_stats *stats)
+{
+    const mesh_cell *c = &m->cells[e];
+    vec3 here[4];
+    double row = 0.0;
+    for (int j = 0; j < c->vertex_count; j++) {
+        here[j] = above[j];
+        for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
+            here[j].x += h->link_F[k] * hierarchy_link_shape(h, e, k, j);
+        row += here[j].x / c->vertex_count;
     }
-    for (int k = 0; k < 4; k++)
-        hierarchy_row_sums(h, m, m->cells[e].first_child + k, above, stats);
+    if (c->first_child < 0 && h->exposure[e] > 0.0) {
+        stats->row_sum_min = fmin(stats->row_sum_min, row);
+        stats->row_sum_max = fmax(stats->row_sum_max, row);
+    }
+    for (int k = 0; c->first_child >= 0 && k < 4; k++) {
+        vec3 below[4];
+        patch_mesh_child_values(c->vertex_count, here, k, below);
+        hierarchy_row_sums(h, m, c->first_child + k, below, stats);
+    }
 }
 
 void hierarchy_report(const hierarchy *h, const patch_mesh *m, radiosity_stats *stats)
@@ -199,7 +246,7 @@ void hierarchy_report(const hierarchy *h, const patch_mesh *m, radiosity_stats *
     stats->elements = h->element_count, stats->links = h->link_count, stats->levels = 0;
     stats->have_matrix_checks = true, stats->row_sum_min = INFINITY, stats->row_sum_max = 0.0;
     for (int root = 0; root < h->root_count; root++)
-        hierarchy_row_sums(h, m, root, 0.0, stats);
+        hierarchy_row_sums(h, m, root, (vec3[4]){{0}}, stats);
     for (int e = 0; e < h->element_count; e++)
         stats->levels = stats->levels > h->level[e] ? stats->levels : h->level[e];
     stats->hierarchy_bytes =

@@ -21,6 +21,7 @@ typedef struct {
     point_to_polygon_fn point_to_polygon;
     double eps, eps_spread;
     int levels;
+    double smallest; /* no element is split into children smaller than this across */
     int *receiver, *source; /* the links, in the order the oracle makes them */
     float *known_F;         /* a form factor the first pass computed for the same pair, or -1 */
     long count, capacity;
@@ -72,6 +73,10 @@ int element_sample_points(const patch_mesh *m, const patch *e, vec3 *out);
  * across the box's edge gathers light on one part only, and push_pull
  * gives that light to the part that is not buried.  -1 when out of memory. */
 int hierarchy_exposure(hierarchy *h, const patch_mesh *m, const scene *s);
+
+/* Link k of receiver e at e's corner j: its shape (h->link_shape), or before
+ * the shapes are known (the first pass) constant over e's exposed part. */
+double hierarchy_link_shape(const hierarchy *h, int e, long k, int j);
 
 /* The stats of a built hierarchy: elements, links, levels, memory, and each
  * leaf's row sum (the form factors of its links and its ancestors', 1 in a

@@ -8,6 +8,13 @@
 
 #include "mesh_io.h"
 #include "render.h"
+#include "sampling.h"
+
+/* The default --patch-size: a tenth of the largest side of the scene's
+ * bounding box, so that a scene gets the same mesh in metres as in
+ * millimetres (no unit is baked in). */
+#define PATCH_SIZE_DEFAULT "largest-side/10"
+static const double PATCH_SIZE_PARTS = 10.0;
 
 const char *const solver_names[5] = {"jacobi", "gauss-seidel", "shooting", "direct", "hierarchical"};
 
@@ -17,6 +24,10 @@ static int parse_patch_size(void *state, const char *value, int argv_index, char
 {
     radiosity_options *o = state;
     char *end;
+    if (argv_index < 0 && !strcmp(value, PATCH_SIZE_DEFAULT)) { /* the default: from the scene's size */
+        o->patch_size = 0.0, o->patch_size_argv = 0;
+        return 0;
+    }
     double size = strtod(value, &end);
     if (end == value || *end || !isfinite(size) || !(size > 0.0)) {
         snprintf(why, why_size, "must be positive (scene units), not '%s'", value);
@@ -72,8 +83,9 @@ static int parse_levels(void *state, const char *value, int argv_index, char *wh
 
 #define OPTION_FIELD(field) offsetof(radiosity_options, field)
 const option RADIOSITY_OPTIONS[] = {
-    {"--patch-size", "S", OPTION_CUSTOM, 0, .parse = parse_patch_size, .default_text = "50",
-     .help = "target patch edge in scene units (50 suits the Cornell box in mm)"},
+    {"--patch-size", "S", OPTION_CUSTOM, 0, .parse = parse_patch_size, .default_text = PATCH_SIZE_DEFAULT,
+     .help = "target patch edge in scene units; by default a tenth of the scene's largest extent (56 in the "
+             "Cornell box, in mm; 0.1 in a room of 1 m)"},
     {"--adaptive", NULL, OPTION_FLAG, OPTION_FIELD(adaptive),
      .help = "refine patches where the radiance changes fast (shadow edges)"},
     {"--adaptive-levels", "N", OPTION_CUSTOM, 0, .parse = parse_adaptive_levels, .default_text = "2",
@@ -221,9 +233,11 @@ static bool *spheres_to_mesh(const scene *s)
     return mesh;
 }
 
-int radiosity_mesh_scene(patch_mesh *m, const scene *s, const radiosity_options *o, char *err, size_t err_size)
+int radiosity_mesh_scene(patch_mesh *m, const scene *s, radiosity_options *o, char *err, size_t err_size)
 {
     bool hierarchical = o->solver == SOLVER_HIERARCHICAL;
+    if (!(o->patch_size > 0.0)) /* the default: from the scene's size */
+        o->patch_size = v3_max_component(v3_sub(s->bounds.hi, s->bounds.lo)) / PATCH_SIZE_PARTS;
     double size = hierarchical && o->patch_size_argv == 0 ? INFINITY : o->patch_size; /* roots: whole surfaces */
     if (hierarchical && o->formfactors_path) /* n^2 form factors between the leaves: what the hierarchy avoids */
         return snprintf(err, err_size,
@@ -287,4 +301,64 @@ int radiosity_refine(patch_mesh *m, const scene *s, const radiosity_options *o, 
     if (!quiet)
         fprintf(stderr, "03_radiosity: refinement %d split %d of %d patches\n", r->refinements, split, m->patch_count);
     return radiosity_collect_patches(m, s, o, err, err_size) ? -1 : split;
+}
+
+/* Is the scene closed: does every one of a few fixed cosine-weighted rays
+ * from each patch's centroid hit it?  Then every row should sum to 1.
+ * Patches inside a solid (the floor under a box: the ray along the
+ * normal meets a back face) or against one (the box's bottom on the
+ * floor: it escapes) have none to sum and are marked in buried. */
+static bool closed_scene(const patch_mesh *m, const scene *s, bool *buried)
+{
+    static const double u[4][2] = {{0.125, 0.375}, {0.375, 0.875}, {0.625, 0.125}, {0.875, 0.625}};
+    bool closed = true;
+    for (int i = 0; i < m->patch_count; i++) {
+        const patch *p = &m->patches[i];
+        onb basis = onb_from_normal(p->normal);
+        hit h;
+        bool ahead = scene_intersect(s, (ray){scene_offset_origin(s, p->centroid, p->normal, p->normal), p->normal},
+                                     INFINITY, &h);
+        buried[i] = !ahead || v3_dot(h.normal, p->normal) > 0.0; /* or facing a surface it rests on */
+        for (int k = 0; k < 4 && closed && !buried[i]; k++) {
+            vec3 d = onb_to_world(basis, cosine_sample_hemisphere(u[k][0], u[k][1]));
+            closed = scene_intersect(s, (ray){scene_offset_origin(s, p->centroid, p->normal, d), d}, INFINITY, &h);
+        }
+    }
+    return closed;
+}
+
+/* The bias of L a missing row fraction may cause before a warning: 1 %. */
+static const double ROW_SUM_BIAS = 0.01;
+
+void radiosity_warn_row_sums(const float *F, const patch_mesh *m, const scene *s, const radiosity_options *o)
+{
+    size_t n = (size_t)m->patch_count;
+    double rho = 0.0; /* the largest albedo: how much a missing row fraction is amplified */
+    for (size_t i = 0; i < n; i++)
+        rho = fmax(rho, v3_max_component(m->patches[i].albedo));
+    double bearable = ROW_SUM_BIAS * (1.0 - rho) / fmax(rho, 1e-9);
+    bool *buried = malloc(n * sizeof *buried + 1);
+    char names[256] = "";
+    double worst = 1.0;
+    for (int surface = 0; buried && closed_scene(m, s, buried) && surface < s->surface_count; surface++) {
+        double area = 0.0, sum = 0.0;
+        for (size_t i = 0; i < n; i++)
+            if (m->patches[i].surface == surface && !buried[i]) {
+                area += m->patches[i].area;
+                for (size_t j = 0; j < n; j++)
+                    sum += m->patches[i].area * F[i * n + j];
+            }
+        if (!(area > 0.0) || sum / area >= 1.0 - bearable)
+            continue;
+        worst = fmin(worst, sum / area);
+        size_t used = strlen(names);
+        snprintf(names + used, sizeof names - used, "%s%s", used ? ", " : "", s->surfaces[surface].name);
+    }
+    free(buried);
+    if (names[0])
+        fprintf(stderr,
+                "warning: 03_radiosity: in this closed scene the form factors of surfaces sum to as little as %.3f (%s), "
+                "below 1 - %.2g, which biases L by more than %.0f %% at albedo %.2g; use a smaller --patch-size "
+                "(now %g)\n",
+                worst, names, bearable, 100.0 * ROW_SUM_BIAS, rho, o->patch_size);
 }

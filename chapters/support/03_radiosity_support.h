@@ -72,10 +72,11 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
 
 /* Mesh the scene into patches of about --patch-size (refusing over
  * 4,000,000; diffuse spheres meshed by latitude and longitude, mirror and
- * glass spheres not, said once on stderr) and collect them
+ * glass spheres not, said once on stderr; the default size, 0, becomes a
+ * tenth of the scene's largest extent) and collect them
  * (radiosity_collect_patches).  --solver hierarchical: the roots, one cell
  * per surface (per triangle, 12 x 6 per sphere) unless --patch-size is given.  Returns 0, or 2 with a message. */
-int radiosity_mesh_scene(patch_mesh *m, const scene *s, const radiosity_options *o, char *err, size_t err_size);
+int radiosity_mesh_scene(patch_mesh *m, const scene *s, radiosity_options *o, char *err, size_t err_size);
 
 /* A surface's albedo rho and emission Le as radiosity models its material:
  * diffuse only, so mirrors and glass become diffuse with their colour as
@@ -93,6 +94,12 @@ int radiosity_collect_patches(patch_mesh *m, const scene *s, const radiosity_opt
  * again.  Returns how many were split (0: done), or -1 with a message. */
 int radiosity_refine(patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *r,
                      const vec3 *radiance, bool quiet, char *err, size_t err_size);
+
+/* A warning naming the enclosed surfaces (a few fixed rays from each of
+ * their patches all hit the scene) whose area-weighted form-factor row sum
+ * falls short of 1 by more than would bias a furnace's L = Le / (1 - rho)
+ * by 1 % at the scene's largest albedo rho: rho (1 - S) / (1 - rho) > 1 %. */
+void radiosity_warn_row_sums(const float *F, const patch_mesh *m, const scene *s, const radiosity_options *o);
 
 /* Refuse a matrix solver (all but shooting) over --max-patches before
  * trying.  Returns 0, or 2 with the message. */
