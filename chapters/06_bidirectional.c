@@ -27,7 +27,7 @@
 enum { COUNT_EYE_RAYS, COUNT_SHADOW_RAYS, COUNT_MERGES };
 
 /* A path of k edges is the term K^(k-1) E (R6): does --bounces A:B keep it? */
-static bool keeps_length(const bidir_state *st, int k) { return k - 1 >= st->bounce_min && k - 1 <= st->bounce_max; }
+static bool keeps_length(const bidir_state *st, int k) { return bounces_keep(st->bounces, k - 1); }
 
 static vec3 unit(vec3 from, vec3 to) { return v3_normalize(v3_sub(to, from)); }
 static bool at_specular(const path_vertex *p) { return p->kind == AT_SURFACE && is_specular(p->m); }
@@ -463,9 +463,9 @@ static void check_pair(bidir_state *st, const scene *s, rng *g)
 static int prepare(void *state_pointer, const scene *s, const render_options *o, char *err, size_t err_size)
 {
     bidir_state *st = state_pointer;
-    st->bounce_min = o->bounce_min, st->bounce_max = o->bounce_max, st->seed = o->seed;
-    st->light_cap = st->bounce_max + 1 < MAX_VERTICES ? st->bounce_max + 1 : MAX_VERTICES;
-    st->eye_cap = st->bounce_max + 2 < MAX_VERTICES ? st->bounce_max + 2 : MAX_VERTICES;
+    st->bounces = bounce_window_of(o), st->seed = o->seed;
+    st->light_cap = st->bounces.last + 1 < MAX_VERTICES ? st->bounces.last + 1 : MAX_VERTICES;
+    st->eye_cap = st->bounces.last + 2 < MAX_VERTICES ? st->bounces.last + 2 : MAX_VERTICES;
     st->merge = st->method == METHOD_VCM && !st->merge_off && !st->single_strategy;
     st->connect = !(st->method == METHOD_VCM && st->connect_off);
     if (bidir_allocate(st, s, o->width, o->height, err, err_size))

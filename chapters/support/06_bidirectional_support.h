@@ -43,7 +43,8 @@ typedef struct {
     double radius, alpha;
     /* From prepare and begin_pass. */
     bool merge, connect;
-    int bounce_min, bounce_max, light_cap, eye_cap; /* subpaths hold at most light_cap, eye_cap vertices */
+    bounce_window bounces;  /* --bounces A:B keeps paths of A + 1 .. B + 1 edges: K^A E .. K^B E (R6) */
+    int light_cap, eye_cap; /* subpaths hold at most light_cap, eye_cap vertices */
     uint64_t seed, light_rays;
     pinhole camera;
     double *light_probability; /* per surface (0: not a light), then per point light */
