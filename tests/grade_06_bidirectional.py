@@ -227,8 +227,9 @@ def test_agrees_with_radiosity_on_diffuse_box(ctx):
 def test_each_strategy_alone_is_unbiased(ctx):
     """A path of k edges is the term K^(k-1) E.  For k = 3 every strategy (s, t) with s + t = 4, each
     alone and unweighted (--strategy s,t), is an unbiased estimate of it: its 2 x 2 tile means agree
-    with chapter 4's --bounces 2:2 (STAGE, RENDERS seeds each), within
-    t_bound(RENDERS - 1, 48) combined standard errors, each below 6 %.  And k = 2 for (0, 3), (1, 2), (2, 1)."""
+    with chapter 4's --bounces 2:2 (STAGE, RENDERS seeds each), within t_bound(RENDERS - 1, 84)
+    combined standard errors (7 strategies, 12 tile means each), each below 6 % of the image's mean.
+    And k = 2 for (0, 3), (1, 2), (2, 1) against --bounces 1:1."""
     scene = ctx.write("stage.scene", STAGE)
     for k, strategies, spp in ((3, ((0, 4), (1, 3), (2, 2), (3, 1)), (256, 8, 8, 8)),
                                (2, ((0, 3), (1, 2), (2, 1)), (64, 8, 8))):
