@@ -25,14 +25,35 @@ share the sandbox only if they run the same program (two renders of one
 criterion): a program of another chapter (an instructor's one a test
 compares with) waits until nothing else is running.
 """
+import ctypes
 import json
 import os
+import select
 import signal
 import subprocess
 import sys
 import time
 
-POLL_BUSY, POLL_IDLE = 0.001, 0.01  # seconds between looks at REQUESTS: often while programs run
+IN_MOVED_TO = 0x80  # inotify: a file renamed into the directory (requests and answers are renamed into place)
+
+
+def watch(directory):
+    """A descriptor that becomes readable when a file is renamed into directory (Linux inotify), so
+    that neither side polls: each wakes when the other has written (kit/sandbox.py Client too)."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    fd = libc.inotify_init1(os.O_NONBLOCK | os.O_CLOEXEC)
+    if fd < 0 or libc.inotify_add_watch(fd, os.fsencode(directory), IN_MOVED_TO) < 0:
+        raise OSError(ctypes.get_errno(), f"inotify on {directory}: {os.strerror(ctypes.get_errno())}")
+    return fd
+
+
+def drain(fd):
+    """Read what a watch() descriptor holds: it is readable again only after the next event."""
+    try:
+        while os.read(fd, 65536):
+            pass
+    except BlockingIOError:
+        pass
 
 
 def others():
@@ -97,7 +118,8 @@ def write_atomically(path, data):
 class Runner:
     def __init__(self, requests, responses):
         self.requests, self.responses = requests, responses
-        self.seen, self.waiting, self.active = set(), [], {}  # active: id -> (Popen, deadline, program)
+        self.seen, self.waiting = set(), []
+        self.active = {}  # id -> (Popen, deadline, program, pidfd: readable when it ends)
 
     def read_new_requests(self):
         for name in sorted(os.listdir(self.requests)):
@@ -120,7 +142,7 @@ class Runner:
                 kill_leftovers(set())
                 return
             program = request["argv"][0]
-            if any(p != program for _, _, p in self.active.values()):
+            if any(run[2] != program for run in self.active.values()):
                 return  # another program is running: this one waits (see the module)
             self.waiting.pop(0)
             self.start(rid, request, program)
@@ -134,23 +156,25 @@ class Runner:
         except OSError as e:
             self.finish(rid, 127, "", f"cannot start {program}: {e.strerror}\n")
             return
-        self.active[rid] = (p, time.monotonic() + float(request["timeout"]), program)
+        self.active[rid] = (p, time.monotonic() + float(request["timeout"]), program, os.pidfd_open(p.pid))
 
     def stop_active(self, why):
-        for rid, (p, _, _) in list(self.active.items()):
+        for rid, (p, _, _, ended) in list(self.active.items()):
             kill_group(p.pid)
             p.wait()
+            os.close(ended)
             self.finish(rid, None, why)
         self.active.clear()
 
     def reap(self):
-        for rid, (p, deadline, _) in list(self.active.items()):
+        for rid, (p, deadline, _, ended) in list(self.active.items()):
             code, stopped = p.poll(), ""
             if code is None and time.monotonic() > deadline:
                 kill_group(p.pid)
                 code, stopped = p.wait(), "time-out"
             if code is None:
                 continue
+            os.close(ended)
             del self.active[rid]
             if not self.active:
                 left = kill_leftovers(set())
@@ -165,14 +189,16 @@ class Runner:
         write_atomically(os.path.join(self.responses, rid + ".done"), {"returncode": code, "stopped": stopped})
 
     def serve(self):
-        last_busy = time.monotonic()
+        requests_came = watch(self.requests)
         while True:
+            drain(requests_came)
             self.read_new_requests()
             self.start_waiting()
             self.reap()
-            if self.active or self.waiting:
-                last_busy = time.monotonic()
-            time.sleep(POLL_BUSY if time.monotonic() - last_busy < 1.0 else POLL_IDLE)
+            now = time.monotonic()  # wake for a request, a run's end, or a run's time-out
+            deadline = min([run[1] for run in self.active.values()] + [now + 1.0])
+            select.select([requests_came] + [run[3] for run in self.active.values()], [], [],
+                          max(0.0, deadline - now))
 
 
 if __name__ == "__main__":
