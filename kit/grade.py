@@ -477,7 +477,8 @@ def run_criterion(src, c, opts, images_dir):
             spec["session"] = opts["session"].client_spec()
         cmd.append(json.dumps(spec))
     scratch = os.path.join(os.path.dirname(src), "scratch")  # the tests' temporary files, removed with the grading
-    env = dict(os.environ, OMP_NUM_THREADS=str(opts["jobs"]), PYTHONDONTWRITEBYTECODE="1", TMPDIR=scratch)
+    env = dict(os.environ, OMP_NUM_THREADS=str(opts["jobs"]), OMP_WAIT_POLICY="passive", PYTHONDONTWRITEBYTECODE="1",
+               TMPDIR=scratch)
     code, out, err = run_limited(cmd, src, c.get("timeout", opts["timeout"]),
                                  opts["memory"] if opts.get("unsafe", False) else None, env)
     if code is None:

@@ -20,7 +20,8 @@ bubblewrap (Debian's `bwrap`):
 - whole-sandbox caps in a cgroup of its own (process count, memory
   including its tmpfs and page cache, CPU time) and per-process ones
   (file size, no core files);
-- an empty environment but PATH, HOME=/tmp, LANG and OMP_NUM_THREADS;
+- an empty environment but PATH, HOME=/tmp, LANG, OMP_NUM_THREADS and
+  OMP_WAIT_POLICY=passive;
   stdin /dev/null; stdout and stderr go to files of its own, read back
   size-capped; no descriptor of the grader is open inside.
 
@@ -224,7 +225,8 @@ class Sandbox:
         self.mode = mode  # "bwrap", or "user": the fallback without namespaces (see the module)
 
     def environment(self):
-        return {"PATH": "/usr/bin:/bin", "HOME": "/tmp", "LANG": "C.UTF-8", "OMP_NUM_THREADS": str(self.threads)}
+        return {"PATH": "/usr/bin:/bin", "HOME": "/tmp", "LANG": "C.UTF-8", "OMP_NUM_THREADS": str(self.threads),
+                "OMP_WAIT_POLICY": "passive"}  # threads that spin while waiting slow a loaded grader
 
     def bwrap_command(self, argv, cwd):
         cmd = ["bwrap", "--unshare-all", "--die-with-parent", "--new-session", "--uid", str(self.uid),
@@ -240,7 +242,8 @@ class Sandbox:
         for path, writable in self.binds:
             cmd += ["--bind" if writable else "--ro-bind", path, path]
         cmd += ["--chdir", cwd, "--clearenv", "--setenv", "PATH", "/usr/bin:/bin", "--setenv", "HOME", "/tmp",
-                "--setenv", "LANG", "C.UTF-8", "--setenv", "OMP_NUM_THREADS", str(self.threads), "--"]
+                "--setenv", "LANG", "C.UTF-8", "--setenv", "OMP_NUM_THREADS", str(self.threads),
+                "--setenv", "OMP_WAIT_POLICY", "passive", "--"]
         return cmd + list(argv)
 
     def _preexec(self, cgroup):
