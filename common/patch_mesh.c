@@ -358,8 +358,10 @@ void patch_mesh_child_values(int vertex_count, const vec3 *parent, int child, ve
                                      {mid[3], centre, mid[2], parent[3]}};
         memcpy(out, children[child], sizeof children[child]);
     } else {
-        const vec3 children[4][3] = {
-            {parent[0], mid[0], mid[2]}, {mid[0], parent[1], mid[1]}, {mid[2], mid[1], parent[2]}, {mid[0], mid[1], mid[2]}};
+        const vec3 children[4][3] = {{parent[0], mid[0], mid[2]},
+                                     {mid[0], parent[1], mid[1]},
+                                     {mid[2], mid[1], parent[2]},
+                                     {mid[0], mid[1], mid[2]}};
         memcpy(out, children[child], sizeof children[child]);
     }
 }
@@ -481,6 +483,7 @@ int patch_mesh_collect(patch_mesh *m, int quadrature)
             continue;
         patch *p = &m->patches[m->patch_count];
         patch_mesh_cell_geometry(m, c, p);
+        p->exposure = 1.0;
         if (add_quadrature_points(m, p, quadrature))
             return -1;
         cell->patch = m->patch_count++;

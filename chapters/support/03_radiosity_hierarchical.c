@@ -99,8 +99,8 @@ static bool shadow_edge(const refiner *r, const patch *ep, const patch *eq)
  * eps / 165, a dim wall's hardly at all (the first pass tested those). */
 static bool worth_shadow_test(const refiner *r, int p, int q, const patch *eq, double f)
 {
-    if (r->h->covered[p])  /* a contact shadow across p, whatever the source; under a cover */
-        return r->h->covered[p] == COVERED_PART; /* p sees the rest through a slit, all of it alike */
+    if (r->h->covered[p] == COVERED_ALL)
+        return false; /* under a cover p sees the rest through a slit, all of it alike */
     if (!r->radiance)
         return f >= r->eps / 8.0;
     int known = q;
@@ -154,10 +154,10 @@ static double point_form_factor(const refiner *r, vec3 x, const patch *ep, const
     return cos_p > 0.0 && cos_q > 0.0 ? eq->area * cos_p * cos_q / (M_PI * distance * distance + eq->area) : 0.0;
 }
 
-/* The oracle's F_pq: the largest point form factor at p's centroid and
- * corners.  At the centroid alone a pair that nearly touches (a box 1 mm
- * above the floor) reads F ~ 0 while a corner of p sees q at F ~ 1/2, and a
- * link there would spread over p what only its corner receives. */
+/* The oracle's F_pq: the largest point form factor at p's centroid and, if
+ * near, its corners.  At the centroid alone a pair that nearly touches (a
+ * box 1 mm above the floor) reads F ~ 0 while a corner of p sees q at F ~ 1/2,
+ * and a link there would give all of p what only its corner receives. */
 static double largest_form_factor(const refiner *r, const patch *ep, const patch *eq)
 {
     bool far = v3_length(v3_sub(eq->centroid, ep->centroid)) > DISC_FACTOR * (ep->radius + eq->radius);
@@ -175,17 +175,23 @@ static bool can_split(const refiner *r, int e)
     return r->h->level[e] < r->levels && sqrt(r->h->element[e].area / 4.0) >= r->smallest;
 }
 
-/* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  A
- * link at this level when both form-factor estimates are below the pass's
- * eps (in the second pass --eps, and F times q's brightness), the spread bound is within
- * --eps-spread, and no shadow edge crosses the pair where a test is worth
- * it.  Otherwise split the element that looks larger from the other (q when
- * F_pq > F_qp); an element at --levels is not split further. */
+/* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.  An
+ * element partly covered (a box resting on it or just above part of it:
+ * hierarchy_track_new_cells) is split, so that its parts get their own links
+ * (the light steps there, which no link's shape follows).  Otherwise a link
+ * at this level when both form-factor estimates are below the pass's eps (in
+ * the second pass --eps, and F times q's brightness), the spread bound is
+ * within --eps-spread, and no shadow edge crosses the pair where a test is
+ * worth it.  Otherwise split the element that looks larger from the other
+ * (q when F_pq > F_qp); an element at --levels or the smallest size is not
+ * split further. */
 static enum verdict judge(const refiner *r, int p, int q)
 {
     const patch *ep = &r->h->element[p], *eq = &r->h->element[q];
     if (!patches_facing(ep, eq, r->s->epsilon))
         return NO_LINK; /* one-sided: they cannot exchange light */
+    if (r->h->covered[p] == COVERED_PART && can_split(r, p))
+        return SPLIT_RECEIVER; /* a contact shadow or a solid's edge across p, whatever the source */
     double fpq = largest_form_factor(r, ep, eq), fqp = largest_form_factor(r, eq, ep);
     double bright = brightness(r, q);
     bool link = fpq * bright < r->eps && fqp * bright < r->eps;
@@ -194,8 +200,6 @@ static enum verdict judge(const refiner *r, int p, int q)
     bool can_p = can_split(r, p), can_q = can_split(r, q);
     if ((link && !shadowed) || (!can_p && !can_q))
         return LINK;
-    if (shadowed && r->h->covered[p] == COVERED_PART && can_p)
-        return SPLIT_RECEIVER; /* the shadow's edge is on p, whatever the source */
     return can_q && (fpq > fqp || !can_p) ? SPLIT_SOURCE : SPLIT_RECEIVER;
 }
 
@@ -233,17 +237,21 @@ static void refine_rounds(refiner *r, pair *todo, long count)
     free(todo);
 }
 
-/* A link's form factor F_pq (R10).  Far apart: Lambert's formula at four
- * points of p times the fraction of rays between them not blocked.  Near:
- * the outer integral over M x M sub-triangle centroids of each triangle of
- * p (--quadrature M), a ray from each to a point of q. */
+/* A link's form factor F_pq (R10) over the part of p outside every solid
+ * (its mean there: what push_pull hands to that part).  Far apart: Lambert's
+ * formula at four points of p times the fraction of rays between them not
+ * blocked.  Near, or when p may be partly inside a solid: the outer integral
+ * over M x M sub-triangle centroids of each triangle of p (--quadrature M)
+ * that are outside (a ray along the normal from each), a ray from each to a
+ * point of q. */
 static double link_form_factor(const hierarchy *h, const patch_mesh *m, const scene *s, point_to_polygon_fn F, int M,
                                int p, int q, uint64_t *rays)
 {
     const patch *ep = &h->element[p], *eq = &h->element[q];
     vec3 b[4];
     int nb = element_sample_points(m, eq, b);
-    if (v3_length(v3_sub(eq->centroid, ep->centroid)) > NEAR_FACTOR * (ep->radius + eq->radius)) {
+    bool covered = h->covered[p] != 0; /* part of p may be inside a solid: integrate over the rest only */
+    if (!covered && v3_length(v3_sub(eq->centroid, ep->centroid)) > NEAR_FACTOR * (ep->radius + eq->radius)) {
         /* The outer integral by the points 1/sqrt(3) of the way from the centroid
          * to the corners (Gauss's 2 x 2 rule on a parallelogram): the centroid
          * alone would miss the curvature of the 1/r^2 kernel, always low. */
@@ -258,8 +266,9 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
             return 0.0;
         return f / ep->corner_count * visible_fraction(m, s, ep, eq, rays);
     }
-    double total = 0.0;
+    double total = 0.0, exposed = 0.0;
     int point = 0;
+    vec3 in_front = element_point_in_front(eq, ep->centroid, ep->normal, 4.0 * s->epsilon);
     for (int t = 1; t + 1 < ep->corner_count; t++) {
         vec3 o = ep->corner[0], e1 = v3_sub(ep->corner[t], o), e2 = v3_sub(ep->corner[t + 1], o);
         double weight = 0.5 * v3_length(v3_cross(e1, e2)) / ep->area / (M * M);
@@ -268,6 +277,9 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
                 for (int down = 0; down < 2 && !(down && i + j > M - 2); down++) {
                     double u = (3.0 * i + 1.0 + down) / (3.0 * M), v = (3.0 * j + 1.0 + down) / (3.0 * M);
                     vec3 x = patch_mesh_on_surface(m, ep->surface, v3_add(o, v3_add(v3_scale(e1, u), v3_scale(e2, v))));
+                    if (covered && element_point_buried(s, x, ep->normal))
+                        continue;
+                    exposed += weight;
                     if (v3_dot(eq->normal, v3_sub(x, eq->centroid)) <= s->epsilon)
                         continue;
                     double f = F(x, ep->normal, eq->corner, eq->corner_count);
@@ -276,20 +288,22 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
                     int k = 0; /* a point of q in front of p (see visible_fraction) */
                     while (k < nb && v3_dot(ep->normal, v3_sub(b[(point + k) % nb], ep->centroid)) <= s->epsilon)
                         k++;
-                    vec3 y = k < nb ? b[(point++ + k) % nb] : eq->centroid;
+                    vec3 y = k < nb ? b[(point++ + k) % nb] : in_front;
                     ++*rays;
                     if (!scene_occluded(s, x, y))
                         total += weight * f;
                 }
     }
-    return total;
+    return exposed > 0.0 ? total / exposed : 0.0;
 }
 
 /* The shape of link e <- q across the receiver e: its point form factor
- * times visibility (one ray to q's centroid) at e's corners, from points
+ * times visibility (one ray to q's part in front of e) at e's corners, from points
  * EDGE_INSET of the way out extrapolated to the corners (a ray from a corner
  * itself would start on the next surface's edge), as multiples of their
- * mean; constant 1 / exposure when no corner sees q.  A leaf then receives
+ * mean; constant where no corner sees q or e is partly inside
+ * a solid (its light then steps to 0 at the solid's edge, which a ramp across
+ * e would spread: a floor element across a resting box's edge).  A leaf then receives
  * from its ancestors' links what their linear interpolation gives at its
  * corners instead of their mean: at a concave corner, where F grows from 0
  * at the other wall's plane, an inherited constant gave the leaves along the
@@ -299,9 +313,10 @@ static void shape_link(const hierarchy *h, const patch_mesh *m, const scene *s, 
     const patch *ep = &h->element[e], *eq = &h->element[h->link_source[k]];
     vec3 mean_corner = element_corner_mean(ep);
     double g[4] = {0.0, 0.0, 0.0, 0.0}, mean = 0.0, shaped = 0.0;
+    vec3 y = element_point_in_front(eq, ep->centroid, ep->normal, 4.0 * s->epsilon); /* not behind e's plane */
     for (int j = 0; j < ep->corner_count; j++) {
         vec3 x = element_toward_corner(m, ep, mean_corner, j, EDGE_INSET);
-        if (v3_dot(eq->normal, v3_sub(x, eq->centroid)) > s->epsilon && !scene_occluded(s, x, eq->centroid))
+        if (v3_dot(eq->normal, v3_sub(x, eq->centroid)) > s->epsilon && !scene_occluded(s, x, y))
             g[j] = F(x, ep->normal, eq->corner, eq->corner_count);
         mean += g[j] / ep->corner_count;
     }
@@ -310,8 +325,9 @@ static void shape_link(const hierarchy *h, const patch_mesh *m, const scene *s, 
         shaped += g[j] / ep->corner_count;
     }
     double exposure = h->exposure[e];
+    bool linear = shaped > 0.0 && exposure >= 1.0; /* partly inside a solid: a step, not a ramp */
     for (int j = 0; j < 4; j++)
-        h->link_shape[4 * k + j] = (float)(shaped > 0.0 ? g[j] / shaped : exposure > 0.0 ? 1.0 / exposure : 0.0);
+        h->link_shape[4 * k + j] = (float)(linear ? g[j] / shaped : exposure > 0.0);
 }
 
 static int link_shapes(hierarchy *h, const patch_mesh *m, const scene *s, point_to_polygon_fn F)
@@ -536,7 +552,11 @@ int hierarchy_build(hierarchy *h, patch_mesh *m, const scene *s, const radiosity
         return snprintf(err, err_size, "argv:0: out of memory for the hierarchy"), 2;
     h->term = h->gathered + 4 * (size_t)h->element_count;
     hierarchy_report(h, m, stats);
-    return radiosity_collect_patches(m, s, o, err, err_size); /* the leaves become the patches */
+    if (radiosity_collect_patches(m, s, o, err, err_size)) /* the leaves become the patches */
+        return 2;
+    for (int i = 0; i < m->patch_count; i++)
+        m->patches[i].exposure = h->exposure[m->patches[i].cell];
+    return 0;
 }
 
 int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, int first, int last,
@@ -545,9 +565,10 @@ int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, i
     memset(h->gathered, 0, 4 * (size_t)h->element_count * sizeof *h->gathered);
     push_pull_all(h, m, 0, first_shot); /* term 0: E at the leaves, pulled up */
     for (int k = 0;; k++) {
-        if (k >= first) /* a patch's radiance is its mean over its whole area */
+        if (k >= first) /* a patch's radiance on its exposed part (the image and probes see no other) */
             for (int i = 0; i < m->patch_count; i++)
-                L[i] = v3_madd(L[i], h->term[m->patches[i].cell], h->exposure[m->patches[i].cell]);
+                if (h->exposure[m->patches[i].cell] > 0.0)
+                    L[i] = v3_add(L[i], h->term[m->patches[i].cell]);
         gather(h, m);
         push_pull_all(h, m, k == 0 ? 1 : 2, first_shot); /* term k + 1 */
         double power = 0.0;
@@ -565,7 +586,7 @@ int hierarchy_solve(hierarchy *h, const patch_mesh *m, const vec3 *first_shot, i
 
 void hierarchy_free(hierarchy *h)
 {
-    free(h->element), free(h->level), free(h->covered), free(h->parent), free(h->exposure), free(h->gathered), free(h->link_start),
-        free(h->link_source), free(h->link_F), free(h->link_shape);
+    free(h->element), free(h->level), free(h->covered), free(h->parent), free(h->exposure), free(h->gathered),
+        free(h->link_start), free(h->link_source), free(h->link_F), free(h->link_shape);
     *h = (hierarchy){0};
 }

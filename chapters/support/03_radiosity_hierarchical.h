@@ -15,9 +15,10 @@
  * al.'s BF refinement), a source whose radiance varies, a shadow of the
  * light.  Memory is O(elements + links).  The solve is the Neumann series
  * (R6) term by term as in Jacobi: gather (each element receives
- * rho Sum_links F L over its links) then push-pull (what an element
- * gathers is pushed down to its leaves, and each element's radiance is the
- * mean of its children's, pulled up), both over the part of each element
+ * rho Sum_links F L over its links, at its corners: each link's F shaped
+ * linearly across the receiver) then push-pull (what an element gathers is
+ * pushed down to its leaves, interpolated, and each element's radiance is
+ * the mean of its children's, pulled up), over the part of each element
  * that is not buried inside a solid (the floor under a box).  The leaves
  * are the patches that the image, the probes and the PLY use. */
 #ifndef CHAPTERS_RADIOSITY_HIERARCHICAL_H
@@ -30,14 +31,14 @@ enum { COVERED_PART = 1, COVERED_ALL = 2 };
 
 typedef struct {
     int element_count, root_count, capacity;
-    patch *element;       /* per cell of the mesh: its geometry, albedo and emission */
-    unsigned char *level; /* depth below its root */
-    int *parent;          /* -1 for a root */
-    float *exposure;      /* the fraction of its area outside every solid (not buried) */
+    patch *element;         /* per cell of the mesh: its geometry, albedo and emission */
+    unsigned char *level;   /* depth below its root */
+    int *parent;            /* -1 for a root */
+    float *exposure;        /* the fraction of its area outside every solid (not buried) */
     unsigned char *covered; /* 0, COVERED_PART or COVERED_ALL: something close above (hierarchy_track_new_cells) */
-    int exposure_count;   /* elements whose exposure is known (hierarchy_exposure) */
-    vec3 *gathered;       /* per element, at each of its 4 (or 3) corners: rho Sum_links F L (one Neumann term) */
-    vec3 *term;           /* per element: the term, pulled up from the leaves */
+    int exposure_count;     /* elements whose exposure is known (hierarchy_exposure) */
+    vec3 *gathered;         /* per element, at each of its 4 (or 3) corners: rho Sum_links F L (one Neumann term) */
+    vec3 *term;             /* per element: the term, pulled up from the leaves */
     long link_count;
     long *link_start; /* links of receiver e: link_start[e] .. link_start[e + 1] - 1 */
     int *link_source;

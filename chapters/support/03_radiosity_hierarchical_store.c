@@ -10,8 +10,9 @@
 static const double COVER_REACH = 2.0, COVER_INSET = 0.9;
 
 /* Is something close above e (a box resting on, or 1 mm above, a floor
- * element)?  Rays along the normal from its centroid and near its corners,
- * COVER_REACH radii long: COVERED_PART when some are blocked and some not,
+ * element, or a solid resting on it)?  Rays along the normal from its
+ * centroid and near its corners: blocked within COVER_REACH radii or from
+ * inside a solid (they meet a back face first).  COVERED_PART when some are blocked and some not,
  * COVERED_ALL when all are, else 0 (hierarchical.h). */
 static unsigned char covered(const patch_mesh *m, const scene *s, const patch *e)
 {
@@ -21,7 +22,8 @@ static unsigned char covered(const patch_mesh *m, const scene *s, const patch *e
         vec3 x = k < 0 ? e->centroid : element_toward_corner(m, e, mean, k, COVER_INSET);
         hit first;
         ray up = {scene_offset_origin(s, x, e->normal, e->normal), e->normal};
-        if (scene_intersect(s, up, COVER_REACH * e->radius, &first))
+        if (scene_intersect(s, up, INFINITY, &first) &&
+            (first.t < COVER_REACH * e->radius || v3_dot(first.normal, e->normal) > 0.0)) /* or inside a solid */
             blocked++;
         else
             open++;
@@ -156,6 +158,25 @@ vec3 element_toward_corner(const patch_mesh *m, const patch *e, vec3 mean, int k
     return patch_mesh_on_surface(m, e->surface, v3_add(mean, v3_scale(v3_sub(e->corner[k], mean), t)));
 }
 
+vec3 element_point_in_front(const patch *q, vec3 origin, vec3 n, double epsilon)
+{
+    vec3 sum = v3_splat(0.0);
+    int count = 0;
+    for (int k = 0; k < q->corner_count; k++) {
+        vec3 a = q->corner[k], b = q->corner[(k + 1) % q->corner_count];
+        double ha = v3_dot(n, v3_sub(a, origin)), hb = v3_dot(n, v3_sub(b, origin));
+        if (ha > epsilon) {
+            sum = v3_add(sum, a);
+            count++;
+        }
+        if ((ha > epsilon) != (hb > epsilon)) { /* where the edge crosses the plane */
+            sum = v3_add(sum, v3_add(a, v3_scale(v3_sub(b, a), (ha - epsilon) / (ha - hb))));
+            count++;
+        }
+    }
+    return count ? v3_scale(sum, 1.0 / count) : q->centroid;
+}
+
 int element_sample_points(const patch_mesh *m, const patch *e, vec3 *out)
 {
     vec3 mean = element_corner_mean(e);
@@ -164,17 +185,20 @@ int element_sample_points(const patch_mesh *m, const patch *e, vec3 *out)
     return e->corner_count;
 }
 
-/* Inside a solid: a ray along the normal meets the back of a surface first
- * (the floor under a box meets the underside of the box's top). */
-static bool buried(const scene *s, vec3 x, vec3 n)
+bool element_point_buried(const scene *s, vec3 x, vec3 n)
 {
     hit first;
     ray along_normal = {scene_offset_origin(s, x, n, n), n};
     return scene_intersect(s, along_normal, INFINITY, &first) && v3_dot(first.normal, n) > 0.0;
 }
 
-/* The fraction of element e's area outside every solid: a leaf's from its
- * centroid and sample points, a parent's the area-weighted mean of its
+/* Points per side of the grid on which a quad leaf's exposure is measured
+ * (a leaf across a box's edge by a fifth of its width was measured buried
+ * from its centroid and four points). */
+enum { EXPOSURE_GRID = 4 };
+
+/* The fraction of element e's area outside every solid: a leaf's from a
+ * grid of points (a triangle's: its centroid and sample points), a parent's the area-weighted mean of its
  * children's. */
 static double exposure_of(hierarchy *h, const patch_mesh *m, const scene *s, int e)
 {
@@ -182,13 +206,23 @@ static double exposure_of(hierarchy *h, const patch_mesh *m, const scene *s, int
     const patch *element = &h->element[e];
     double exposure = 0.0;
     if (c->first_child < 0 && e < h->exposure_count)
-        return h->exposure[e]; /* a leaf measured by an earlier call, still a leaf */
-    if (c->first_child < 0) {
+        return h->exposure[e];                              /* a leaf measured by an earlier call, still a leaf */
+    if (c->first_child < 0 && element->corner_count == 4) { /* a 4 x 4 grid over the cell */
+        const vec3 *q = element->corner;
+        for (int i = 0; i < EXPOSURE_GRID; i++)
+            for (int j = 0; j < EXPOSURE_GRID; j++) {
+                double u = (i + 0.5) / EXPOSURE_GRID, v = (j + 0.5) / EXPOSURE_GRID;
+                vec3 x = v3_add(v3_scale(v3_add(v3_scale(q[0], 1 - u), v3_scale(q[1], u)), 1 - v),
+                                v3_scale(v3_add(v3_scale(q[3], 1 - u), v3_scale(q[2], u)), v));
+                x = patch_mesh_on_surface(m, element->surface, x);
+                exposure += !element_point_buried(s, x, element->normal) / (double)(EXPOSURE_GRID * EXPOSURE_GRID);
+            }
+    } else if (c->first_child < 0) {
         vec3 point[5];
         int count = element_sample_points(m, element, point);
         point[count++] = element->centroid;
         for (int k = 0; k < count; k++)
-            exposure += !buried(s, point[k], element->normal) / (double)count;
+            exposure += !element_point_buried(s, point[k], element->normal) / (double)count;
     } else {
         for (int k = c->first_child; k < c->first_child + 4; k++)
             exposure += exposure_of(h, m, s, k) * h->element[k].area / element->area;
@@ -214,12 +248,13 @@ double hierarchy_link_shape(const hierarchy *h, int e, long k, int j)
 {
     if (h->link_shape)
         return h->link_shape[4 * k + j];
-    return h->exposure[e] > 0.0 ? 1.0 / h->exposure[e] : 0.0;
+    return h->exposure[e] > 0.0; /* F is the mean over the exposed part already (link_form_factor) */
 }
 
 /* Each exposed leaf's row sum: what it gathers, as push_pull gives it,
  * when every element has radiance 1 and albedo 1 (in x). */
-static void hierarchy_row_sums(const hierarchy *h, const patch_mesh *m, int e, const vec3 *above, radiosity_stats *stats)
+static void hierarchy_row_sums(const hierarchy *h, const patch_mesh *m, int e, const vec3 *above,
+                               radiosity_stats *stats)
 {
     const mesh_cell *c = &m->cells[e];
     vec3 here[4];

@@ -21,7 +21,7 @@ typedef struct {
     point_to_polygon_fn point_to_polygon;
     double eps, eps_spread;
     int levels;
-    double smallest; /* no element is split into children smaller than this across */
+    double smallest;        /* no element is split into children smaller than this across */
     int *receiver, *source; /* the links, in the order the oracle makes them */
     float *known_F;         /* a form factor the first pass computed for the same pair, or -1 */
     long count, capacity;
@@ -65,8 +65,18 @@ vec3 element_corner_mean(const patch *e);
 /* The point a fraction t of the way from `mean` (element_corner_mean) to corner k of e, on the surface. */
 vec3 element_toward_corner(const patch_mesh *m, const patch *e, vec3 mean, int k, double t);
 
+/* A point of q in front of the plane (origin, n), epsilon off it: the mean
+ * of the corners of q clipped to that half-space (q's centroid if none).  A
+ * ray to q's centroid below a box's top would pass through the box. */
+vec3 element_point_in_front(const patch *q, vec3 origin, vec3 n, double epsilon);
+
 /* Points for visibility rays: the corners moved half-way to the centroid, on the surface. */
 int element_sample_points(const patch_mesh *m, const patch *e, vec3 *out);
+
+/* Is x (on a surface of normal n) inside a solid: does a ray along the
+ * normal meet the back of a surface first (the floor under a box meets the
+ * underside of the box's top)? */
+bool element_point_buried(const scene *s, vec3 x, vec3 n);
 
 /* h->exposure of every element (a leaf's measured once, across calls): the fraction of its area outside every
  * solid.  A box standing on the floor buries the floor under it; an element

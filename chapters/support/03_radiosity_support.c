@@ -172,7 +172,13 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
         fprintf(json, ",\n  \"first_pass_links\": %ld", r->first_pass_links);
         json_field_number(json, "hierarchy_bytes", r->hierarchy_bytes);
     }
-    json_surface_radiance(json, s, m, radiance);
+    /* Each surface's mean over its whole area: a patch partly inside a solid
+     * (the floor under a box) carries light on its exposed part only. */
+    vec3 *whole = malloc((size_t)patches * sizeof *whole + 1);
+    for (int i = 0; whole && i < patches; i++)
+        whole[i] = v3_scale(radiance[i], m->patches[i].exposure);
+    json_surface_radiance(json, s, m, whole ? whole : radiance);
+    free(whole);
 }
 
 void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int patches, bool quiet)
@@ -356,9 +362,10 @@ void radiosity_warn_row_sums(const float *F, const patch_mesh *m, const scene *s
     }
     free(buried);
     if (names[0])
-        fprintf(stderr,
-                "warning: 03_radiosity: in this closed scene the form factors of surfaces sum to as little as %.3f (%s), "
-                "below 1 - %.2g, which biases L by more than %.0f %% at albedo %.2g; use a smaller --patch-size "
-                "(now %g)\n",
-                worst, names, bearable, 100.0 * ROW_SUM_BIAS, rho, o->patch_size);
+        fprintf(
+            stderr,
+            "warning: 03_radiosity: in this closed scene the form factors of surfaces sum to as little as %.3f (%s), "
+            "below 1 - %.2g, which biases L by more than %.0f %% at albedo %.2g; use a smaller --patch-size "
+            "(now %g)\n",
+            worst, names, bearable, 100.0 * ROW_SUM_BIAS, rho, o->patch_size);
 }
