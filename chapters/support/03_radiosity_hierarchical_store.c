@@ -9,11 +9,11 @@
  * and where the rays start (as the oracle's EDGE_INSET). */
 static const double COVER_REACH = 2.0, COVER_INSET = 0.9;
 
-/* Is something close above e (a box resting on, or 1 mm above, a floor
- * element, or a solid resting on it)?  Rays along the normal from its
- * centroid and near its corners: blocked within COVER_REACH radii or from
- * inside a solid (they meet a back face first).  COVERED_PART when some are blocked and some not,
- * COVERED_ALL when all are, else 0 (hierarchical.h). */
+/* Is something close above e (a box resting on, or 1 mm above, part of a
+ * floor element)?  Rays along the normal from its centroid and near its
+ * corners: blocked within COVER_REACH radii or from inside a solid (they
+ * meet a back face first).  COVERED_PART when some are blocked and some
+ * not, COVERED_ALL when all are, else 0 (03_radiosity_hierarchical.h). */
 static unsigned char covered(const patch_mesh *m, const scene *s, const patch *e)
 {
     vec3 mean = element_corner_mean(e);
