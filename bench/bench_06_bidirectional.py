@@ -1,4 +1,4 @@
-"""Chapters 4, 5 and 6 at equal CPU time on the scenes that separate them (issue 26).
+"""Chapters 4, 5 and 6 at equal CPU time on the scenes that separate them.
 
 Scenes: cornell, cornell-spheres, gap (the light in a closet behind a 20 mm slit: eye paths
 rarely find it) and sds (a caustic seen in a mirror, L S S D S E: only merging renders it).

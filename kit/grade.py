@@ -336,11 +336,14 @@ def build(src, chapters, units, opts):
     return result
 
 
+C_COMPILER = shutil.which("cc") or "/usr/bin/cc"  # the grader's own builds (trusted_sites), whatever PATH is
+
+
 def test_includes_submitted(test, chapters):
     """Whether tests/TEST.c includes a file the submission hands in (common/optics.h): then the
     submission's code runs in the test's process and could print its "ok" lines itself."""
-    r = subprocess.run(["cc", "-std=c17", "-MM", "-Icommon", f"tests/{test}.c"], cwd=ROOT, capture_output=True,
-                       text=True)
+    r = subprocess.run([C_COMPILER, "-std=c17", "-MM", "-Icommon", f"tests/{test}.c"], cwd=ROOT,
+                       capture_output=True, text=True)
     return bool(set(r.stdout.replace("\\\n", " ").split()) & set(submitted_files(chapters)))
 
 
@@ -350,7 +353,7 @@ def trusted_sites(test, work, timeout):
     None where it does not build alone (a test that needs common/'s objects)."""
     exe = os.path.join(work, "trusted", test)
     os.makedirs(os.path.dirname(exe), exist_ok=True)
-    built = subprocess.run(["cc", "-std=c17", "-O2", "-D_POSIX_C_SOURCE=200809L", "-Icommon", f"tests/{test}.c",
+    built = subprocess.run([C_COMPILER, "-std=c17", "-O2", "-D_POSIX_C_SOURCE=200809L", "-Icommon", f"tests/{test}.c",
                             "-o", exe, "-lm"], cwd=ROOT, capture_output=True, text=True)
     if built.returncode != 0:
         return None

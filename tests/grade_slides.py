@@ -8,7 +8,7 @@ What is checked:
     exist, code citing an equation the deck does not state, and a label that
     is not one the notes define each fail the build with deck:line;
   - every equation label is the lecture's: the rendering-equation deck states
-    R1..R10, and the labels a deck states are the ones docs/lecture-notes.md defines;
+    the first ten, and the labels a deck states are the ones docs/lecture-notes.md defines;
   - headless Chromium (Debian's chromium driven by playwright-core) opens
     every deck offline: no console or page errors, no request that is not
     file:, KaTeX present and no .katex-error, every image loaded, no slide
