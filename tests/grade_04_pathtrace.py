@@ -29,6 +29,7 @@ answer) so the tolerance cannot hide a real error.
 import math
 import os
 
+from lib import furnace_scene  # the furnace of scenes/furnace-pt.scene with Le and rho
 from lib import (BATCH_DF, ROOT, check_bad_input, check_probes_match_lambert, check_thread_independence,
                  finite_image, kit_stats, probe, radiosity_surfaces, read_pfm, t_bound)
 
@@ -38,18 +39,6 @@ from lib import expect_at_least, expect_at_most, expect_image  # the report's se
 
 CHAPTER = "04_pathtrace"
 ESTIMATORS = ("hemisphere", "cosine", "light", "mis")
-
-
-def furnace_scene(ctx, rho, emission=1.0, name="furnace"):
-    """scenes/furnace-pt.scene with its wall material replaced by `emitter E E E diffuse rho rho rho`."""
-    with open(os.path.join(ROOT, "scenes", "furnace-pt.scene")) as f:
-        lines = f.read().splitlines()
-    text = []
-    for line in lines:
-        if line.startswith("material wall"):
-            line = f"material wall emitter {emission} {emission} {emission}  diffuse {rho} {rho} {rho}"
-        text.append(line)
-    return ctx.write(f"{name}.scene", "\n".join(text) + "\n")
 
 
 def iid_mean(img, channel=0):

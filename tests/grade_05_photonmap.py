@@ -28,6 +28,7 @@ value that is not the estimate's expectation, it says which bound it uses.
 import math
 import os
 
+from lib import furnace_scene  # the furnace of scenes/furnace-pt.scene with Le and rho
 from lib import BATCH_DF, CRITERION_ALPHA, ROOT, Image, radiosity_surfaces, check_bad_input, \
     check_thread_independence, finite_image, lambert_polygon_irradiance, probe, t_bound
 
@@ -40,15 +41,6 @@ CHAPTER = "05_photonmap"
 # degrees of freedom.  With 5 (six renders) Student's t at 5e-5 (CRITERION_ALPHA over four
 # comparisons) is 12.9 standard errors; with 15 it is 5.6, so 16 renders keep the tolerance tight.
 RENDERS = 16
-
-
-def furnace_scene(ctx, rho, emission=1.0, name="furnace"):
-    """scenes/furnace-pt.scene (a 2 x 2 x 2 cube seen from its centre) with wall material Le, rho."""
-    with open(os.path.join(ROOT, "scenes", "furnace-pt.scene")) as f:
-        lines = f.read().splitlines()
-    text = [f"material wall emitter {emission} {emission} {emission}  diffuse {rho} {rho} {rho}"
-            if line.startswith("material wall") else line for line in lines]
-    return ctx.write(f"{name}.scene", "\n".join(text) + "\n")
 
 
 def mean_and_error(values):

@@ -22,20 +22,12 @@ camera).
 import math
 import os
 
+from lib import furnace_scene  # the furnace of scenes/furnace-pt.scene with Le and rho
 from lib import ROOT, check_bad_input, check_thread_independence, finite_image, t_bound
 from lib import CHANNELS, expect, expect_at_most, expect_estimate
 
 CHAPTER = "06_bidirectional"
 RENDERS = 32  # seeds behind every image mean: 31 degrees of freedom
-
-
-def furnace_scene(ctx, rho, emission=1.0, name="furnace"):
-    """scenes/furnace-pt.scene with wall material `emitter E E E diffuse rho rho rho`."""
-    with open(os.path.join(ROOT, "scenes", "furnace-pt.scene")) as f:
-        lines = f.read().splitlines()
-    text = [f"material wall emitter {emission} {emission} {emission}  diffuse {rho} {rho} {rho}"
-            if line.startswith("material wall") else line for line in lines]
-    return ctx.write(f"{name}.scene", "\n".join(text) + "\n")
 
 
 # An open stage: a floor, a back wall 0.3 above it, a light above both, nothing touching.  An

@@ -512,3 +512,13 @@ def radiosity_surfaces(ctx, scene, patch_sizes=(50, 25)):
                               "--iterations", 10000, name=f"radiosity{h}")
         found[h] = {s["name"]: s for s in stats["surfaces"]}
     return found
+
+
+def furnace_scene(ctx, rho, emission=1.0, name="furnace"):
+    """scenes/furnace-pt.scene (a 2 x 2 x 2 cube seen from its centre) with its wall material
+    replaced by `emitter E E E diffuse rho rho rho`: L = E / (1 - rho) everywhere."""
+    with open(os.path.join(ROOT, "scenes", "furnace-pt.scene")) as f:
+        lines = f.read().splitlines()
+    text = [f"material wall emitter {emission} {emission} {emission}  diffuse {rho} {rho} {rho}"
+            if line.startswith("material wall") else line for line in lines]
+    return ctx.write(f"{name}.scene", "\n".join(text) + "\n")
