@@ -111,8 +111,8 @@ static void trim_spaces(char *text)
 }
 
 /* What variant of its chapter an image is: the estimator (path tracing),
- * the solver (radiosity), the photon maps, the local model (chapters 1, 2),
- * the bounces unless all of them. */
+ * the solver (radiosity), the photon maps, the bidirectional method, the
+ * local model (chapters 1, 2), the bounces unless all of them. */
 static void stats_variant(const cJSON *json, char *out, size_t out_size)
 {
     const char *solver = string_of(json, "solver_used"), *model = string_of(json, "model");
@@ -127,6 +127,8 @@ static void stats_variant(const cJSON *json, char *out, size_t out_size)
         append_field(out, out_size, &used, "solver %s", solver);
     if (string_of(json, "maps")[0])
         append_field(out, out_size, &used, "maps %s", string_of(json, "maps"));
+    if (string_of(json, "method")[0])
+        append_field(out, out_size, &used, "method %s", string_of(json, "method"));
     if (model[0])
         append_field(out, out_size, &used, "model %s%s%s", model,
                      cJSON_IsTrue(member(json, "normalised")) ? " normalised" : "",
