@@ -16,6 +16,7 @@ Truth comes from outside the chapter:
 import math
 import os
 
+import lib
 from lib import (CHANNELS, check_thread_independence, expect, expect_at_least, expect_at_most, expect_between,
                  expect_close, expect_each, expect_image, finite_image, lambert_polygon_irradiance, probe, read_json,
                  record_command)
@@ -553,6 +554,10 @@ def test_hierarchical_agrees_with_uniform_and_path_tracing(ctx):
     surface's radiance plus the scene's mean reflected radiance (the incident light
     the error is a fraction of): 5 % at eps = 1e-2; measured, the block sides are
     2-4 % low and the largest use of the bound is about a quarter."""
+    # Statistics the sanitizers make slow; the hierarchical solve runs there
+    # in test_hierarchical_matches_the_furnace_and_the_uniform_solve.
+    if lib.sanitizer_build(ctx):
+        return
     common = ["--size", "8x8", "--tol", 1e-7, "--iterations", 10000]
     runs = {}
     for key, args in {"h2": [*HIER, "--eps", 2e-2], "h1": [*HIER, "--eps", 1e-2], "u50": ["--patch-size", 50],

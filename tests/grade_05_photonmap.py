@@ -28,6 +28,7 @@ value that is not the estimate's expectation, it says which bound it uses.
 import math
 import os
 
+import lib
 from lib import furnace_scene  # the furnace of scenes/furnace-pt.scene with Le and rho
 from lib import BATCH_DF, CRITERION_ALPHA, ROOT, Image, radiosity_surfaces, check_bad_input, \
     check_thread_independence, finite_image, lambert_polygon_irradiance, probe, t_bound
@@ -93,6 +94,10 @@ def test_furnace_converges_to_Le_over_1_minus_rho(ctx):
     the wall's edges): the central pixels' mean over RENDERS seeds must be within
     t_bound(RENDERS - 1, 4) standard errors (across seeds), and that error below 1 % of the
     answer.  For --maps global (the naive method) and both (direct light by light sampling)."""
+    # Statistics the sanitizers make slow; the furnace runs there
+    # in test_furnace_energy_stored_power.
+    if lib.sanitizer_build(ctx):
+        return
     bound = t_bound(RENDERS - 1, 4)
     for rho in (0.5, 0.9):
         expected = 1.0 / (1.0 - rho)
@@ -134,6 +139,10 @@ def test_furnace_neumann_terms(ctx):
     that landed straight from a light, reflected once), 1:1 the once-reflected light rho and 2:
     the rest: RENDERS seeds, t_bound(RENDERS - 1, 6) standard errors, each below 2 % of the
     answer (one render's mean scatters by about 4 % at --spp 4, the mean of RENDERS by 1 %)."""
+    # Statistics the sanitizers make slow; the --bounces windows run there
+    # in test_furnace_probe_keeps_the_bounces_window.
+    if lib.sanitizer_build(ctx):
+        return
     rho = 0.5
     bound = t_bound(RENDERS - 1, 6)
     scene = furnace_scene(ctx, rho, name="neumann")
@@ -333,6 +342,10 @@ def test_bias_falls_as_radius_shrinks_and_progressive_converges(ctx):
     have to be about 4 times itself to swap them).  Then progressive (--alpha 2/3
     default) with the same 40 mm start: the RMSE over the whole image against the
     reference falls from 4 to 64 passes (measured ratio 0.1-0.25, bound 0.7)."""
+    # Statistics the sanitizers make slow; progressive passes and the radius run there
+    # in test_radius_follows_R12.
+    if lib.sanitizer_build(ctx):
+        return
     scene = "scenes/cornell-spheres.scene"
     size = f"{SIZE}x{SIZE}"
     ref, _ = ctx.render("04_pathtrace", scene, "--size", size, "--spp", 4096, "--seed", 77, "--probe-samples", 32,

@@ -522,3 +522,9 @@ def furnace_scene(ctx, rho, emission=1.0, name="furnace"):
     text = [f"material wall emitter {emission} {emission} {emission}  diffuse {rho} {rho} {rho}"
             if line.startswith("material wall") else line for line in lines]
     return ctx.write(f"{name}.scene", "\n".join(text) + "\n")
+
+
+def sanitizer_build(ctx):
+    """Whether ctx runs the AddressSanitizer build.  A test that measures statistics at sample counts
+    the sanitizers make slow returns early there, naming the test that runs its code under them."""
+    return "asan" in ctx.build
