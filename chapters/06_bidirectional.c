@@ -14,20 +14,23 @@
  *   3. vcm    (the default) also chapter 5's density estimate (R11) at every eye vertex, as one more strategy
  *             (R16), with the radius of (R12).  --merge off is bdpt; --connect off progressive photon mapping.
  * --strategy S,T: one strategy, unweighted.  --check N: the weights and densities tested on random paths.
+ * Probes and surface means (walk_stats.h) put a sensor at a point in the camera's place: sensor_sample.
  * Each pass traces one light subpath per pixel (begin_pass: light tracing, the photon grid); the camera ray of
  * pixel p makes one eye subpath and joins it to light subpath p.  Materials and scattering are chapter 4's
  * (pathtrace_model.h), a photon's flux chapter 5's (photonmap_model.h), the photon grid common's. */
-#include <stdlib.h>
 #include <string.h>
 
 #include "render.h"
 #include "sampling.h"
-#include "support/06_bidirectional_support.h" /* the state, options, storage; chapter 5's as_flux, chapter 4's f */
+#include "bidir_store.h"     /* bookkeeping: the state, options, storage of light subpaths, stats */
+#include "photonmap_model.h" /* chapter 5's as_flux; through it chapter 4's f, pdfs, scattering */
 
-enum { COUNT_EYE_RAYS, COUNT_SHADOW_RAYS, COUNT_MERGES };
-
-/* A path of k edges is the term K^(k-1) E (R6): does --bounces A:B keep it? */
-static bool keeps_length(const bidir_state *st, int k) { return bounces_keep(st->bounces, k - 1); }
+/* A path x_0 .. x_k of k edges is the term K^(k-1) E (R6): does --bounces A:B keep it?  At a sensor (probes,
+ * surface means: sensor_sample) x_(k-1) is the sensor's point, whose reflection is bounce x_k.surface (0 or 1). */
+static bool keeps_length(const bidir_state *st, const path_vertex *x, int k)
+{
+    return bounces_keep(st->bounces, k - 1 - (x[k].kind == AT_SENSOR ? 1 - x[k].surface : 0));
+}
 
 static vec3 unit(vec3 from, vec3 to) { return v3_normalize(v3_sub(to, from)); }
 static bool at_specular(const path_vertex *p) { return p->kind == AT_SURFACE && is_specular(p->m); }
@@ -38,10 +41,9 @@ static double cos_at(const path_vertex *p, vec3 w) { return p->kind == AT_SURFAC
 /* (R8) G(a, b) = cos cos / |a - b|^2. */
 static double geometry(const path_vertex *a, const path_vertex *b)
 {
-    vec3 d = v3_sub(b->x, a->x);
-    double d2 = v3_dot(d, d);
-    vec3 w = v3_scale(d, 1.0 / sqrt(d2));
-    return cos_at(a, w) * cos_at(b, w) / d2;
+    double d = v3_length(v3_sub(b->x, a->x));
+    vec3 w = unit(a->x, b->x);
+    return cos_at(a, w) * cos_at(b, w) / (d * d);
 }
 
 /* ---- the camera: W_e (R13) ---------------------------------------------------------------------- */
@@ -170,10 +172,8 @@ static double direction_pdf(const path_vertex *x, int j, int dir, const pinhole 
     vec3 w = unit(x[j].x, x[j + dir].x);
     if (x[j].kind == AT_CAMERA)
         return camera_importance(c, v3_dot(w, c->forward)); /* W_e is the eye ray's density */
-    if (j == 0 && x[0].kind == AT_POINT_LIGHT)
-        return uniform_sphere_pdf();
     if (j == 0)
-        return cosine_hemisphere_pdf(v3_dot(x[0].n, w));
+        return x[0].kind == AT_POINT_LIGHT ? uniform_sphere_pdf() : cosine_hemisphere_pdf(v3_dot(x[0].n, w));
     vertex v = vertex_at(x[j].x, x[j].n, unit(x[j].x, x[j - dir].x), x[j].m);
     return bsdf_pdf(&v, w);
 }
@@ -185,7 +185,7 @@ static double area_pdf(const bidir_state *st, const scene *s, const path_vertex 
 {
     if (dir == 1 && i == 0)
         return light_point_pdf(st, s, &x[0]);
-    if (dir == -1 && i == k)
+    if (dir == -1 && (i == k || (i == k - 1 && x[k].kind == AT_SENSOR))) /* a sensor's point is given too */
         return 1.0;
     double D = 0.0;
     int j = i;
@@ -212,17 +212,18 @@ static int first_from_eye(const path_vertex *x, int k)
 static bool strategy_allowed(const bidir_state *st, const path_vertex *x, int k, technique how, int s)
 {
     int t = k + 1 - s;
+    bool sensor = x[k].kind == AT_SENSOR; /* its point is z_1, given: no (s, 1), no merging, no L_e there */
+    if (s > st->light_cap || t > st->eye_cap || (sensor && (how == MERGE || t < 2 || k < 2)))
+        return false;
     if (st->single_strategy)
         return how == CONNECT && s == st->strategy_s && t == st->strategy_t;
-    if (s > st->light_cap || t > st->eye_cap)
-        return false;
     if (how == MERGE)
         return st->merge && s >= 1 && t >= 2 && !at_specular(&x[s]) && (st->connect || first_from_eye(x, k) == s);
     if (t == 0 || (s == 0 && x[0].kind == AT_POINT_LIGHT) || (s >= 1 && (at_specular(&x[s - 1]) || at_specular(&x[s]))))
         return false;
-    if (!st->connect)
+    if (!st->connect && !sensor)
         return s == 0 && first_from_eye(x, k) == 0;
-    return st->method != METHOD_LIGHT || t == 1;
+    return st->method != METHOD_LIGHT || t == 1 + sensor;
 }
 
 /* (R15) n_s p_s: the strategy's number of samples per pixel (N light subpaths for t = 1 and merging, else 1) times
@@ -313,7 +314,7 @@ static vec3 connections(const bidir_state *st, const scene *s, const path_vertex
     vec3 L = v3_splat(0.0);
     for (int s_count = 0, pixel; s_count <= light_count; s_count++) {
         int k = join(y, s_count, z, t, x);
-        if (!keeps_length(st, k) || !strategy_allowed(st, x, k, CONNECT, s_count))
+        if (!keeps_length(st, x, k) || !strategy_allowed(st, x, k, CONNECT, s_count))
             continue;
         vec3 C = strategy_value(st, s, y, s_count, z, t, &pixel, rays);
         if (v3_max_component(C) > 0.0)
@@ -341,7 +342,7 @@ static vec3 merges(const bidir_state *st, const scene *s, const path_vertex *z, 
         vertex at_y = vertex_at(y->x, y->n, from, y->m);
         int k = join(first, y->index, z, t, x);
         if (y->index == 0 || at_specular(y) || v3_dot(at_y.n, v.n) < 0.9 || !(v3_dot(from, v.n) > 0.0) ||
-            !keeps_length(st, k) || !strategy_allowed(st, x, k, MERGE, y->index))
+            !keeps_length(st, x, k) || !strategy_allowed(st, x, k, MERGE, y->index))
             continue;
         counters->value[COUNT_MERGES]++;
         vec3 C =
@@ -363,7 +364,7 @@ static int trace_light_path(const bidir_state *st, const scene *s, int pass, int
     for (int s_count = 1; s_count <= count; s_count++) {
         vec3 value;
         int k = join(y, s_count, &eye, 1, x);
-        if (keeps_length(st, k) && strategy_allowed(st, x, k, CONNECT, s_count) &&
+        if (keeps_length(st, x, k) && strategy_allowed(st, x, k, CONNECT, s_count) &&
             connect_to_camera(st, s, y, s_count, &pixel, &value, &out->rays))
             failed |= chunk_add_splat(out, pixel, v3_scale(value, mis_weight(st, s, x, k, CONNECT, s_count)));
     }
@@ -378,19 +379,14 @@ static int begin_pass(void *state_pointer, const scene *s, const render_options 
     (void)o;
     if (pass > 1) /* (R12) r_{i+1}^2 = r_i^2 (i + alpha) / (i + 1) */
         st->current_radius *= sqrt((pass - 1 + st->alpha) / pass);
-    if (!light_pass(st, s, pass, trace_light_path))
-        return 0;
-    snprintf(err, err_size, "argv:0: out of memory for the light subpaths of pass %d", pass);
-    return 2;
+    return light_pass(st, s, pass, trace_light_path, err, err_size);
 }
 
 /* A camera ray of pixel p: the pass's light tracing there, and one eye subpath joined to light subpath p, merged. */
 static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, render_counters *counters)
 {
     const bidir_state *st = state_pointer;
-    int pixel = 0;
-    double cos_theta;
-    pixel_seen(&st->camera, r.direction, &pixel, &cos_theta);
+    int pixel = pixel_of_ray(&st->camera, r.direction);
     vec3 L = st->light_image[pixel];
     if (st->single_strategy ? st->strategy_t == 1 : st->method == METHOD_LIGHT) /* light tracing only */
         return L;
@@ -403,6 +399,31 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
         if (st->merge && !at_specular(&z[t - 1]))
             L = v3_add(L, merges(st, s, z, t, counters));
     }
+    return L;
+}
+
+/* ---- probes and surface means: the camera replaced by a sensor at a point ------------------------ */
+
+/* walk_stats.h's one sample of the radiance x reflects toward w_o (material m; its reflection is bounce k): a light
+ * subpath of its own joined to an eye subpath from x.  The sensor z_0 stands one unit up w_o, z_1 = x is given: a
+ * delta in every strategy, so t >= 2, no merging (one light subpath is no density estimate), n = 1 in (R15). */
+static vec3 sensor_sample(const void *state_pointer, const scene *s, vec3 x, vec3 n, vec3 w_o, const material *m, int k,
+                          rng *g, render_counters *counters)
+{
+    const bidir_state *st = state_pointer;
+    path_vertex y[MAX_VERTICES], z[MAX_VERTICES] = {{.x = v3_add(x, w_o), .kind = AT_SENSOR, .surface = k},
+                                                    {x, n, v3_splat(1.0), m, AT_SURFACE, -1, 1, 0}};
+    uint64_t *rays = &counters->value[COUNT_PROBE_RAYS];
+    int light_count = light_subpath(st, s, 0, g, y, rays, true), t_count = 2;
+    vertex v = vertex_at(x, n, w_o, m);
+    vec3 w;
+    double pdf;
+    vec3 weight = scatter(&v, sample_bsdf, g, &w, &pdf); /* f cos / p (R2) */
+    if (v3_max_component(weight) > 0.0)
+        t_count = extend(s, z, 2, st->eye_cap, weight, w, true, false, g, rays);
+    vec3 L = v3_splat(0.0);
+    for (int t = 2; t <= t_count; t++)
+        L = v3_add(L, connections(st, s, y, light_count, z, t, rays));
     return L;
 }
 
@@ -438,10 +459,7 @@ static void check_join(bidir_state *st, const scene *s, const path_vertex *y, in
     }
     path_pdfs(st, s, x, k, pdf_light, pdf_eye, merge_chance);
     double p = strategy_density(st, x, k, pdf_light, pdf_eye, merge_chance, CONNECT, s_count);
-    double ratio = v3_average(C) * p / v3_average(path_integrand(st, s, x, k));
-    st->check_worst_sum = fmax(st->check_worst_sum, fabs(sum - 1.0));
-    st->check_worst_ratio = specular ? st->check_worst_ratio : fmax(st->check_worst_ratio, fabs(ratio - 1.0));
-    st->check_connections++;
+    bidir_check_record(st, sum, specular ? -1.0 : v3_average(C) * p / v3_average(path_integrand(st, s, x, k)));
 }
 
 /* --check: pairs of random subpaths, without roulette, and every join of them. */
@@ -457,42 +475,23 @@ static void check_pair(bidir_state *st, const scene *s, rng *g)
             check_join(st, s, y, s_count, z, t);
 }
 
-/* ---- prepare, main ---------------------------------------------------------------------------------- */
-
-/* The subpaths' caps, the strategies, the camera, the lights (by power), the radius (R12); --check. */
-static int prepare(void *state_pointer, const scene *s, const render_options *o, char *err, size_t err_size)
-{
-    bidir_state *st = state_pointer;
-    st->bounces = bounce_window_of(o), st->seed = o->seed;
-    st->light_cap = st->bounces.last + 1 < MAX_VERTICES ? st->bounces.last + 1 : MAX_VERTICES;
-    st->eye_cap = st->bounces.last + 2 < MAX_VERTICES ? st->bounces.last + 2 : MAX_VERTICES;
-    st->merge = st->method == METHOD_VCM && !st->merge_off && !st->single_strategy;
-    st->connect = !(st->method == METHOD_VCM && st->connect_off);
-    if (bidir_allocate(st, s, o->width, o->height, err, err_size))
-        return 2;
-    double r = st->radius > 0.0 ? st->radius : 0.005 * v3_length(v3_sub(s->bounds.hi, s->bounds.lo));
-    st->current_radius = r > 0.0 ? r : 1.0;
-    bidir_warn_impossible(st, s);
-    for (int n = 0; n < st->check_paths && s->emitter_count + s->light_count > 0; n++) {
-        rng g = rng_for(st->seed ^ 0x636865636bull, 0, (uint64_t)n);
-        check_pair(st, s, &g);
-    }
-    return 0;
-}
-
 int main(int argc, char **argv)
 {
-    bidir_state state = {0};
+    bidir_state state = {.is_specular = is_specular, /* chapter 4's, as the bookkeeping needs them */
+                         .total_light_power = total_light_power,
+                         .sensor = sensor_sample,
+                         .check = check_pair};
     const chapter bidirectional = {
         .name = "06_bidirectional",
         .description = "bidirectional methods: light tracing, BDPT and VCM, weighted by the power heuristic "
                        "over strategies (R13-R16)",
         .options = {{BIDIR_OPTIONS, &state}},
         .default_spp = 16,
-        .counter_names = {"eye_rays", "shadow_rays", "merges", NULL},
-        .prepare = prepare,
+        .counter_names = {"eye_rays", "shadow_rays", "merges", "probe_rays", NULL},
+        .prepare = bidir_prepare,
         .begin_pass = begin_pass,
         .radiance = radiance,
+        .probe = bidir_probe,
         .write_stats = bidir_write_stats,
         .finish = bidir_finish,
     };

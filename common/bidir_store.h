@@ -1,31 +1,37 @@
-/* 06_bidirectional_support.h — what lecture 6 does not teach, for
- * chapters/06_bidirectional.c: its state and options, the storage of a
- * pass's light subpaths (lists per chunk of paths, joined in a fixed order so
- * that the image does not depend on the thread count), warnings and stats.
- * Private to chapter 6. */
-#ifndef CHAPTERS_BIDIRECTIONAL_SUPPORT_H
-#define CHAPTERS_BIDIRECTIONAL_SUPPORT_H
+/* bidir_store.h — bookkeeping for chapter 6 (bidirectional methods).
+ *
+ * Nothing here is the lecture: the chapter's state and options, the storage
+ * of a pass's light subpaths (lists per chunk of paths, joined in a fixed
+ * order so that the image does not depend on the thread count), the lights'
+ * pick by power, the pixel a direction from the eye is seen in, warnings,
+ * the probes' and surface means' plumbing (walk_stats.h) and the stats.
+ * Linked into every program, so it names nothing a chapter defines: what it
+ * needs of one (is a material specular? the lights' power? the trace of one
+ * light subpath) comes in as an argument. */
+#ifndef COMMON_BIDIR_STORE_H
+#define COMMON_BIDIR_STORE_H
 
 #include <stdint.h>
 #include <stdio.h>
 
-#include "../photonmap_model.h"
 #include "options.h"
 #include "photon_grid.h"
 #include "render.h"
+#include "walk_stats.h"
 
 typedef enum { METHOD_LIGHT, METHOD_BDPT, METHOD_VCM } method_kind; /* --method, in order */
 enum { MAX_VERTICES = 64, MAX_PATH = 2 * MAX_VERTICES, CHUNK = 1024 };
+enum { COUNT_EYE_RAYS, COUNT_SHADOW_RAYS, COUNT_MERGES, COUNT_PROBE_RAYS }; /* the chapter's counters */
 
 /* A vertex of a subpath.  alpha is the subpath's weight up to x: the product
  * of (R13)'s factors over their densities (R14); 1 / its density at a light's
  * own point, 1 at the camera. */
-typedef enum { AT_CAMERA, AT_POINT_LIGHT, AT_SURFACE } vertex_kind;
+typedef enum { AT_CAMERA, AT_POINT_LIGHT, AT_SURFACE, AT_SENSOR } vertex_kind;
 typedef struct {
     vec3 x, n; /* the point; the normal as the scene file orients it (0 at the camera, a point light) */
     vec3 alpha;
     const material *m; /* NULL at the camera and a point light */
-    int kind, surface; /* vertex_kind; the surface, or the point light's number */
+    int kind, surface; /* vertex_kind; the surface, the point light's number, or (a sensor) the bounce at its point */
     int index, path;   /* its place in its subpath, and (light subpaths) which one of the pass */
 } path_vertex;
 
@@ -36,10 +42,21 @@ typedef struct {
     int width, height;
 } pinhole;
 
-typedef struct {
+/* A chapter's answer to "is this material a mirror or glass?" */
+typedef bool specular_test(const material *m);
+typedef struct bidir_state bidir_state;
+/* --check: one pair of random subpaths and every join of them, tallied by bidir_check_record. */
+typedef void path_pair_check(bidir_state *st, const scene *s, rng *g);
+
+struct bidir_state {
+    /* What the chapter defines, set before render_main (bidir_prepare calls them). */
+    specular_test *is_specular;
+    double (*total_light_power)(const scene *s);
+    walk_reflected_fn *sensor; /* its one-sample estimate at a point: probes, surface means */
+    path_pair_check *check;
     int method, merge_off, connect_off; /* options */
     bool single_strategy;               /* --strategy S,T */
-    int strategy_s, strategy_t, check_paths;
+    int strategy_s, strategy_t, check_paths, probe_samples, surface_samples;
     double radius, alpha;
     /* From prepare and begin_pass. */
     bool merge, connect;
@@ -56,7 +73,11 @@ typedef struct {
     photon_grid grid;                          /* over light_vertices */
     double check_worst_sum, check_worst_ratio; /* --check: the largest |sum of weights - 1|, |C p / f - 1| */
     long check_connections;
-} bidir_state;
+    const scene *scene;
+    surface_average *surface_averages; /* --surface-samples (walk_stats.h) */
+    int surface_average_count;
+    uint64_t surface_rays;
+};
 
 extern const option BIDIR_OPTIONS[];
 /* Counted in the stats: a path dropped because its density underflowed; a
@@ -83,21 +104,31 @@ int chunk_add_splat(chunk *c, int pixel, vec3 value);
 /* A pass of st->light_paths light subpaths, `trace` making path p into a
  * chunk (in parallel), then the chunks joined in order into st's
  * light_vertices (path_first, path_count), light_image, and the photon grid
- * when merging.  0, or 2 when out of memory. */
+ * when merging.  0, or 2 with a message when out of memory. */
 typedef int light_path_tracer(const bidir_state *st, const scene *s, int pass, int path, chunk *out);
-int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *trace);
+int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *trace, char *err, size_t err_size);
 
-/* The camera, one light subpath per pixel, and each light's probability to
- * be picked (by power, as chapter 4's lights).  0, or 2 with a message. */
-int bidir_allocate(bidir_state *st, const scene *s, int width, int height, char *err, size_t err_size);
+/* The chapter's .prepare: the bounce window and the subpaths' caps, which
+ * strategies the options leave, the camera, one light subpath per pixel,
+ * each light's probability to be picked (by power: as chapter 4's lights),
+ * the first radius, warnings, with --surface-samples the surface means
+ * (from st->sensor), and --check N (N pairs by st->check).  0, or 2 with a
+ * message. */
+int bidir_prepare(void *state, const scene *s, const render_options *o, char *err, size_t err_size);
+/* --check: one join's weights summed over all strategies, and (-1 when the
+ * path has a mirror or glass on it) its value times its density over the
+ * path integral's integrand: the worst of each. */
+void bidir_check_record(bidir_state *st, double weight_sum, double value_ratio);
+/* The chapter's .probe: a probe's irradiance from st->sensor (walk_probe). */
+probe_result bidir_probe(const void *state, const scene *s, const probe *p, uint64_t seed, render_counters *counters);
 /* A light (a surface number, or surface_count + a point light's) picked by
  * power with the uniform number u in [0, 1). */
 int pick_light(const bidir_state *st, const scene *s, double u);
 /* Where the unit direction w from the eye crosses the image: its pixel
  * (row-major) and cos theta to the view axis; false outside the image. */
 bool pixel_seen(const pinhole *c, vec3 w, int *pixel, double *cos_theta);
-/* What the options cannot render, said once (a pinhole is never hit: t = 0). */
-void bidir_warn_impossible(const bidir_state *st, const scene *s);
+/* The pixel of a camera ray (pixel_seen; 0 if none). */
+int pixel_of_ray(const pinhole *c, vec3 w);
 void bidir_write_stats(const void *state, FILE *json);
 void bidir_finish(void *state);
 

@@ -1,9 +1,9 @@
-/* 06_bidirectional_support.c — chapter 6's options, light subpath storage,
- * warnings and stats (06_bidirectional_support.h). */
+/* bidir_store.c — chapter 6's bookkeeping: options, light subpath storage,
+ * warnings and stats (bidir_store.h). */
 #include <stdlib.h>
 #include <string.h>
 
-#include "06_bidirectional_support.h"
+#include "bidir_store.h"
 
 static uint64_t dropped_paths, truncated_walks; /* all threads: rare, so atomic adds */
 static int warned_truncation;
@@ -56,6 +56,10 @@ const option BIDIR_OPTIONS[] = {
      .default_text = "0.666667", .help = "radius shrink per pass (R12)"},
     {"--check", "N", OPTION_INT, STATE(check_paths), .min = 0, .max = 1 << 24, .default_text = "0",
      .help = "self-check on N random path pairs: weights add to 1, f / p (R13, R14) is what subpaths carry"},
+    {"--probe-samples", "N", OPTION_INT, STATE(probe_samples), .min = PROBE_BATCHES, .max = 1 << 28,
+     .default_text = "16384", .help = "samples per probe (a light subpath joined to an eye subpath from the probe)"},
+    {"--surface-samples", "N", OPTION_INT, STATE(surface_samples), .min = 0, .max = 1 << 28, .default_text = "0",
+     .help = "samples per surface for the stats key \"surfaces\" (0: off)"},
     {0},
 };
 #undef STATE
@@ -112,7 +116,7 @@ static int join_chunks(bidir_state *st, chunk *chunks, int n)
     return st->merge ? photon_grid_build(&st->grid, &all[0].x, sizeof *all, total, st->current_radius) : 0;
 }
 
-int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *trace)
+int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *trace, char *err, size_t err_size)
 {
     int n = (st->light_paths + CHUNK - 1) / CHUNK, failed = 0;
     chunk *chunks = calloc((size_t)n, sizeof *chunks);
@@ -125,10 +129,13 @@ int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *tra
     }
     failed |= !chunks || join_chunks(st, chunks, n);
     free(chunks);
-    return failed ? 2 : 0;
+    if (!failed)
+        return 0;
+    snprintf(err, err_size, "argv:0: out of memory for the light subpaths of pass %d", pass);
+    return 2;
 }
 
-int bidir_allocate(bidir_state *st, const scene *s, int width, int height, char *err, size_t err_size)
+static int allocate(bidir_state *st, const scene *s, int width, int height, double total, char *err, size_t err_size)
 {
     camera_frame f = camera_frame_make(&s->camera, width, height);
     vec3 forward = v3_normalize(v3_sub(s->camera.look, s->camera.eye));
@@ -142,10 +149,10 @@ int bidir_allocate(bidir_state *st, const scene *s, int width, int height, char 
         snprintf(err, err_size, "argv:0: out of memory for %d light subpaths", st->light_paths);
         return 2;
     }
-    double total = total_light_power(s); /* chapter 4's: pi L_e A per emitter, 4 pi I per point light */
     for (int e = 0; e < s->emitter_count && total > 0.0; e++)
         st->light_probability[s->emitters[e]] =
-            M_PI * v3_average(material_of(s, s->emitters[e])->emission) * s->surfaces[s->emitters[e]].area / total;
+            M_PI * v3_average(s->materials[s->surfaces[s->emitters[e]].material].emission) *
+            s->surfaces[s->emitters[e]].area / total;
     for (int l = 0; l < s->light_count && total > 0.0; l++)
         st->light_probability[s->surface_count + l] = 4.0 * M_PI * v3_average(s->lights[l].intensity) / total;
     return 0;
@@ -157,6 +164,14 @@ int pick_light(const bidir_state *st, const scene *s, double u)
     for (; i < lights - 1 && u >= st->light_probability[i]; i++)
         u -= st->light_probability[i];
     return i;
+}
+
+int pixel_of_ray(const pinhole *c, vec3 w)
+{
+    int pixel = 0;
+    double cos_theta;
+    pixel_seen(c, w, &pixel, &cos_theta);
+    return pixel;
 }
 
 bool pixel_seen(const pinhole *c, vec3 w, int *pixel, double *cos_theta)
@@ -171,7 +186,8 @@ bool pixel_seen(const pinhole *c, vec3 w, int *pixel, double *cos_theta)
     return true;
 }
 
-void bidir_warn_impossible(const bidir_state *st, const scene *s)
+/* What the options cannot render, said once (a pinhole is never hit: t = 0). */
+static void warn_impossible(const bidir_state *st, const scene *s, specular_test *is_specular)
 {
     bool specular = false;
     for (int i = 0; i < s->material_count; i++)
@@ -191,6 +207,45 @@ void bidir_warn_impossible(const bidir_state *st, const scene *s)
         fprintf(stderr, "warning: 06_bidirectional: the scene has no light: the image is black\n");
 }
 
+int bidir_prepare(void *state, const scene *s, const render_options *o, char *err, size_t err_size)
+{
+    bidir_state *st = state;
+    st->bounces = bounce_window_of(o), st->seed = o->seed, st->scene = s;
+    st->light_cap = st->bounces.last + 1 < MAX_VERTICES ? st->bounces.last + 1 : MAX_VERTICES;
+    st->eye_cap = st->bounces.last + 2 < MAX_VERTICES ? st->bounces.last + 2 : MAX_VERTICES;
+    st->merge = st->method == METHOD_VCM && !st->merge_off && !st->single_strategy;
+    st->connect = !(st->method == METHOD_VCM && st->connect_off);
+    if (allocate(st, s, o->width, o->height, st->total_light_power(s), err, err_size))
+        return 2;
+    double r = st->radius > 0.0 ? st->radius : 0.005 * v3_length(v3_sub(s->bounds.hi, s->bounds.lo));
+    st->current_radius = r > 0.0 ? r : 1.0;
+    warn_impossible(st, s, st->is_specular);
+    for (int n = 0; n < st->check_paths && s->emitter_count + s->light_count > 0; n++) {
+        rng g = rng_for(st->seed ^ 0x636865636bull, 0, (uint64_t)n);
+        st->check(st, s, &g);
+    }
+    walk_source w = {st->sensor, st, s, bounces_keep(st->bounces, 0)};
+    return st->surface_samples == 0
+               ? 0
+               : walk_surface_averages(&w, st->seed ^ 0x73757266616365ull, st->surface_samples, &st->surface_averages,
+                                       &st->surface_average_count, &st->surface_rays, err, err_size);
+}
+
+void bidir_check_record(bidir_state *st, double weight_sum, double value_ratio)
+{
+    st->check_worst_sum = fmax(st->check_worst_sum, fabs(weight_sum - 1.0));
+    if (value_ratio >= 0.0)
+        st->check_worst_ratio = fmax(st->check_worst_ratio, fabs(value_ratio - 1.0));
+    st->check_connections++;
+}
+
+probe_result bidir_probe(const void *state, const scene *s, const probe *p, uint64_t seed, render_counters *counters)
+{
+    const bidir_state *st = state;
+    walk_source w = {st->sensor, st, s, false};
+    return walk_probe(&w, p, probe_seed(seed), st->probe_samples, &counters->value[COUNT_PROBE_RAYS]);
+}
+
 void bidir_write_stats(const void *state, FILE *json)
 {
     const bidir_state *st = state;
@@ -204,6 +259,10 @@ void bidir_write_stats(const void *state, FILE *json)
     json_field_number(json, "truncated_paths", (double)truncated_walks);
     json_field_number(json, "alpha", st->alpha);
     json_field_number(json, "last_radius", st->current_radius);
+    json_field_number(json, "probe_samples", st->probe_samples);
+    json_field_number(json, "surface_samples", st->surface_samples);
+    json_field_number(json, "surface_rays", (double)st->surface_rays);
+    json_surface_averages(json, st->scene, st->surface_averages, st->surface_average_count);
     if (st->check_paths > 0) {
         fprintf(json, ",\n  \"check\": {\"paths\": %d, \"connections\": %ld", st->check_paths, st->check_connections);
         fprintf(json, ", \"worst_weight_sum_error\": %.17g, \"worst_f_over_p_error\": %.17g}", st->check_worst_sum,
@@ -216,7 +275,7 @@ void bidir_finish(void *state)
     bidir_state *st = state;
     photon_grid_free(&st->grid);
     free(st->light_probability), free(st->path_first), free(st->path_count), free(st->light_image);
-    free(st->light_vertices);
-    st->light_probability = NULL, st->light_vertices = NULL, st->light_image = NULL;
+    free(st->light_vertices), free(st->surface_averages);
+    st->surface_averages = NULL, st->light_probability = NULL, st->light_vertices = NULL, st->light_image = NULL;
     st->path_first = st->path_count = NULL;
 }
