@@ -63,6 +63,7 @@ $(foreach c,$(CHAPTER_PROGRAMS),$(eval $(c): $(patsubst chapters/support/%.c,$(B
 # A chapter that builds on an earlier one links that chapter's object with
 # its main renamed, so neither includes the other and each answer is written
 # once: chapter 2 shades with chapter 1's local model (chapters/local_model.h),
+# chapter 03c computes form factors as chapter 3 (chapters/radiosity_model.h),
 # chapter 5 scatters and samples lights as chapter 4 (chapters/pathtrace_model.h).
 $(BUILD)/chapters/%_model.o: chapters/%.c
 	@mkdir -p $(dir $@)
@@ -70,6 +71,7 @@ $(BUILD)/chapters/%_model.o: chapters/%.c
 	objcopy --redefine-sym main=chapter_$*_main $@.tmp.o $@
 	rm -f $@.tmp.o
 $(BUILD)/02_whitted: $(BUILD)/chapters/01_local_model.o
+$(BUILD)/03c_hierarchical: $(BUILD)/chapters/03_radiosity_model.o
 $(BUILD)/05_photonmap: $(BUILD)/chapters/04_pathtrace_model.o
 $(BUILD)/06_bidirectional: $(BUILD)/chapters/04_pathtrace_model.o $(BUILD)/chapters/05_photonmap_model.o
 

@@ -17,14 +17,14 @@
  * (progressive refinement) and the direct solve of (I - K) L = E (R5); then
  * prepare(), named steps like DoRad in Chen's rad.c (Graphics Gems II).
  *
- * Hierarchical radiosity (--solver hierarchical: quadtrees, links by a
- * refinement oracle, gather and push-pull) is lecture too, read next in
- * chapters/support/03_radiosity_hierarchical.[ch] (this file is at its length limit).
- * Around the lecture, in helpers: the patch mesh, adaptive splitting, the
- * image lookup and the probes in common/patch_mesh.[ch]; the PLY mesh, the
- * form-factor table, per-surface stats in common/mesh_io.[ch]; Gaussian
- * elimination in common/dense_solve.[ch]; options, meshing steps, stats in
- * chapters/support/03_radiosity_support.[ch].  Modelling choices (said once
+ * Hierarchical radiosity (quadtrees, links by a refinement oracle, gather
+ * and push-pull) is the lecture's third part: chapters/03c_hierarchical.c,
+ * which uses point_to_polygon() from here (chapters/radiosity_model.h).
+ * Around the lecture, in common/: the patch mesh, adaptive splitting, the
+ * image lookup and the probes in patch_mesh.[ch]; the PLY mesh, the
+ * form-factor table, per-surface stats in mesh_io.[ch]; Gaussian
+ * elimination in dense_solve.[ch]; options, meshing steps, stats in
+ * radiosity_setup.[ch].  Modelling choices (said once
  * on stderr): one-sided patches (backs black); mirror and glass spheres
  * unmeshed (they block light, carry none); mirrors, glass and Phong diffuse;
  * background seen only by camera rays; point lights shoot once (R1). */
@@ -35,27 +35,24 @@
 #include "dense_solve.h"
 #include "mesh_io.h"
 #include "patch_mesh.h"
-#include "support/03_radiosity_hierarchical.h"
-#include "support/03_radiosity_support.h"
+#include "radiosity_model.h"
+#include "radiosity_setup.h"
 #include "render.h"
 
 typedef struct {
+    radiosity_view view;        /* first: what the driver reads once solved (radiosity_setup.h) */
     radiosity_options opt;      /* the command line fills it (RADIOSITY_OPTIONS) */
     int bounce_min, bounce_max; /* --bounces: the Neumann terms kept (R6) */
-    double exposure;
     bool quiet;
-    const scene *scene;
+    const scene *scene; /* for F_ij computed on the spot (form_factor_at) */
     patch_mesh mesh;     /* the patches i: corners, normal, area A_i, albedo rho_i, emission Le_i */
     float *form_factors; /* F_ij at [i * n + j], or NULL (shooting computes them per shot) */
     vec3 *first_shot;    /* light from point lights reflected once: part of term 1 of (R6) */
     vec3 *source;        /* Le + first_shot: the right-hand side E of (R4), and its size as power */
     double source_norm;
     vec3 *radiance;      /* L: the solution shown (the --bounces window) */
-    hierarchy hierarchy; /* --solver hierarchical: elements and links (03_radiosity_hierarchical.h) */
     radiosity_stats stats;
 } radiosity_state;
-
-static int warned_back;
 
 /* ---- form factors (R10) ------------------------------------------------------------------ */
 
@@ -71,7 +68,7 @@ static int warned_back;
  * the polygon: the 1/r^2 of the kernel is integrated analytically, which is
  * what keeps patches that share an edge accurate (a centre-to-centre
  * cos cos A / (pi r^2) would be far off there). [exercise 3.1] */
-static double point_to_polygon(vec3 x, vec3 n, const vec3 *polygon, int count)
+double point_to_polygon(vec3 x, vec3 n, const vec3 *polygon, int count)
 {
     vec3 clipped[8];
     int kept = 0;
@@ -176,50 +173,39 @@ static void apply_transport(radiosity_state *st, const vec3 *x, vec3 *out)
     st->stats.visibility_rays += rays;
 }
 
-/* The Neumann series (R6) term by term, adding sign x term k to L for k in
+/* The Neumann series (R6) term by term, adding term k to L for k in
  * [first, last]:  term 0 = E,  term 1 = K E + the point lights' first shot,
- * term k = K term k-1.  As Jacobi (jacobi = true) it records the size of the
- * next term, exactly the residual E + K L - L, as power (patch_mesh_power;
+ * term k = K term k-1.  The next term is exactly the residual E + K L - L
+ * of the sum so far: its size as power is recorded (patch_mesh_power;
  * ||K|| <= max rho < 1 in that norm, so residuals fall monotonically), and
- * stops when it is below --tol or after --iterations terms.  0, or -1: OOM. [exercise 3.3] */
-static int neumann_terms(radiosity_state *st, int first, int last, double sign, bool jacobi, vec3 *L)
+ * the sum stops when it is below --tol or after --iterations terms.  This
+ * is Jacobi's iteration L <- E + K L started from L = 0: after k
+ * iterations L holds the first k terms.  0, or -1: OOM. [exercise 3.3] */
+static int neumann_terms(radiosity_state *st, int first, int last, vec3 *L)
 {
     int n = st->mesh.patch_count;
-    vec3 *both = malloc(2 * (size_t)n * sizeof *both + 1);
-    if (!both)
-        return -1;
-    vec3 *term = both, *next = both + n;
-    for (int i = 0; i < n; i++)
+    vec3 *term = malloc((size_t)n * sizeof *term + 1), *next = malloc((size_t)n * sizeof *next + 1);
+    for (int i = 0; term && next && i < n; i++)
         term[i] = st->mesh.patches[i].emission;
-    for (int k = 0;; k++) {
-        if (k >= first)
-            for (int i = 0; i < n; i++)
-                L[i] = v3_madd(L[i], term[i], sign);
+    for (int k = 0; term && next; k++) {
+        for (int i = 0; i < n && k >= first; i++)
+            L[i] = v3_add(L[i], term[i]);
         apply_transport(st, term, next); /* (R6): the next term, one more bounce */
-        if (k == 0)
-            for (int i = 0; i < n; i++)
-                next[i] = v3_add(next[i], st->first_shot[i]);
+        for (int i = 0; i < n && k == 0; i++)
+            next[i] = v3_add(next[i], st->first_shot[i]);
         vec3 *swap = term;
-        term = next, next = swap;
-        if (jacobi) { /* the next term is the residual of the sum so far */
-            st->stats.iterations = k + 1;
-            record_residual(&st->stats, patch_mesh_power(&st->mesh, term) / st->source_norm);
-            st->stats.converged = k >= last || st->stats.residual <= st->opt.tolerance;
-            if (st->stats.converged || st->stats.iterations >= st->opt.max_iterations)
-                break;
-        } else if (k >= last)
+        term = next;
+        next = swap;
+        st->stats.iterations = k + 1;
+        record_residual(&st->stats, patch_mesh_power(&st->mesh, term) / st->source_norm);
+        st->stats.converged = k >= last || st->stats.residual <= st->opt.tolerance;
+        if (st->stats.converged || st->stats.iterations >= st->opt.max_iterations)
             break;
     }
-    free(both);
-    return 0;
-}
-
-/* Jacobi: L <- E + K L from L = 0 (every solver starts there: step 2 zeroes
- * L).  After k iterations L holds the first k terms of (R6): exactly
- * neumann_terms() over the --bounces window. */
-static int solve_jacobi(radiosity_state *st, vec3 *L)
-{
-    return neumann_terms(st, st->bounce_min, st->bounce_max, 1.0, true, L);
+    int failed = !term || !next;
+    free(term);
+    free(next);
+    return failed ? -1 : 0;
 }
 
 /* Residual r = E + K L - L of the full system, as a fraction of the source power. */
@@ -268,7 +254,8 @@ static int solve_shooting(radiosity_state *st, const scene *s, vec3 *L)
     vec3 *unshot = malloc((size_t)n * sizeof *unshot + 1);
     double *column = malloc((size_t)n * sizeof *column + 1);
     if (!unshot || !column) {
-        free(unshot), free(column);
+        free(unshot);
+        free(column);
         return -1;
     }
     memcpy(unshot, st->source, (size_t)n * sizeof *unshot);
@@ -303,7 +290,8 @@ static int solve_shooting(radiosity_state *st, const scene *s, vec3 *L)
     /* For display, the unshot light is radiance of its patch already, and the light
      * still to come is guessed by Cohen et al.'s ambient term (patch_mesh.h). */
     patch_mesh_add_ambient(&st->mesh, unshot, L);
-    free(unshot), free(column);
+    free(unshot);
+    free(column);
     return 0;
 }
 
@@ -328,50 +316,90 @@ static int solve_direct(radiosity_state *st, vec3 *L)
             L[i] = v3(channel == 0 ? b[i] : L[i].x, channel == 1 ? b[i] : L[i].y, channel == 2 ? b[i] : L[i].z);
     }
     int failed = !a || !b;
-    free(a), free(b);
+    free(a);
+    free(b);
     st->stats.iterations = 1;
     record_residual(&st->stats, failed ? INFINITY : full_residual(st, L));
     st->stats.converged = st->stats.residual <= fmax(st->opt.tolerance, 1e-9);
     return failed ? -1 : 0;
 }
 
-/* ---- prepare: mesh the scene, compute form factors, solve, prepare the image ---------------- */
+/* ---- prepare: Chen's DoRad, four named steps --------------------------------------------- */
+
+/* The arrays of step 2, one per meaning, for the current mesh (--adaptive
+ * remeshes and comes back).  0, or 2 with a message. */
+static int allocate_patch_arrays(radiosity_state *st, char *err, size_t err_size)
+{
+    size_t n = (size_t)st->mesh.patch_count;
+    free(st->form_factors);
+    free(st->first_shot);
+    free(st->source);
+    free(st->radiance);
+    st->form_factors = NULL;
+    st->first_shot = calloc(n + 1, sizeof *st->first_shot);
+    st->source = calloc(n + 1, sizeof *st->source);
+    st->radiance = calloc(n + 1, sizeof *st->radiance);
+    if (st->first_shot && st->source && st->radiance)
+        return 0;
+    snprintf(err, err_size, "argv:0: out of memory for %zu patches", n);
+    return 2;
+}
 
 /* Step 2: the sources and the form factors.  Point lights shoot first: each
  * patch reflects rho E / pi of their irradiance E = I cos / r^2 (R1), light
  * bounced once (part of K E).  Then F_ij (R10), unless the solver shoots. */
 static int compute_form_factors(radiosity_state *st, const scene *s, char *err, size_t err_size)
 {
-    if (st->opt.solver == SOLVER_HIERARCHICAL && /* hierarchical: links, not the matrix; the leaves are patches */
-        hierarchy_build(&st->hierarchy, &st->mesh, s, &st->opt, &st->stats, point_to_polygon, err, err_size))
-        return 2;
     int n = st->mesh.patch_count;
-    if (radiosity_check_matrix_size(&st->opt, n, err, err_size))
+    if (radiosity_check_matrix_size(&st->opt, n, err, err_size) || allocate_patch_arrays(st, err, err_size))
         return 2;
-    free(st->form_factors), free(st->first_shot); /* from the previous mesh (--adaptive) */
-    st->form_factors = NULL;
-    if (!(st->first_shot = calloc(3 * (size_t)n + 1, sizeof *st->first_shot))) /* and source, radiance */
-        return snprintf(err, err_size, "argv:0: out of memory for %d patches", n), 2;
-    st->source = st->first_shot + n, st->radiance = st->source + n;
     double start = omp_get_wtime();
     st->stats.visibility_rays += patch_mesh_point_lights(&st->mesh, s, st->first_shot);
     for (int i = 0; i < n; i++)
         st->first_shot[i] = v3_mul(st->mesh.patches[i].albedo, v3_scale(st->first_shot[i], 1.0 / M_PI));
-    if (st->opt.solver < SOLVER_SHOOTING || st->opt.solver == SOLVER_DIRECT) { /* F_ij for every pair, in parallel */
-        if (!(st->form_factors = malloc((size_t)n * (size_t)n * sizeof *st->form_factors + 1)))
-            return snprintf(err, err_size, "argv:0: out of memory for the %d x %d form-factor matrix", n, n), 2;
+    if (st->opt.solver != SOLVER_SHOOTING) { /* F_ij for every pair, in parallel */
+        st->form_factors = malloc((size_t)n * (size_t)n * sizeof *st->form_factors + 1);
+        if (!st->form_factors) {
+            snprintf(err, err_size, "argv:0: out of memory for the %d x %d form-factor matrix", n, n);
+            return 2;
+        }
         uint64_t rays = 0;
 #pragma omp parallel for schedule(dynamic, 8) reduction(+ : rays)
         for (int i = 0; i < n; i++)
             for (int j = 0; j < n; j++)
                 st->form_factors[(size_t)i * (size_t)n + (size_t)j] = (float)form_factor(st, s, i, j, &rays);
         radiosity_stats *r = &st->stats; /* and the checks: row sums, reciprocity (mesh_io.h) */
-        r->visibility_rays += rays, r->have_matrix_checks = true;
+        r->visibility_rays += rays;
+        r->have_matrix_checks = true;
         form_factor_checks(st->form_factors, &st->mesh, &r->reciprocity_error, &r->row_sum_min, &r->row_sum_max);
         radiosity_warn_row_sums(st->form_factors, &st->mesh, s, &st->opt);
     }
     st->stats.formfactor_s += omp_get_wtime() - start;
     return 0;
+}
+
+/* The full solution by the chosen solver; with --bounces A (no upper end)
+ * the terms 0 .. A-1 are computed first and taken away from it. */
+static int solve_full(radiosity_state *st, const scene *s)
+{
+    int n = st->mesh.patch_count, failed = 0;
+    vec3 *head = calloc((size_t)n + 1, sizeof *head);
+    if (!head)
+        return -1;
+    if (st->bounce_min > 0) {
+        failed = neumann_terms(st, 0, st->bounce_min - 1, head);
+        st->stats.history_count = 0; /* the solver's residuals are the ones reported */
+    }
+    if (!failed && st->opt.solver == SOLVER_GAUSS_SEIDEL)
+        failed = solve_gauss_seidel(st, st->radiance);
+    else if (!failed && st->opt.solver == SOLVER_SHOOTING)
+        failed = solve_shooting(st, s, st->radiance);
+    else if (!failed)
+        failed = solve_direct(st, st->radiance);
+    for (int i = 0; i < n; i++)
+        st->radiance[i] = v3_sub(st->radiance[i], head[i]);
+    free(head);
+    return failed;
 }
 
 /* Step 3: solve L = E + K L; st->radiance gets the --bounces window. */
@@ -383,37 +411,38 @@ static int solve(radiosity_state *st, const scene *s, char *err, size_t err_size
         st->source[i] = v3_add(st->mesh.patches[i].emission, st->first_shot[i]);
     st->source_norm = patch_mesh_power(&st->mesh, st->source);
     radiosity_stats *r = &st->stats;
-    r->history_count = 0, r->converged = false, r->shots = 0, r->no_light = !(st->source_norm > 0.0);
+    r->history_count = 0;
+    r->converged = false;
+    r->shots = 0;
+    r->no_light = !(st->source_norm > 0.0);
     r->solver_used = solver_names[st->opt.solver];
     if (r->no_light) { /* nothing emits: L = 0 solves L = E + K L exactly */
-        r->iterations = 0, r->converged = true;
+        r->iterations = 0;
+        r->converged = true;
         record_residual(r, 0.0);
-    } else if (st->opt.solver == SOLVER_HIERARCHICAL) { /* any --bounces window: its Neumann terms */
-        failed = hierarchy_solve(&st->hierarchy, &st->mesh, st->first_shot, st->bounce_min, st->bounce_max, &st->opt, r,
-                                 st->source_norm, st->radiance);
     } else if (st->opt.solver == SOLVER_JACOBI || st->bounce_max < RENDER_BOUNCES_UNLIMITED) {
         /* A window with an upper end is a finite sum of Neumann terms: computed
          * as such whatever the solver (the other solvers do not separate bounces). */
         r->solver_used = "jacobi";
-        failed = solve_jacobi(st, st->radiance);
-    } else {
-        failed = st->opt.solver == SOLVER_GAUSS_SEIDEL ? solve_gauss_seidel(st, st->radiance)
-                 : st->opt.solver == SOLVER_SHOOTING   ? solve_shooting(st, s, st->radiance)
-                                                       : solve_direct(st, st->radiance);
-        if (!failed && st->bounce_min > 0) /* --bounces A: the full solution minus terms 0 .. A-1 */
-            failed = neumann_terms(st, 0, st->bounce_min - 1, -1.0, false, st->radiance);
-    }
+        failed = neumann_terms(st, st->bounce_min, st->bounce_max, st->radiance);
+    } else
+        failed = solve_full(st, s);
     r->solve_s += omp_get_wtime() - start;
     if (failed)
         snprintf(err, err_size, "argv:0: out of memory while solving for %d patches", n);
     return failed ? 2 : 0;
 }
 
+/* Chen's DoRad: 1. mesh, 2. sources and form factors, 3. solve (again on a
+ * finer mesh with --adaptive), 4. the image lookup. */
 static int prepare(void *state_pointer, const scene *s, const render_options *o, char *err, size_t err_size)
 {
     radiosity_state *st = state_pointer;
-    st->bounce_min = o->bounce_min, st->bounce_max = o->bounce_max;
-    st->exposure = o->exposure, st->quiet = o->quiet, st->scene = s;
+    st->bounce_min = o->bounce_min;
+    st->bounce_max = o->bounce_max;
+    st->quiet = o->quiet;
+    st->scene = s;
+    st->opt.program = "03_radiosity";
     if (radiosity_mesh_scene(&st->mesh, s, &st->opt, err, err_size)) /* 1. the surfaces cut into patches */
         return 2;
     for (int split = 1; split > 0;) {
@@ -425,58 +454,28 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
         if (split < 0) /* --adaptive: patches split where the radiance jumps, back to 2 */
             return 2;
     }
-    if (patch_mesh_smooth_radiance(&st->mesh, st->radiance)) /* 4. the image lookup (smooth shading) */
-        return snprintf(err, err_size, "argv:0: out of memory"), 2;
+    if (patch_mesh_smooth_radiance(&st->mesh, st->radiance)) { /* 4. the image lookup (smooth shading) */
+        snprintf(err, err_size, "argv:0: out of memory");
+        return 2;
+    }
     if (write_surface_form_factors(st->opt.formfactors_path, s, &st->mesh, form_factor_at, st,
                                    &st->stats.visibility_rays, err, err_size)) /* --formfactors F.csv */
         return 2;
     radiosity_report(&st->opt, &st->stats, st->mesh.patch_count, st->quiet);
+    st->view = (radiosity_view){&st->opt, &st->stats, s, &st->mesh, st->radiance, o->exposure, st->bounce_min == 0,
+                                st->form_factors != NULL, point_to_polygon};
     return 0;
-}
-
-/* What the camera sees: the radiance of the patch under each hit (patch_mesh.h). */
-static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, render_counters *counters)
-{
-    const radiosity_state *st = state_pointer;
-    (void)g, (void)counters;
-    bool back = false;
-    vec3 L = patch_mesh_seen(&st->mesh, s, r, st->radiance, st->opt.smooth, &back);
-    if (back)
-        warn_once(&warned_back, "03_radiosity: the camera sees the back of a surface; patches are one-sided "
-                                "(front = right-hand rule), backs render black");
-    return L;
-}
-
-/* A probe: E = Sum_j L_j pi F_dA->j by point_to_polygon, plus the point lights
- * (R1, term 0); deterministic, its error is the discretisation's. */
-static probe_result probe_irradiance(const void *state_pointer, const scene *s, const probe *pr, uint64_t seed,
-                                     render_counters *counters)
-{
-    const radiosity_state *st = state_pointer;
-    (void)seed, (void)counters;
-    vec3 E = patch_mesh_irradiance(&st->mesh, s, st->radiance, pr->position, pr->normal, st->bounce_min == 0,
-                                   point_to_polygon);
-    return (probe_result){.irradiance = E, .standard_error = v3_splat(0.0)};
-}
-
-static int write_output(const void *state_pointer, const scene *s, const char *path, char *err, size_t err_size)
-{
-    const radiosity_state *st = state_pointer;
-    (void)s;
-    return write_patch_ply(path, &st->mesh, st->radiance, st->opt.smooth, st->exposure, "03_radiosity", err, err_size);
-}
-
-static void write_stats(const void *state_pointer, FILE *json)
-{
-    const radiosity_state *st = state_pointer;
-    write_radiosity_stats(json, &st->opt, &st->stats, st->scene, &st->mesh, st->radiance, st->form_factors != NULL);
 }
 
 static void finish(void *state_pointer)
 {
     radiosity_state *st = state_pointer;
-    patch_mesh_free(&st->mesh), hierarchy_free(&st->hierarchy);
-    free(st->form_factors), free(st->first_shot), free(st->stats.history); /* first_shot holds source, radiance */
+    patch_mesh_free(&st->mesh);
+    free(st->form_factors);
+    free(st->first_shot);
+    free(st->source);
+    free(st->radiance);
+    free(st->stats.history);
 }
 
 int main(int argc, char **argv)
@@ -485,14 +484,14 @@ int main(int argc, char **argv)
     const chapter radiosity = {
         .name = "03_radiosity",
         .description = "radiosity: patches, form factors (R10), L = E + KL solved by Jacobi (= Neumann series R6), "
-                       "Gauss-Seidel, shooting, directly (R5) or hierarchically; --out MESH.ply writes the patch mesh",
+                       "Gauss-Seidel, shooting or directly (R5); --out MESH.ply writes the patch mesh",
         .options = {{RADIOSITY_OPTIONS, &state.opt}},
         .default_spp = 1,
         .prepare = prepare,
-        .radiance = radiance,
-        .probe = probe_irradiance,
-        .write_stats = write_stats,
-        .write_output = write_output,
+        .radiance = radiosity_view_radiance, /* the patches seen (radiosity_setup.h) */
+        .probe = radiosity_view_probe,
+        .write_stats = radiosity_view_write_stats,
+        .write_output = radiosity_view_write_output,
         .finish = finish,
     };
     return render_main(argc, argv, &radiosity, &state);

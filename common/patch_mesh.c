@@ -483,7 +483,7 @@ int patch_mesh_collect(patch_mesh *m, int quadrature)
             continue;
         patch *p = &m->patches[m->patch_count];
         patch_mesh_cell_geometry(m, c, p);
-        p->exposure = 1.0;
+        p->unburied = 1.0;
         if (add_quadrature_points(m, p, quadrature))
             return -1;
         cell->patch = m->patch_count++;

@@ -50,7 +50,7 @@ typedef struct {
     double area;
     double radius;                /* largest distance from the centroid to a corner */
     vec3 albedo, emission;        /* rho_i and Le_i: zero here, the caller's model of the material */
-    double exposure;              /* the fraction of it outside every solid: 1 here, the caller's to set */
+    double unburied;              /* the fraction of it outside every solid: 1 here, the caller's to set */
     int first_point, point_count; /* its quadrature points in points[] and weights[] */
 } patch;
 

@@ -1,5 +1,5 @@
-/* 03_radiosity_hierarchical_store.c — the hierarchical solver's bookkeeping (see the .h). */
-#include "03_radiosity_hierarchical_store.h"
+/* hierarchy.c — the hierarchical solver's bookkeeping (hierarchy.h); nothing here is the lecture. */
+#include "hierarchy.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -13,7 +13,7 @@ static const double COVER_REACH = 2.0, COVER_INSET = 0.9;
  * floor element)?  Rays along the normal from its centroid and near its
  * corners: blocked within COVER_REACH radii or from inside a solid (they
  * meet a back face first).  COVERED_PART when some are blocked and some
- * not, COVERED_ALL when all are, else 0 (03_radiosity_hierarchical.h). */
+ * not, COVERED_ALL when all are, else 0 (hierarchy.h). */
 static unsigned char covered(const patch_mesh *m, const scene *s, const patch *e)
 {
     vec3 mean = element_corner_mean(e);
@@ -192,55 +192,55 @@ bool element_point_buried(const scene *s, vec3 x, vec3 n)
     return scene_intersect(s, along_normal, INFINITY, &first) && v3_dot(first.normal, n) > 0.0;
 }
 
-/* Points per side of the grid on which a quad leaf's exposure is measured
+/* Points per side of the grid on which a quad leaf's unburied fraction is measured
  * (a leaf across a box's edge by a fifth of its width was measured buried
  * from its centroid and four points). */
-enum { EXPOSURE_GRID = 4 };
+enum { UNBURIED_GRID = 4 };
 
 /* The fraction of element e's area outside every solid: a leaf's from a
  * grid of points (a triangle's: its centroid and sample points), a parent's the area-weighted mean of its
  * children's. */
-static double exposure_of(hierarchy *h, const patch_mesh *m, const scene *s, int e)
+static double unburied_fraction(hierarchy *h, const patch_mesh *m, const scene *s, int e)
 {
     const mesh_cell *c = &m->cells[e];
     const patch *element = &h->element[e];
-    double exposure = 0.0;
-    if (c->first_child < 0 && e < h->exposure_count)
-        return h->exposure[e];                              /* a leaf measured by an earlier call, still a leaf */
+    double unburied = 0.0;
+    if (c->first_child < 0 && e < h->unburied_count)
+        return h->unburied[e];                              /* a leaf measured by an earlier call, still a leaf */
     if (c->first_child < 0 && element->corner_count == 4) { /* a 4 x 4 grid over the cell */
         const vec3 *q = element->corner;
-        for (int i = 0; i < EXPOSURE_GRID; i++)
-            for (int j = 0; j < EXPOSURE_GRID; j++) {
-                double u = (i + 0.5) / EXPOSURE_GRID, v = (j + 0.5) / EXPOSURE_GRID;
+        for (int i = 0; i < UNBURIED_GRID; i++)
+            for (int j = 0; j < UNBURIED_GRID; j++) {
+                double u = (i + 0.5) / UNBURIED_GRID, v = (j + 0.5) / UNBURIED_GRID;
                 vec3 x = v3_add(v3_scale(v3_add(v3_scale(q[0], 1 - u), v3_scale(q[1], u)), 1 - v),
                                 v3_scale(v3_add(v3_scale(q[3], 1 - u), v3_scale(q[2], u)), v));
                 x = patch_mesh_on_surface(m, element->surface, x);
-                exposure += !element_point_buried(s, x, element->normal) / (double)(EXPOSURE_GRID * EXPOSURE_GRID);
+                unburied += !element_point_buried(s, x, element->normal) / (double)(UNBURIED_GRID * UNBURIED_GRID);
             }
     } else if (c->first_child < 0) {
         vec3 point[5];
         int count = element_sample_points(m, element, point);
         point[count++] = element->centroid;
         for (int k = 0; k < count; k++)
-            exposure += !element_point_buried(s, point[k], element->normal) / (double)count;
+            unburied += !element_point_buried(s, point[k], element->normal) / (double)count;
     } else {
         for (int k = c->first_child; k < c->first_child + 4; k++)
-            exposure += exposure_of(h, m, s, k) * h->element[k].area / element->area;
+            unburied += unburied_fraction(h, m, s, k) * h->element[k].area / element->area;
     }
-    h->exposure[e] = (float)exposure;
-    return exposure;
+    h->unburied[e] = (float)unburied;
+    return unburied;
 }
 
-int hierarchy_exposure(hierarchy *h, const patch_mesh *m, const scene *s)
+int hierarchy_measure_unburied(hierarchy *h, const patch_mesh *m, const scene *s)
 {
-    float *exposure = realloc(h->exposure, (size_t)h->element_count * sizeof *exposure + 1);
-    if (!exposure)
+    float *unburied = realloc(h->unburied, (size_t)h->element_count * sizeof *unburied + 1);
+    if (!unburied)
         return -1;
-    h->exposure = exposure;
+    h->unburied = unburied;
 #pragma omp parallel for schedule(dynamic, 1)
     for (int root = 0; root < h->root_count; root++)
-        exposure_of(h, m, s, root);
-    h->exposure_count = h->element_count;
+        unburied_fraction(h, m, s, root);
+    h->unburied_count = h->element_count;
     return 0;
 }
 
@@ -248,7 +248,7 @@ double hierarchy_link_shape(const hierarchy *h, int e, long k, int j)
 {
     if (h->link_shape)
         return h->link_shape[4 * k + j];
-    return h->exposure[e] > 0.0; /* F is the mean over the exposed part already (link_form_factor) */
+    return h->unburied[e] > 0.0; /* F is the mean over the exposed part already (link_form_factor) */
 }
 
 /* Each exposed leaf's row sum: what it gathers, as push_pull gives it,
@@ -265,7 +265,7 @@ static void hierarchy_row_sums(const hierarchy *h, const patch_mesh *m, int e, c
             here[j].x += h->link_F[k] * hierarchy_link_shape(h, e, k, j);
         row += here[j].x / c->vertex_count;
     }
-    if (c->first_child < 0 && h->exposure[e] > 0.0) {
+    if (c->first_child < 0 && h->unburied[e] > 0.0) {
         stats->row_sum_min = fmin(stats->row_sum_min, row);
         stats->row_sum_max = fmax(stats->row_sum_max, row);
     }
@@ -288,4 +288,19 @@ void hierarchy_report(const hierarchy *h, const patch_mesh *m, radiosity_stats *
         (double)h->element_count *
             (sizeof(patch) + sizeof(mesh_cell) + 2 * sizeof(vec3) + 1 + sizeof(long) + sizeof(int) + sizeof(float)) +
         (double)m->vertex_count * sizeof(vec3) + (double)h->link_count * (sizeof(int) + sizeof(float));
+}
+
+void hierarchy_free(hierarchy *h)
+{
+    free(h->element);
+    free(h->level);
+    free(h->covered);
+    free(h->parent);
+    free(h->unburied);
+    free(h->gathered);
+    free(h->link_start);
+    free(h->link_source);
+    free(h->link_F);
+    free(h->link_shape);
+    *h = (hierarchy){0};
 }

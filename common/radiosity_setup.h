@@ -1,11 +1,12 @@
-/* 03_radiosity_support.h — what chapter 3 needs around the lecture: its
- * options (--patch-size, --solver ...), their defaults and help text; the
- * steps that build and refine the patch mesh (patch_mesh.h) with the
- * chapter's limits, material model and warnings; the solve's statistics and
- * the radiosity members of the --stats JSON.  Kept out of the chapter so
- * that it reads as the lecture; the driver's common options are in render.h. */
-#ifndef CHAPTERS_RADIOSITY_SUPPORT_H
-#define CHAPTERS_RADIOSITY_SUPPORT_H
+/* radiosity_setup.h — what chapter 3 (03_radiosity.c) and chapter 03c
+ * (03c_hierarchical.c) need around their lectures: their options
+ * (--patch-size, --solver, --eps ...), defaults and help text; the steps
+ * that build and refine the patch mesh (patch_mesh.h) with the chapters'
+ * limits, material model and warnings; the solve's statistics and the
+ * radiosity members of the --stats JSON.  Nothing here is the lecture; the
+ * driver's common options are in render.h. */
+#ifndef COMMON_RADIOSITY_SETUP_H
+#define COMMON_RADIOSITY_SETUP_H
 
 #include <stdbool.h>
 #include <stddef.h>
@@ -14,18 +15,21 @@
 
 #include "options.h"
 #include "patch_mesh.h"
+#include "render.h"
 #include "scene.h"
 
 /* The order of --solver's choices. */
-typedef enum { SOLVER_JACOBI, SOLVER_GAUSS_SEIDEL, SOLVER_SHOOTING, SOLVER_DIRECT, SOLVER_HIERARCHICAL } solver_kind;
-extern const char *const solver_names[5]; /* "jacobi", "gauss-seidel", "shooting", "direct", "hierarchical" */
+typedef enum { SOLVER_JACOBI, SOLVER_GAUSS_SEIDEL, SOLVER_SHOOTING, SOLVER_DIRECT } solver_kind;
+extern const char *const solver_names[4]; /* "jacobi", "gauss-seidel", "shooting", "direct" */
 
 typedef struct {
+    const char *program; /* "03_radiosity" or "03c_hierarchical": the messages' prefix */
+    bool hierarchical;   /* chapter 03c: the mesh's cells are the roots of quadtrees */
     double patch_size;
     bool adaptive;
     int adaptive_levels;
     double adaptive_threshold;
-    int solver; /* solver_kind */
+    int solver; /* solver_kind (chapter 3) */
     double tolerance;
     int max_iterations;
     int max_patches;
@@ -34,9 +38,9 @@ typedef struct {
     int enforce_reciprocity; /* --reciprocity check|enforce: 1 averages A_i F_ij and A_j F_ji */
     const char *formfactors_path;
     int patch_size_argv; /* where --patch-size was given, for error messages */
-    double eps;          /* --solver hierarchical: link when both form-factor estimates are below eps */
-    double eps_spread;   /* --solver hierarchical: second pass, a link's bound on its source's variation (0: off) */
-    int levels;          /* --solver hierarchical: deepest split below a root */
+    double eps;          /* chapter 03c: link when both form-factor estimates are below eps */
+    double eps_spread;   /* chapter 03c: second pass, a link's bound on its source's variation (0: off) */
+    int levels;          /* chapter 03c: deepest split below a root */
     int eps_argv, levels_argv;
 } radiosity_options;
 
@@ -52,15 +56,15 @@ typedef struct {
     uint64_t visibility_rays;
     bool have_matrix_checks;
     double reciprocity_error, row_sum_min, row_sum_max;
-    long elements, links;  /* --solver hierarchical: quadtree cells (all levels), links */
-    long first_pass_links; /* --solver hierarchical: links before the second pass (--eps-spread) */
+    long elements, links;  /* chapter 03c: quadtree cells (all levels), links */
+    long first_pass_links; /* chapter 03c: links before the second pass (--eps-spread) */
     int levels;            /* the deepest level reached */
     double hierarchy_bytes;
 } radiosity_stats;
 
-/* The chapter's options, their ranges, defaults and help (options.h):
- * offsets into a radiosity_options. */
-extern const option RADIOSITY_OPTIONS[];
+/* The chapters' options, their ranges, defaults and help (options.h):
+ * offsets into a radiosity_options.  Chapter 3's and chapter 03c's. */
+extern const option RADIOSITY_OPTIONS[], HIERARCHICAL_OPTIONS[];
 
 /* stats->residual = residual, and append it to the history. */
 void record_residual(radiosity_stats *stats, double residual);
@@ -74,7 +78,7 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
  * 4,000,000; diffuse spheres meshed by latitude and longitude, mirror and
  * glass spheres not, said once on stderr; the default size, 0, becomes a
  * tenth of the scene's largest extent) and collect them
- * (radiosity_collect_patches).  --solver hierarchical: the roots, one cell
+ * (radiosity_collect_patches).  chapter 03c: the roots, one cell
  * per surface (per triangle, 12 x 6 per sphere) unless --patch-size is given.  Returns 0, or 2 with a message. */
 int radiosity_mesh_scene(patch_mesh *m, const scene *s, radiosity_options *o, char *err, size_t err_size);
 
@@ -108,5 +112,37 @@ int radiosity_check_matrix_size(const radiosity_options *o, int patches, char *e
 /* After the solve, on stderr: a warning when nothing emits or the solver
  * stopped at its iteration cap, and (unless quiet) a one-line summary. */
 void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int patches, bool quiet);
+
+/* What the driver's callbacks read of a solved radiosity chapter (chapters
+ * 3 and 03c): the first member of the chapter's state, set by the last step
+ * of its prepare(), so that the functions below can be its .radiance,
+ * .probe, .write_output and .write_stats (render.h). */
+typedef struct {
+    const radiosity_options *opt;
+    const radiosity_stats *stats;
+    const scene *scene;
+    const patch_mesh *mesh;
+    const vec3 *radiance; /* per patch: L, the --bounces window */
+    double exposure;      /* --exposure: the PLY's colours */
+    bool point_lights;    /* term 0 kept: a probe adds the point lights' direct light */
+    bool have_matrix;     /* the n x n form factors were stored (stats: matrix_bytes) */
+    point_to_polygon_fn point_to_polygon;
+} radiosity_view;
+
+/* What the camera sees: the radiance of the patch under the hit
+ * (patch_mesh_seen), with a warning once when it is a patch's back. */
+vec3 radiosity_view_radiance(const void *view, const scene *s, ray r, rng *g, render_counters *counters);
+
+/* A probe: E = Sum_j L_j pi F_dA->j by Lambert's formula, plus the point
+ * lights when term 0 is kept (patch_mesh_irradiance); deterministic, its
+ * error is the discretisation's. */
+probe_result radiosity_view_probe(const void *view, const scene *s, const probe *pr, uint64_t seed,
+                                  render_counters *counters);
+
+/* --out MESH.ply: the patches with their radiance (write_patch_ply). */
+int radiosity_view_write_output(const void *view, const scene *s, const char *path, char *err, size_t err_size);
+
+/* The radiosity members of the --stats JSON (write_radiosity_stats). */
+void radiosity_view_write_stats(const void *view, FILE *json);
 
 #endif

@@ -1,5 +1,6 @@
-/* 03_radiosity_support.c — chapter 3's options and statistics (see 03_radiosity_support.h). */
-#include "03_radiosity_support.h"
+/* radiosity_setup.c — what chapters 3 and 03c share around their lectures:
+ * options, meshing steps, stats (radiosity_setup.h).  Nothing here is the lecture. */
+#include "radiosity_setup.h"
 
 #include <math.h>
 #include <stddef.h>
@@ -15,8 +16,10 @@
  * millimetres (no unit is baked in). */
 #define PATCH_SIZE_DEFAULT "largest-side/10"
 static const double PATCH_SIZE_PARTS = 10.0;
+/* Chapter 03c's default: every surface is one root (one cell per triangle, 12 x 6 per sphere). */
+#define ROOTS_DEFAULT "surfaces"
 
-const char *const solver_names[5] = {"jacobi", "gauss-seidel", "shooting", "direct", "hierarchical"};
+const char *const solver_names[4] = {"jacobi", "gauss-seidel", "shooting", "direct"};
 
 /* --patch-size: a positive length; where it was given is kept for the
  * message when it makes too many patches. */
@@ -24,7 +27,7 @@ static int parse_patch_size(void *state, const char *value, int argv_index, char
 {
     radiosity_options *o = state;
     char *end;
-    if (argv_index < 0 && !strcmp(value, PATCH_SIZE_DEFAULT)) { /* the default: from the scene's size */
+    if (argv_index < 0 && (!strcmp(value, PATCH_SIZE_DEFAULT) || !strcmp(value, ROOTS_DEFAULT))) { /* the default */
         o->patch_size = 0.0, o->patch_size_argv = 0;
         return 0;
     }
@@ -82,6 +85,18 @@ static int parse_levels(void *state, const char *value, int argv_index, char *wh
 }
 
 #define OPTION_FIELD(field) offsetof(radiosity_options, field)
+/* The options both chapters solve with, in both tables (one spelling). */
+#define SOLVE_OPTIONS                                                                                                  \
+    {"--tol", "T", OPTION_DOUBLE, OPTION_FIELD(tolerance), .min = 0.0, .max = 1.0, .default_text = "1e-4",             \
+     .help = "stop when the residual falls below T (a fraction of the source power)"},                                 \
+        {"--iterations", "N", OPTION_INT, OPTION_FIELD(max_iterations), .min = 1, .max = 100000000,                    \
+         .default_text = "1000", .help = "at most N iterations (shooting: N x patches shots)"},                        \
+        {"--quadrature", "M", OPTION_INT, OPTION_FIELD(quadrature), .min = 1, .max = 16, .default_text = "4",          \
+         .help = "M x M points per patch triangle for near form factors"},                                             \
+        {"--shading", NULL, OPTION_CHOICE, OPTION_FIELD(smooth), .choices = "flat|smooth", .default_text = "flat",     \
+         .help = "patch colours, or interpolated vertex radiance"},                                                    \
+        {"--smooth", NULL, OPTION_FLAG, 0, .alias_of = "--shading smooth"}
+
 const option RADIOSITY_OPTIONS[] = {
     {"--patch-size", "S", OPTION_CUSTOM, 0, .parse = parse_patch_size, .default_text = PATCH_SIZE_DEFAULT,
      .help = "target patch edge in scene units; by default a tenth of the scene's largest extent (56 in the "
@@ -92,34 +107,34 @@ const option RADIOSITY_OPTIONS[] = {
      .help = "refinement rounds, 1..8, each splitting patches in four; implies --adaptive"},
     {"--adaptive-threshold", "T", OPTION_DOUBLE, OPTION_FIELD(adaptive_threshold), .min = 1e-6, .max = 1e6,
      .default_text = "0.1", .help = "split where a patch and the mean of its corners differ by T x the mean radiance"},
-    {"--solver", NULL, OPTION_CHOICE, OPTION_FIELD(solver),
-     .choices = "jacobi|gauss-seidel|shooting|direct|hierarchical", .default_text = "jacobi",
-     .help = "how L = E + KL is solved"},
-    {"--tol", "T", OPTION_DOUBLE, OPTION_FIELD(tolerance), .min = 0.0, .max = 1.0, .default_text = "1e-4",
-     .help = "stop when the residual falls below T (a fraction of the source power)"},
-    {"--iterations", "N", OPTION_INT, OPTION_FIELD(max_iterations), .min = 1, .max = 100000000, .default_text = "1000",
-     .help = "at most N iterations (shooting: N x patches shots)"},
+    {"--solver", NULL, OPTION_CHOICE, OPTION_FIELD(solver), .choices = "jacobi|gauss-seidel|shooting|direct",
+     .default_text = "jacobi", .help = "how L = E + KL is solved (hierarchically: 03c_hierarchical)"},
+    SOLVE_OPTIONS,
     {"--max-patches", "N", OPTION_INT, OPTION_FIELD(max_patches), .min = 1, .max = 1 << 30, .default_text = "16384",
      .help = "refuse matrix solvers above N patches (16384: 2 GiB of doubles for the direct solve)"},
-    {"--quadrature", "M", OPTION_INT, OPTION_FIELD(quadrature), .min = 1, .max = 16, .default_text = "4",
-     .help = "M x M points per patch triangle for near form factors"},
     {"--reciprocity", NULL, OPTION_CHOICE, OPTION_FIELD(enforce_reciprocity), .choices = "check|enforce",
      .default_text = "check", .help = "report A_i F_ij against A_j F_ji, or average them"},
-    {"--shading", NULL, OPTION_CHOICE, OPTION_FIELD(smooth), .choices = "flat|smooth", .default_text = "flat",
-     .help = "patch colours, or interpolated vertex radiance"},
-    {"--smooth", NULL, OPTION_FLAG, 0, .alias_of = "--shading smooth"},
     {"--formfactors", "FILE.csv", OPTION_STRING, OPTION_FIELD(formfactors_path),
      .help = "write the surface-to-surface form factors (from,to,F)"},
-    {"--eps", "E", OPTION_CUSTOM, 0, .parse = parse_eps, .default_text = "1e-2",
-     .help = "hierarchical: link two elements when both form-factor estimates are below E, in (0, 1]"},
-    {"--eps-spread", "S", OPTION_DOUBLE, OPTION_FIELD(eps_spread), .min = 0.0, .max = 1.0, .default_text = "1e-3",
-     .help = "hierarchical: solve, then refine again where rho F (the source's spread) passes S x the receiver's "
-             "radiance; 0: one pass"},
-    {"--levels", "N", OPTION_CUSTOM, 0, .parse = parse_levels, .default_text = "8",
-     .help = "hierarchical: split an element at most N times below its surface, 1..12; by default "
-             "fewer where the scene has so many surfaces that 8 could pass the element limit"},
     {0},
 };
+
+const option HIERARCHICAL_OPTIONS[] = {
+    {"--patch-size", "S", OPTION_CUSTOM, 0, .parse = parse_patch_size, .default_text = ROOTS_DEFAULT,
+     .help = "the roots' edge in scene units; by default every surface is one root (a cell per triangle, 12 x 6 "
+             "per sphere)"},
+    {"--eps", "E", OPTION_CUSTOM, 0, .parse = parse_eps, .default_text = "1e-2",
+     .help = "link two elements when both form-factor estimates are below E, in (0, 1]"},
+    {"--eps-spread", "S", OPTION_DOUBLE, OPTION_FIELD(eps_spread), .min = 0.0, .max = 1.0, .default_text = "1e-3",
+     .help = "solve, then refine again where rho F (the source's spread) passes S x the receiver's radiance; 0: "
+             "one pass"},
+    {"--levels", "N", OPTION_CUSTOM, 0, .parse = parse_levels, .default_text = "8",
+     .help = "split an element at most N times below its surface, 1..12; by default fewer where the scene has so "
+             "many surfaces that 8 could pass the element limit"},
+    SOLVE_OPTIONS,
+    {0},
+};
+#undef SOLVE_OPTIONS
 #undef OPTION_FIELD
 
 void record_residual(radiosity_stats *stats, double residual)
@@ -139,7 +154,8 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
                            const patch_mesh *m, const vec3 *radiance, bool have_matrix)
 {
     int patches = m->patch_count;
-    fprintf(json, ",\n  \"solver\": \"%s\",\n  \"solver_used\": \"%s\",\n  \"patch_size\": ", solver_names[o->solver],
+    fprintf(json, ",\n  \"solver\": \"%s\",\n  \"solver_used\": \"%s\",\n  \"patch_size\": ",
+            o->hierarchical ? "hierarchical" : solver_names[o->solver],
             r->solver_used ? r->solver_used : "none");
     json_number(json, o->patch_size);
     fprintf(json, ",\n  \"patches\": %d,\n  \"refinements\": %d,\n  \"iterations\": %d,\n  \"shots\": %d", patches,
@@ -159,13 +175,13 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
     fprintf(json, ",\n  \"visibility_rays\": %llu,\n  \"reciprocity\": \"%s\"", (unsigned long long)r->visibility_rays,
             o->enforce_reciprocity ? "enforce" : "check");
     if (r->have_matrix_checks) { /* hierarchical: each leaf's links and its ancestors' */
-        if (o->solver != SOLVER_HIERARCHICAL)
+        if (!o->hierarchical)
             json_field_number(json, "reciprocity_error", r->reciprocity_error);
         json_field_number(json, "row_sum_min", r->row_sum_min);
         json_field_number(json, "row_sum_max", r->row_sum_max);
     }
     fprintf(json, ",\n  \"matrix_bytes\": %.0f", have_matrix ? (double)patches * patches * 4.0 : 0.0);
-    if (o->solver == SOLVER_HIERARCHICAL) {
+    if (o->hierarchical) {
         fprintf(json, ",\n  \"elements\": %ld,\n  \"links\": %ld,\n  \"levels\": %d", r->elements, r->links, r->levels);
         json_field_number(json, "eps", o->eps);
         json_field_number(json, "eps_spread", o->eps_spread);
@@ -176,7 +192,7 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
      * (the floor under a box) carries light on its exposed part only. */
     vec3 *whole = malloc((size_t)patches * sizeof *whole + 1);
     for (int i = 0; whole && i < patches; i++)
-        whole[i] = v3_scale(radiance[i], m->patches[i].exposure);
+        whole[i] = v3_scale(radiance[i], m->patches[i].unburied);
     json_surface_radiance(json, s, m, whole ? whole : radiance);
     free(whole);
 }
@@ -184,19 +200,20 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
 void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int patches, bool quiet)
 {
     if (r->no_light)
-        fprintf(stderr, "warning: 03_radiosity: the scene has no light (no point light, no emitter): "
-                        "the solution is zero and the image black\n");
+        fprintf(stderr, "warning: %s: the scene has no light (no point light, no emitter): "
+                        "the solution is zero and the image black\n",
+                o->program);
     else if (!r->converged)
         fprintf(stderr,
-                "warning: 03_radiosity: %s stopped at the iteration cap (%d iterations) with residual %.3g "
+                "warning: %s: %s stopped at the iteration cap (%d iterations) with residual %.3g "
                 "above --tol %.3g; raise --iterations\n",
-                r->solver_used, r->iterations, r->residual, o->tolerance);
-    if (!quiet && o->solver == SOLVER_HIERARCHICAL)
-        fprintf(stderr, "03_radiosity: hierarchy of %ld elements, %ld links, %d levels, %.1f MiB\n", r->elements,
+                o->program, r->solver_used, r->iterations, r->residual, o->tolerance);
+    if (!quiet && o->hierarchical)
+        fprintf(stderr, "%s: hierarchy of %ld elements, %ld links, %d levels, %.1f MiB\n", o->program, r->elements,
                 r->links, r->levels, r->hierarchy_bytes / 1048576.0);
     if (!quiet)
-        fprintf(stderr, "03_radiosity: %d patches, form factors %.2f s, %s %d iterations %.2f s, residual %.3g\n",
-                patches, r->formfactor_s, r->solver_used, r->iterations, r->solve_s, r->residual);
+        fprintf(stderr, "%s: %d patches, form factors %.2f s, %s %d iterations %.2f s, residual %.3g\n",
+                o->program, patches, r->formfactor_s, r->solver_used, r->iterations, r->solve_s, r->residual);
 }
 
 enum { MESH_CELL_LIMIT = 4000000 }; /* beyond this even shooting would take hours */
@@ -212,7 +229,7 @@ static int check_mesh_size(const radiosity_options *o, double cells, char *err, 
 
 int radiosity_check_matrix_size(const radiosity_options *o, int n, char *err, size_t err_size)
 {
-    if (o->solver == SOLVER_SHOOTING || o->solver == SOLVER_HIERARCHICAL || n <= o->max_patches)
+    if (o->solver == SOLVER_SHOOTING || o->hierarchical || n <= o->max_patches)
         return 0;
     snprintf(err, err_size,
              "argv:0: %d patches need a %d x %d matrix (%.2f GiB as doubles), over the limit "
@@ -221,10 +238,10 @@ int radiosity_check_matrix_size(const radiosity_options *o, int n, char *err, si
     return 2;
 }
 
-static int warned_specular, warned_phong, warned_spheres, warned_adaptive;
+static int warned_specular, warned_phong, warned_spheres;
 
 /* Spheres are meshed unless mirror or glass (radiosity cannot carry their light: they only block it). */
-static bool *spheres_to_mesh(const scene *s)
+static bool *spheres_to_mesh(const scene *s, const char *program)
 {
     bool *mesh = calloc((size_t)s->surface_count + 1, sizeof *mesh);
     for (int i = 0; mesh && i < s->surface_count; i++) {
@@ -233,27 +250,20 @@ static bool *spheres_to_mesh(const scene *s)
             continue;
         mesh[i] = m->kind != MATERIAL_MIRROR && m->kind != MATERIAL_GLASS;
         if (!mesh[i])
-            warn_once(&warned_spheres, "03_radiosity: mirror and glass spheres are not meshed into patches; they "
-                                       "block light but carry no radiance (black in the image)");
+            warn_once(&warned_spheres, "%s: mirror and glass spheres are not meshed into patches; they "
+                                       "block light but carry no radiance (black in the image)",
+                      program);
     }
     return mesh;
 }
 
 int radiosity_mesh_scene(patch_mesh *m, const scene *s, radiosity_options *o, char *err, size_t err_size)
 {
-    bool hierarchical = o->solver == SOLVER_HIERARCHICAL;
+    bool hierarchical = o->hierarchical;
     if (!(o->patch_size > 0.0)) /* the default: from the scene's size */
         o->patch_size = v3_max_component(v3_sub(s->bounds.hi, s->bounds.lo)) / PATCH_SIZE_PARTS;
     double size = hierarchical && o->patch_size_argv == 0 ? INFINITY : o->patch_size; /* roots: whole surfaces */
-    if (hierarchical && o->formfactors_path) /* n^2 form factors between the leaves: what the hierarchy avoids */
-        return snprintf(err, err_size,
-                        "argv:0: --formfactors sums every patch-to-patch form factor; --solver "
-                        "hierarchical keeps links instead: use another solver for the table"),
-               2;
-    if (hierarchical && o->adaptive)
-        warn_once(&warned_adaptive, "03_radiosity: --adaptive is ignored by --solver hierarchical, which refines "
-                                    "by its own oracle (--eps, --levels)");
-    bool *spheres = spheres_to_mesh(s);
+    bool *spheres = spheres_to_mesh(s, o->program);
     if (!spheres || check_mesh_size(o, patch_mesh_estimate(s, size, spheres), err, err_size)) {
         free(spheres);
         return spheres ? 2 : (snprintf(err, err_size, "argv:0: out of memory while meshing"), 2);
@@ -285,10 +295,11 @@ int radiosity_collect_patches(patch_mesh *mesh, const scene *s, const radiosity_
         const material *m = &s->materials[s->surfaces[p->surface].material];
         radiosity_material(s, p->surface, &p->albedo, &p->emission);
         if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS)
-            warn_once(&warned_specular, "03_radiosity: radiosity models diffuse reflection only; mirrors and glass "
-                                        "are treated as diffuse surfaces with their colour as albedo");
+            warn_once(&warned_specular, "%s: radiosity models diffuse reflection only; mirrors and glass "
+                                        "are treated as diffuse surfaces with their colour as albedo",
+                      o->program);
         else if (m->kind == MATERIAL_PHONG)
-            warn_once(&warned_phong, "03_radiosity: Phong surfaces are treated as diffuse with albedo kd (ks dropped)");
+            warn_once(&warned_phong, "%s: Phong surfaces are treated as diffuse with albedo kd (ks dropped)", o->program);
     }
     return 0;
 }
@@ -296,7 +307,7 @@ int radiosity_collect_patches(patch_mesh *mesh, const scene *s, const radiosity_
 int radiosity_refine(patch_mesh *m, const scene *s, const radiosity_options *o, radiosity_stats *r,
                      const vec3 *radiance, bool quiet, char *err, size_t err_size)
 {
-    if (!o->adaptive || o->solver == SOLVER_HIERARCHICAL || r->refinements == o->adaptive_levels || r->no_light)
+    if (!o->adaptive || o->hierarchical || r->refinements == o->adaptive_levels || r->no_light)
         return 0;
     int split = patch_mesh_refine(m, radiance, o->adaptive_threshold);
     if (split < 0)
@@ -305,7 +316,7 @@ int radiosity_refine(patch_mesh *m, const scene *s, const radiosity_options *o, 
         return split;
     r->refinements++;
     if (!quiet)
-        fprintf(stderr, "03_radiosity: refinement %d split %d of %d patches\n", r->refinements, split, m->patch_count);
+        fprintf(stderr, "%s: refinement %d split %d of %d patches\n", o->program, r->refinements, split, m->patch_count);
     return radiosity_collect_patches(m, s, o, err, err_size) ? -1 : split;
 }
 
@@ -364,8 +375,49 @@ void radiosity_warn_row_sums(const float *F, const patch_mesh *m, const scene *s
     if (names[0])
         fprintf(
             stderr,
-            "warning: 03_radiosity: in this closed scene the form factors of surfaces sum to as little as %.3f (%s), "
+            "warning: %s: in this closed scene the form factors of surfaces sum to as little as %.3f (%s), "
             "below 1 - %.2g, which biases L by more than %.0f %% at albedo %.2g; use a smaller --patch-size "
             "(now %g)\n",
-            worst, names, bearable, 100.0 * ROW_SUM_BIAS, rho, o->patch_size);
+            o->program, worst, names, bearable, 100.0 * ROW_SUM_BIAS, rho, o->patch_size);
+}
+
+static int warned_back;
+
+vec3 radiosity_view_radiance(const void *view, const scene *s, ray r, rng *g, render_counters *counters)
+{
+    const radiosity_view *v = view;
+    (void)g;
+    (void)counters;
+    bool back = false;
+    vec3 L = patch_mesh_seen(v->mesh, s, r, v->radiance, v->opt->smooth, &back);
+    if (back)
+        warn_once(&warned_back,
+                  "%s: the camera sees the back of a surface; patches are one-sided (front = right-hand rule), backs "
+                  "render black",
+                  v->opt->program);
+    return L;
+}
+
+probe_result radiosity_view_probe(const void *view, const scene *s, const probe *pr, uint64_t seed,
+                                  render_counters *counters)
+{
+    const radiosity_view *v = view;
+    (void)seed;
+    (void)counters;
+    vec3 E = patch_mesh_irradiance(v->mesh, s, v->radiance, pr->position, pr->normal, v->point_lights,
+                                   v->point_to_polygon);
+    return (probe_result){.irradiance = E, .standard_error = v3_splat(0.0)};
+}
+
+int radiosity_view_write_output(const void *view, const scene *s, const char *path, char *err, size_t err_size)
+{
+    const radiosity_view *v = view;
+    (void)s;
+    return write_patch_ply(path, v->mesh, v->radiance, v->opt->smooth, v->exposure, v->opt->program, err, err_size);
+}
+
+void radiosity_view_write_stats(const void *view, FILE *json)
+{
+    const radiosity_view *v = view;
+    write_radiosity_stats(json, v->opt, v->stats, v->scene, v->mesh, v->radiance, v->have_matrix);
 }
