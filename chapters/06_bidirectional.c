@@ -49,9 +49,9 @@ static double geometry(const path_vertex *a, const path_vertex *b)
 /* ---- the camera: W_e (R13) ---------------------------------------------------------------------- */
 
 /* Pixel j measures the mean radiance over its square (area A_pix) on the image plane at distance 1.  A point there
- * at the angle theta off the axis is seen in the solid angle dw = cos^3(theta) dA, so the camera's importance is
+ * at the angle theta off the axis is seen in the solid angle dw = cos^3(theta) dA, so the importance of (R13) is
  * W_e = 1 / (A_pix cos^3 theta) per steradian inside the pixel (0 outside): also the density of the eye ray through
- * the pixel, so an eye subpath starts with weight W_e / p = 1.  The pinhole is a point: no light path hits it. */
+ * the pixel, so an eye subpath starts with weight W_e / p = 1.  No light path hits the pinhole. [exercise 6.1] */
 static double camera_importance(const pinhole *c, double cos_theta)
 {
     return 1.0 / (c->pixel_area * cos_theta * cos_theta * cos_theta);
@@ -135,7 +135,7 @@ static vec3 vertex_f(const scene *s, const path_vertex *p, int i, vec3 w)
 /* ---- 1. light tracing: strategies (s, 1) -------------------------------------------------------- */
 
 /* Light subpath vertex y_{s-1} joined to the eye by a shadow ray: the pixel it is seen in gets alpha f G W_e / N
- * (R13), N light subpaths per pass. */
+ * (R13), N light subpaths per pass. [exercise 6.2] */
 static bool connect_to_camera(const bidir_state *st, const scene *s, const path_vertex *y, int s_count, int *pixel,
                               vec3 *value, uint64_t *rays)
 {
@@ -180,7 +180,8 @@ static double direction_pdf(const path_vertex *x, int j, int dir, const pinhole 
 
 /* (R14) The density per unit area of x_i as the walk in direction dir drew it: p(w) at the last non-specular vertex
  * x_j before it, times cos theta_i over the squared length D of the way from x_j (through mirrors and glass,
- * unfolded) to x_i (R7).  A light's own point: light_point_pdf; the eye: 1 (a delta in every strategy). */
+ * unfolded) to x_i (R7).  A light's own point: light_point_pdf; the eye: 1 (a delta in all strategies).
+ * [exercise 6.3] */
 static double area_pdf(const bidir_state *st, const scene *s, const path_vertex *x, int k, int i, int dir)
 {
     if (dir == 1 && i == 0)
@@ -253,7 +254,7 @@ static void path_pdfs(const bidir_state *st, const scene *s, const path_vertex *
 /* (R15) The power heuristic, plainly: (n_s p_s)^2 over the sum of (n_j p_j)^2 over every strategy j the method has
  * for x_0 .. x_k.  Dividing both densities of one vertex by the same number changes no weight (every strategy takes
  * one of them), so each is divided by the larger: a long path in millimetres does not underflow.  If the strategy's
- * own density still does, the path is dropped (weight 0, counted in the stats). */
+ * own density still does, the path is dropped (weight 0, counted in the stats). [exercise 6.4] */
 static double mis_weight(const bidir_state *st, const scene *s, const path_vertex *x, int k, technique how, int used)
 {
     double pdf_light[MAX_PATH], pdf_eye[MAX_PATH], merge_chance[MAX_PATH], sum = 0.0;
@@ -277,7 +278,7 @@ static double mis_weight(const bidir_state *st, const scene *s, const path_verte
 }
 
 /* Strategy (s, t), s >= 1, t >= 2: y_{s-1} joined to z_{t-1} by a shadow ray: alpha_L f G f alpha_E, (R13)'s
- * integrand over the subpaths' densities. */
+ * integrand over the subpaths' densities. [exercise 6.5] */
 static vec3 connect(const scene *s, const path_vertex *y, int s_count, const path_vertex *z, int t_count,
                     uint64_t *rays)
 {
@@ -327,7 +328,7 @@ static vec3 connections(const bidir_state *st, const scene *s, const path_vertex
 
 /* Merging at eye vertex z = z_{t-1}: every light vertex y_j (j >= 1) of the pass within r of z counts as chapter
  * 5's photon (R11), on a surface facing the same way: alpha_L f alpha_E / (N pi r^2), weighted by (R15) against the
- * joins and the other merges. */
+ * joins and the other merges. [exercise 6.6] */
 static vec3 merges(const bidir_state *st, const scene *s, const path_vertex *z, int t, render_counters *counters)
 {
     path_vertex x[MAX_PATH];
