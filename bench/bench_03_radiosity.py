@@ -17,11 +17,12 @@ from common import BUILD, ROOT
 REFERENCE = "docs/reference/cornell-256x256.pfm"  # the image metric's truth (docs/reference/README.md)
 
 
-def run(*args, size="64x64"):
-    """Run the chapter in a child process under /usr/bin/time; return its stats and peak RSS in MiB."""
+def run(*args, size="64x64", program="03_radiosity"):
+    """Run a chapter (3, or 03c_hierarchical) in a child process under /usr/bin/time; return its stats and
+    peak RSS in MiB."""
     with tempfile.TemporaryDirectory() as tmp:
         stats, rss = os.path.join(tmp, "s.json"), os.path.join(tmp, "rss")
-        command = [os.path.join(BUILD, "03_radiosity"), "scenes/cornell.scene", "--quiet", "--size", size,
+        command = [os.path.join(BUILD, program), "scenes/cornell.scene", "--quiet", "--size", size,
                    "--out", os.path.join(tmp, "x.pfm"), "--stats", stats, *map(str, args)]
         if size == "256x256":
             command += ["--ref", REFERENCE]
@@ -30,7 +31,7 @@ def run(*args, size="64x64"):
             command = ["/usr/bin/time", "-f", "%M", "-o", rss] + command
         result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
         if result.returncode:
-            sys.exit(f"bench: 03_radiosity {' '.join(map(str, args))} failed: {result.stderr}")
+            sys.exit(f"bench: {program} {' '.join(map(str, args))} failed: {result.stderr}")
         with open(stats) as f:
             s = json.load(f)
         if timed:
@@ -71,10 +72,10 @@ def surface_error(stats, truth):
     return math.sqrt(sum(e * e for e in errors) / len(errors))
 
 
-def median_run(*args):
+def median_run(*args, program="03_radiosity"):
     """At the reference's size, so that each run gives both metrics (the image's relative MSE and
     the surfaces' error); the time is the solve's (form factors and iterations), not the image's."""
-    runs = [run(*args, size="256x256") for _ in range(REPEATS)]
+    runs = [run(*args, size="256x256", program=program) for _ in range(REPEATS)]
     times = [s["formfactor_s"] + s["solve_s"] for s, _ in runs]
     return runs[0][0], statistics.median(times), max(peak for _, peak in runs), times
 
@@ -104,8 +105,8 @@ reached = {}
 # The sweep's settings: --eps-spread 7e-4 (the second pass) and --quadrature 1 (two points per near
 # link) are the fastest way found to the uniform solve's error (README, "Benchmarks").
 for eps in (8e-2, 4e-2, 2e-2, 1e-2, 5e-3):
-    s, t, peak, times = median_run("--solver", "hierarchical", "--eps", eps, "--eps-spread", 7e-4, "--quadrature", 1,
-                                   "--tol", "1e-3")
+    s, t, peak, times = median_run("--eps", eps, "--eps-spread", 7e-4, "--quadrature", 1, "--tol", "1e-3",
+                                   program="03c_hierarchical")
     error = {"surfaces": surface_error(s, truth), "image": s["metrics"]["relmse"]}
     note = ""
     if s["patches"] >= 100000:

@@ -280,7 +280,7 @@ def stubbed_markers(tree, stubbed):
     missing = ids - {e.id for e in found}
     if missing:
         raise Refused(f"the stubbed text lost the markers of {', '.join(sorted(missing))}")
-    return sorted(found, key=lambda e: (e.lecture, e.number))
+    return sorted(found, key=lambda e: e.order)
 
 
 def check_no_answers(tree, stubbed):

@@ -2,15 +2,16 @@
 
 A marker is the tag [exercise N.M] inside the comment just above a function
 definition (chapters/*.c, common/*.h, common/*.c): the body of that function
-is the student's.  N is the lecture number: exercise 3.2 belongs to the
-chapter chapters/03_*.c, wherever its function lives (optics.h holds 2.x).
+is the student's.  N is the lecture: exercise 3.2 belongs to the chapter
+chapters/03_*.c, exercise 3c.1 to chapters/03c_*.c (lecture 3's third part),
+wherever its function lives (optics.h holds 2.x).
 Points are not in the marker: they come from kit/rubric.json alone.
 """
 import glob
 import os
 import re
 
-MARKER = re.compile(r"\[exercise (\d+)\.(\d+)\]")
+MARKER = re.compile(r"\[exercise (\d+[a-z]?)\.(\d+)\]")
 SOURCE_GLOBS = ("chapters/*.c", "chapters/*.h", "common/*.h", "common/*.c")
 
 
@@ -22,13 +23,29 @@ class Exercise:
     def id(self):
         return f"{self.lecture}.{self.number}"
 
+    @property
+    def order(self):
+        return lecture_order(self.lecture) + (self.number,)
+
+
+def lecture_of(chapter):
+    """The lecture of a chapter name: "03_radiosity" -> "3", "03c_hierarchical" -> "3c"."""
+    return chapter.split("_")[0].lstrip("0") or "0"
+
+
+def lecture_order(lecture):
+    """A sort key for a lecture: "3" < "3c" < "4" < "10"."""
+    digits = lecture.rstrip("abcdefghijklmnopqrstuvwxyz")
+    return int(digits), lecture[len(digits):]
+
 
 def chapter_names(root):
-    """{lecture number: chapter name} from chapters/NN_name.c."""
+    """{lecture: chapter name} from chapters/NN_name.c and chapters/NNx_name.c ("3c" for 03c_hierarchical)."""
     names = {}
-    for path in sorted(glob.glob(os.path.join(root, "chapters", "[0-9][0-9]_*.c"))):
+    for path in sorted(glob.glob(os.path.join(root, "chapters", "[0-9][0-9]*_*.c"))):
         name = os.path.splitext(os.path.basename(path))[0]
-        names[int(name[:2])] = name
+        if name.split("_")[0][:2].isdigit():
+            names[lecture_of(name)] = name
     return names
 
 
@@ -96,7 +113,7 @@ def parse_file(root, rel):
         comment = text[comment_start + 2:comment_end]
         comment = "\n".join(re.sub(r"^\s*\* ?", "", ln) for ln in comment.splitlines()).strip()
         found.append(Exercise(
-            lecture=int(m.group(1)), number=int(m.group(2)), file=rel, name=name,
+            lecture=m.group(1), number=int(m.group(2)), file=rel, name=name,
             line=text.count("\n", 0, sig_start) + 1,
             return_type=" ".join(head[:head.rfind(name)].split()),
             params=text[paren + 1:params_end - 1], signature=" ".join(text[sig_start:params_end].split()),
@@ -116,7 +133,7 @@ def all_exercises(root):
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:
         raise ValueError(f"exercise ids marked twice: {', '.join(duplicates)}")
-    return sorted(found, key=lambda e: (e.lecture, e.number))
+    return sorted(found, key=lambda e: e.order)
 
 
 # ---- stubs ------------------------------------------------------------------------------------------

@@ -49,7 +49,8 @@ def load(root, path=None):
 
 def exercise_order(exercise_id):
     lecture, number = exercise_id.split(".")
-    return int(lecture), int(number)
+    digits = lecture.rstrip("abcdefghijklmnopqrstuvwxyz")
+    return int(digits), lecture[len(digits):], int(number)
 
 
 def marked_exercises(root):

@@ -71,7 +71,8 @@ def test_markers_and_rubric_agree(ctx):
     for c in rub["criteria"]:
         for x in c["exercises"]:
             # its own chapter's, or an earlier chapter's that it links or compares with (measured: the matrix)
-            assert int(x.split(".")[0]) <= int(c["chapter"][:2]), f"{c['name']}: exercise {x} is of a later chapter"
+            own = markers.lecture_order(markers.lecture_of(c["chapter"]))
+            assert markers.lecture_order(x.split(".")[0]) <= own, f"{c['name']}: exercise {x} is of a later chapter"
     assert markers.neutral_value("static vec3") == "(vec3){0}" and markers.neutral_value("static bool") == "false"
     assert markers.neutral_value("static void") is None and markers.neutral_value("static inline double") == "0.0"
     for c in rub["criteria"]:
@@ -170,7 +171,7 @@ def test_handout_of_chapter_5_stubs_run_and_say_so(ctx):
     out = make_handout(ctx, "handout5", "05_photonmap")
     with open(os.path.join(out, "assignments", "05_photonmap", "ASSIGNMENT.md")) as f:
         text = f.read()
-    marked = [e for e in markers.all_exercises(ROOT) if e.lecture == 5]
+    marked = [e for e in markers.all_exercises(ROOT) if e.lecture == "5"]
     assert len(marked) >= 5, [e.id for e in marked]
     for e in marked:
         assert f"| {e.id} | `{e.name}` |" in text, f"exercise {e.id} {e.name} not in ASSIGNMENT.md"
@@ -205,8 +206,9 @@ def test_handout_stubs_run_every_method_under_the_sanitizers(ctx):
     assert r.returncode == 0 and "warning" not in r.stderr, r.stderr[-3000:]
     spheres, box = "scenes/cornell-spheres.scene", "scenes/cornell.scene"
     runs = [("02_whitted", spheres, [])]
-    runs += [("03_radiosity", box, ["--solver", s] + (["--patch-size", 150] if s != "hierarchical" else []))
-             for s in ("jacobi", "gauss-seidel", "shooting", "direct", "hierarchical")]
+    runs += [("03_radiosity", box, ["--solver", s, "--patch-size", 150])
+             for s in ("jacobi", "gauss-seidel", "shooting", "direct")]
+    runs += [("03c_hierarchical", box, [])]
     runs += [("04_pathtrace", spheres, ["--spp", 4, "--estimator", e]) for e in ("hemisphere", "cosine", "light", "mis")]
     for chapter, scene, args in runs:
         pfm = ctx.path("stub.pfm")

@@ -4,7 +4,7 @@
     make tradeoff            # runs this after the main sweep (its reference image is reused)
     make tradeoff QUICK=1
 
-Error against time: uniform Jacobi over patch sizes and --solver hierarchical over --eps,
+Error against time: uniform Jacobi (03_radiosity) over patch sizes and 03c_hierarchical over --eps,
 RMSE against the main sweep's path-traced reference (OUT/tradeoff/cornell/reference.pfm),
 time = prepare_s + render_s from the chapter's --stats (median of REPEATS for runs < 2 s).
 And the hierarchy's link count against its element count: Hanrahan et al.'s claim is O(n)
@@ -43,11 +43,12 @@ def main():
     rows = []
     for method, option, value in points:
         name = f"hier-{method}-{value}"
-        args = [os.path.join(ROOT, build, "03_radiosity"), "scenes/cornell.scene", "--quiet", "--size",
+        program = "03_radiosity" if method == "uniform" else "03c_hierarchical"
+        args = [os.path.join(ROOT, build, program), "scenes/cornell.scene", "--quiet", "--size",
                 f"{size}x{size}", "--spp", str(aa_spp), "--ref", ref, "--out", os.path.join(work, name + ".pfm"),
                 "--stats", os.path.join(work, name + ".json"), option, str(value)]
         if method != "uniform":  # the benchmark's settings (bench/bench_03_radiosity.py)
-            args += ["--solver", "hierarchical", "--quadrature", "1", "--eps-spread", "7e-4"]
+            args += ["--quadrature", "1", "--eps-spread", "7e-4"]
         if method == "fixed-eps":
             args += ["--eps", "0.02"]
         times = []
