@@ -52,14 +52,6 @@ $(BUILD)/%: chapters/%.c $(COMMON_OBJ)
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) -Icommon $< $(filter %.o,$^) -o $@ $(LDFLAGS) $(LDLIBS)
 
-# A chapter's helper files, chapters/support/NN_name_*.c (what its lecture
-# does not teach: option tables, statistics), are linked into it alone.
-$(BUILD)/chapters/support/%.o: chapters/support/%.c
-	@mkdir -p $(dir $@)
-	$(CC) $(CFLAGS) -Icommon -c $< -o $@
-$(foreach c,$(CHAPTER_PROGRAMS),$(eval $(c): $(patsubst chapters/support/%.c,$(BUILD)/chapters/support/%.o,\
-  $(wildcard chapters/support/$(notdir $(c))_*.c))))
-
 # A chapter that builds on an earlier one links that chapter's object with
 # its main renamed, so neither includes the other and each answer is written
 # once: chapter 2 shades with chapter 1's local model (chapters/local_model.h),

@@ -352,7 +352,7 @@ class Renderer:
     def render(self, where, chapter, args):
         """Render build/CHAPTER ARGS; return {'png','pfm','json'} paths."""
         exe = os.path.join(ROOT, self.build, chapter)
-        if not re.fullmatch(r"\d\d_\w+", chapter):
+        if not re.fullmatch(r"\d\d[a-z]?_\w+", chapter):
             fail(where, f"'{chapter}' is not a chapter name (like 04_pathtrace)")
         if not os.access(exe, os.X_OK):
             fail(where, f"{rel(exe)} is not built (run make first)")

@@ -34,7 +34,7 @@ from lib import ROOT
 PYTHON = sys.executable or "/usr/bin/python3"
 OUT = os.path.join(ROOT, "out", "slides")
 WORK = os.path.join(ROOT, "build", "slides")
-DECKS = ["01_local", "02_whitted", "03a_rendering_equation", "03b_radiosity", "04_pathtrace", "05_photonmap",
+DECKS = ["01_local", "02_whitted", "03a_rendering_equation", "03b_radiosity", "03c_hierarchical", "04_pathtrace", "05_photonmap",
          "06_bidirectional", "07_tradeoff"]
 PLAIN = "build"
 

@@ -12,7 +12,7 @@ import subprocess
 
 from lib import ROOT
 
-SOURCES = ["chapters/*.[ch]", "chapters/support/*.[ch]", "common/*.[ch]", "viewer/*.[ch]", "tests/*.[ch]", "tests/fuzz/*.c", "bench/*.c"]
+SOURCES = ["chapters/*.[ch]", "common/*.[ch]", "viewer/*.[ch]", "tests/*.[ch]", "tests/fuzz/*.c", "bench/*.c"]
 THIRD_PARTY = {"viewer/font8x8.h"}  # a public-domain font table kept as published
 
 
