@@ -44,13 +44,13 @@ typedef struct {
     radiosity_options opt;      /* the command line fills it (RADIOSITY_OPTIONS) */
     int bounce_min, bounce_max; /* --bounces: the Neumann terms kept (R6) */
     bool quiet;
-    const scene *scene; /* for F_ij computed on the spot (form_factor_at) */
+    const scene *scene;  /* for F_ij computed on the spot (form_factor_at) */
     patch_mesh mesh;     /* the patches i: corners, normal, area A_i, albedo rho_i, emission Le_i */
     float *form_factors; /* F_ij at [i * n + j], or NULL (shooting computes them per shot) */
     vec3 *first_shot;    /* light from point lights reflected once: part of term 1 of (R6) */
     vec3 *source;        /* Le + first_shot: the right-hand side E of (R4), and its size as power */
     double source_norm;
-    vec3 *radiance;      /* L: the solution shown (the --bounces window) */
+    vec3 *radiance; /* L: the solution shown (the --bounces window) */
     radiosity_stats stats;
 } radiosity_state;
 
@@ -462,8 +462,15 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
                                    &st->stats.visibility_rays, err, err_size)) /* --formfactors F.csv */
         return 2;
     radiosity_report(&st->opt, &st->stats, st->mesh.patch_count, st->quiet);
-    st->view = (radiosity_view){&st->opt, &st->stats, s, &st->mesh, st->radiance, o->exposure, st->bounce_min == 0,
-                                st->form_factors != NULL, point_to_polygon};
+    st->view = (radiosity_view){&st->opt,
+                                &st->stats,
+                                s,
+                                &st->mesh,
+                                st->radiance,
+                                o->exposure,
+                                st->bounce_min == 0,
+                                st->form_factors != NULL,
+                                point_to_polygon};
     return 0;
 }
 

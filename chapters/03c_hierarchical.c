@@ -47,7 +47,7 @@
 
 typedef struct {
     radiosity_view view;        /* first: what the driver reads once solved (radiosity_setup.h) */
-    radiosity_options opt; /* the command line fills it (HIERARCHICAL_OPTIONS) */
+    radiosity_options opt;      /* the command line fills it (HIERARCHICAL_OPTIONS) */
     int bounce_min, bounce_max; /* --bounces: the Neumann terms kept (R6) */
     bool quiet;
     patch_mesh mesh;  /* its cells are the elements, its patches the leaves */
@@ -439,8 +439,8 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
         return 2;
     }
     radiosity_report(&st->opt, &st->stats, st->mesh.patch_count, st->quiet);
-    st->view = (radiosity_view){&st->opt, &st->stats, s, &st->mesh, st->radiance, o->exposure, st->bounce_min == 0,
-                                false, point_to_polygon};
+    st->view = (radiosity_view){&st->opt,    &st->stats,          s,     &st->mesh,       st->radiance,
+                                o->exposure, st->bounce_min == 0, false, point_to_polygon};
     return 0;
 }
 

@@ -172,7 +172,8 @@ void refiner_free(refiner *r);
  * out of memory), the links' shapes, the solve's arrays, the stats, and the
  * leaves collected as the mesh's patches with their unburied fractions.
  * Returns 0, or 2 with a message. */
-int hierarchy_complete(const refiner *r, const radiosity_options *o, radiosity_stats *stats, char *err, size_t err_size);
+int hierarchy_complete(const refiner *r, const radiosity_options *o, radiosity_stats *stats, char *err,
+                       size_t err_size);
 
 void hierarchy_free(hierarchy *h);
 

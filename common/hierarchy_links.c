@@ -300,7 +300,7 @@ pair *hierarchy_links_as_pairs(hierarchy *h, long *count)
 
 void hierarchy_leaf_spread(const hierarchy *h, const patch_mesh *m, const vec3 *B, vec3 *lowest, vec3 *spread)
 {
-    vec3 *highest = spread;          /* first the largest B below each element, then the spread */
+    vec3 *highest = spread;                           /* first the largest B below each element, then the spread */
     for (int e = h->element_count - 1; e >= 0; e--) { /* children come after their parent; buried leaves do not count */
         int child = m->cells[e].first_child;
         bool counted = child < 0 && h->unburied[e] > 0.0;
@@ -344,10 +344,12 @@ int hierarchy_complete(const refiner *r, const radiosity_options *o, radiosity_s
     int failed = r->failed;
     if (failed == 3)
         return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d elements (the limit); raise --eps",
-                        o->eps_argv, o->eps, ELEMENT_LIMIT), 2;
+                        o->eps_argv, o->eps, ELEMENT_LIMIT),
+               2;
     if (failed == 2)
         return snprintf(err, err_size, "argv:%d: --eps %g needs more than %d links (the limit); raise --eps",
-                        o->eps_argv, o->eps, LINK_LIMIT), 2;
+                        o->eps_argv, o->eps, LINK_LIMIT),
+               2;
     if (!failed && hierarchy_shape_links(h, m, s, r->point_to_polygon))
         failed = 1;
     if (failed || !(h->gathered = calloc(5 * (size_t)h->element_count + 1, sizeof *h->gathered)))

@@ -87,15 +87,40 @@ static int parse_levels(void *state, const char *value, int argv_index, char *wh
 #define OPTION_FIELD(field) offsetof(radiosity_options, field)
 /* The options both chapters solve with, in both tables (one spelling). */
 #define SOLVE_OPTIONS                                                                                                  \
-    {"--tol", "T", OPTION_DOUBLE, OPTION_FIELD(tolerance), .min = 0.0, .max = 1.0, .default_text = "1e-4",             \
+    {"--tol",                                                                                                          \
+     "T",                                                                                                              \
+     OPTION_DOUBLE,                                                                                                    \
+     OPTION_FIELD(tolerance),                                                                                          \
+     .min = 0.0,                                                                                                       \
+     .max = 1.0,                                                                                                       \
+     .default_text = "1e-4",                                                                                           \
      .help = "stop when the residual falls below T (a fraction of the source power)"},                                 \
-        {"--iterations", "N", OPTION_INT, OPTION_FIELD(max_iterations), .min = 1, .max = 100000000,                    \
-         .default_text = "1000", .help = "at most N iterations (shooting: N x patches shots)"},                        \
-        {"--quadrature", "M", OPTION_INT, OPTION_FIELD(quadrature), .min = 1, .max = 16, .default_text = "4",          \
+        {"--iterations",                                                                                               \
+         "N",                                                                                                          \
+         OPTION_INT,                                                                                                   \
+         OPTION_FIELD(max_iterations),                                                                                 \
+         .min = 1,                                                                                                     \
+         .max = 100000000,                                                                                             \
+         .default_text = "1000",                                                                                       \
+         .help = "at most N iterations (--solver shooting: N x patches shots)"},                                       \
+        {"--quadrature",                                                                                               \
+         "M",                                                                                                          \
+         OPTION_INT,                                                                                                   \
+         OPTION_FIELD(quadrature),                                                                                     \
+         .min = 1,                                                                                                     \
+         .max = 16,                                                                                                    \
+         .default_text = "4",                                                                                          \
          .help = "M x M points per patch triangle for near form factors"},                                             \
-        {"--shading", NULL, OPTION_CHOICE, OPTION_FIELD(smooth), .choices = "flat|smooth", .default_text = "flat",     \
+        {"--shading",                                                                                                  \
+         NULL,                                                                                                         \
+         OPTION_CHOICE,                                                                                                \
+         OPTION_FIELD(smooth),                                                                                         \
+         .choices = "flat|smooth",                                                                                     \
+         .default_text = "flat",                                                                                       \
          .help = "patch colours, or interpolated vertex radiance"},                                                    \
-        {"--smooth", NULL, OPTION_FLAG, 0, .alias_of = "--shading smooth"}
+    {                                                                                                                  \
+        "--smooth", NULL, OPTION_FLAG, 0, .alias_of = "--shading smooth"                                               \
+    }
 
 const option RADIOSITY_OPTIONS[] = {
     {"--patch-size", "S", OPTION_CUSTOM, 0, .parse = parse_patch_size, .default_text = PATCH_SIZE_DEFAULT,
@@ -155,8 +180,7 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
 {
     int patches = m->patch_count;
     fprintf(json, ",\n  \"solver\": \"%s\",\n  \"solver_used\": \"%s\",\n  \"patch_size\": ",
-            o->hierarchical ? "hierarchical" : solver_names[o->solver],
-            r->solver_used ? r->solver_used : "none");
+            o->hierarchical ? "hierarchical" : solver_names[o->solver], r->solver_used ? r->solver_used : "none");
     json_number(json, o->patch_size);
     fprintf(json, ",\n  \"patches\": %d,\n  \"refinements\": %d,\n  \"iterations\": %d,\n  \"shots\": %d", patches,
             r->refinements, r->iterations, r->shots);
@@ -200,8 +224,9 @@ void write_radiosity_stats(FILE *json, const radiosity_options *o, const radiosi
 void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int patches, bool quiet)
 {
     if (r->no_light)
-        fprintf(stderr, "warning: %s: the scene has no light (no point light, no emitter): "
-                        "the solution is zero and the image black\n",
+        fprintf(stderr,
+                "warning: %s: the scene has no light (no point light, no emitter): "
+                "the solution is zero and the image black\n",
                 o->program);
     else if (!r->converged)
         fprintf(stderr,
@@ -212,8 +237,8 @@ void radiosity_report(const radiosity_options *o, const radiosity_stats *r, int 
         fprintf(stderr, "%s: hierarchy of %ld elements, %ld links, %d levels, %.1f MiB\n", o->program, r->elements,
                 r->links, r->levels, r->hierarchy_bytes / 1048576.0);
     if (!quiet)
-        fprintf(stderr, "%s: %d patches, form factors %.2f s, %s %d iterations %.2f s, residual %.3g\n",
-                o->program, patches, r->formfactor_s, r->solver_used, r->iterations, r->solve_s, r->residual);
+        fprintf(stderr, "%s: %d patches, form factors %.2f s, %s %d iterations %.2f s, residual %.3g\n", o->program,
+                patches, r->formfactor_s, r->solver_used, r->iterations, r->solve_s, r->residual);
 }
 
 enum { MESH_CELL_LIMIT = 4000000 }; /* beyond this even shooting would take hours */
@@ -250,8 +275,9 @@ static bool *spheres_to_mesh(const scene *s, const char *program)
             continue;
         mesh[i] = m->kind != MATERIAL_MIRROR && m->kind != MATERIAL_GLASS;
         if (!mesh[i])
-            warn_once(&warned_spheres, "%s: mirror and glass spheres are not meshed into patches; they "
-                                       "block light but carry no radiance (black in the image)",
+            warn_once(&warned_spheres,
+                      "%s: mirror and glass spheres are not meshed into patches; they "
+                      "block light but carry no radiance (black in the image)",
                       program);
     }
     return mesh;
@@ -295,11 +321,13 @@ int radiosity_collect_patches(patch_mesh *mesh, const scene *s, const radiosity_
         const material *m = &s->materials[s->surfaces[p->surface].material];
         radiosity_material(s, p->surface, &p->albedo, &p->emission);
         if (m->kind == MATERIAL_MIRROR || m->kind == MATERIAL_GLASS)
-            warn_once(&warned_specular, "%s: radiosity models diffuse reflection only; mirrors and glass "
-                                        "are treated as diffuse surfaces with their colour as albedo",
+            warn_once(&warned_specular,
+                      "%s: radiosity models diffuse reflection only; mirrors and glass "
+                      "are treated as diffuse surfaces with their colour as albedo",
                       o->program);
         else if (m->kind == MATERIAL_PHONG)
-            warn_once(&warned_phong, "%s: Phong surfaces are treated as diffuse with albedo kd (ks dropped)", o->program);
+            warn_once(&warned_phong, "%s: Phong surfaces are treated as diffuse with albedo kd (ks dropped)",
+                      o->program);
     }
     return 0;
 }
@@ -316,7 +344,8 @@ int radiosity_refine(patch_mesh *m, const scene *s, const radiosity_options *o, 
         return split;
     r->refinements++;
     if (!quiet)
-        fprintf(stderr, "%s: refinement %d split %d of %d patches\n", o->program, r->refinements, split, m->patch_count);
+        fprintf(stderr, "%s: refinement %d split %d of %d patches\n", o->program, r->refinements, split,
+                m->patch_count);
     return radiosity_collect_patches(m, s, o, err, err_size) ? -1 : split;
 }
 
@@ -373,12 +402,11 @@ void radiosity_warn_row_sums(const float *F, const patch_mesh *m, const scene *s
     }
     free(buried);
     if (names[0])
-        fprintf(
-            stderr,
-            "warning: %s: in this closed scene the form factors of surfaces sum to as little as %.3f (%s), "
-            "below 1 - %.2g, which biases L by more than %.0f %% at albedo %.2g; use a smaller --patch-size "
-            "(now %g)\n",
-            o->program, worst, names, bearable, 100.0 * ROW_SUM_BIAS, rho, o->patch_size);
+        fprintf(stderr,
+                "warning: %s: in this closed scene the form factors of surfaces sum to as little as %.3f (%s), "
+                "below 1 - %.2g, which biases L by more than %.0f %% at albedo %.2g; use a smaller --patch-size "
+                "(now %g)\n",
+                o->program, worst, names, bearable, 100.0 * ROW_SUM_BIAS, rho, o->patch_size);
 }
 
 static int warned_back;
@@ -404,8 +432,8 @@ probe_result radiosity_view_probe(const void *view, const scene *s, const probe 
     const radiosity_view *v = view;
     (void)seed;
     (void)counters;
-    vec3 E = patch_mesh_irradiance(v->mesh, s, v->radiance, pr->position, pr->normal, v->point_lights,
-                                   v->point_to_polygon);
+    vec3 E =
+        patch_mesh_irradiance(v->mesh, s, v->radiance, pr->position, pr->normal, v->point_lights, v->point_to_polygon);
     return (probe_result){.irradiance = E, .standard_error = v3_splat(0.0)};
 }
 
