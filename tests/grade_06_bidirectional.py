@@ -84,6 +84,19 @@ def channel_means(tiles):
     return [sum(v for (tx, ty, c), v in value.items() if c == channel) / (len(value) // 3) for channel in range(3)]
 
 
+def sanitizers_run_once(ctx, scene, runs):
+    """Under the sanitizers (lib.sanitizer_build) a statistics test renders each of its runs (chapter,
+    args) once at 8 x 8 and 1 sample per pixel (unless args say more) and checks it finite: its code
+    runs under ASan and UBSan, its statistics in the plain pass only.  False in the plain pass."""
+    if not lib.sanitizer_build(ctx):
+        return False
+    for chapter, args in runs:
+        img, stats = ctx.render(chapter, scene, "--size", "8x8", "--spp", 1, *args, name="sanitized")
+        expect(finite_image(img) and stats["nonfinite_samples"] == 0,
+               f"{chapter} {' '.join(map(str, args))}: non-finite pixels or samples", command=img.command)
+    return True
+
+
 def expect_tiles_agree(quantity, got, reference, comparisons, by, max_relative_se, command, df=RENDERS - 1):
     """Each tile mean of `got` within t_bound(df, comparisons) combined standard errors of `reference`'s,
     each standard error below max_relative_se of the image's mean in that channel."""
@@ -138,6 +151,8 @@ def test_furnace_every_method(ctx):
              ("vcm", [], 2.0), ("vcm r 0.4", ["--radius", 0.4], 2.0),
              ("ppm", ["--connect", "off", "--radius", 0.4, "--spp", 8], 2.0),
              ("bdpt 2:2", ["--method", "bdpt", "--bounces", "2:2", "--spp", 12], 0.25)]
+    if sanitizers_run_once(ctx, scene, [(CHAPTER, args + ["--spp", 1]) for _, args, _ in cases]):
+        return
     bound = t_bound(RENDERS - 1, len(cases))
     for label, args, expected in cases:
         values = []
@@ -249,6 +264,8 @@ def test_agrees_with_radiosity_on_diffuse_box(ctx):
     text = open(os.path.join(ROOT, "scenes", "cornell.scene")).read()
     room = ctx.write("room.scene", "\n".join(line for line in text.splitlines()
                                              if not line.startswith(("quad short", "quad tall", "probe"))) + "\n")
+    if sanitizers_run_once(ctx, room, [(CHAPTER, ["--method", "bdpt", "--bounces", "1:"])]):
+        return
     radiosity = {}
     for h in (60, 30):
         img, _ = ctx.render("03_radiosity", room, "--size", "16x16", "--spp", 4, "--bounces", "1:", "--patch-size",
@@ -273,8 +290,11 @@ def test_each_strategy_alone_is_unbiased(ctx):
     combined standard errors (7 strategies, 12 tile means each), each below 6 % of the image's mean.
     And k = 2 for (0, 3), (1, 2), (2, 1) against --bounces 1:1."""
     scene = ctx.write("stage.scene", STAGE)
-    for k, strategies, spp in ((3, ((0, 4), (1, 3), (2, 2), (3, 1)), (256, 8, 8, 8)),
-                               (2, ((0, 3), (1, 2), (2, 1)), (64, 8, 8))):
+    every = ((3, ((0, 4), (1, 3), (2, 2), (3, 1)), (256, 8, 8, 8)), (2, ((0, 3), (1, 2), (2, 1)), (64, 8, 8)))
+    if sanitizers_run_once(ctx, scene, [(CHAPTER, ["--bounces", f"{k - 1}:{k - 1}", "--strategy", f"{s},{t}"])
+                                        for k, strategies, _ in every for s, t in strategies]):
+        return
+    for k, strategies, spp in every:
         window = f"{k - 1}:{k - 1}"
         reference, _ = tile_estimates(ctx, "04_pathtrace", scene, ["--size", "16x16", "--spp", 64, "--bounces",
                                                                    window, "--probe-samples", 32], f"pt{k}-")
@@ -300,6 +320,8 @@ def test_merge_off_is_bdpt_and_connect_off_is_progressive_photon_mapping(ctx):
             outputs.append(f.read())
     expect(outputs[0] == outputs[1], "--merge off and --method bdpt gave different images; expected the same bytes")
     scene, common = "scenes/cornell-spheres.scene", ["--size", "32x32", "--spp", 4, "--radius", 15, "--alpha", 0.7]
+    if sanitizers_run_once(ctx, scene, [(CHAPTER, ["--connect", "off", "--radius", 15])]):
+        return
     reference, _ = tile_estimates(ctx, "05_photonmap", scene, common + ["--maps", "global", "--photons", 1024,
                                                                        "--probe-photons", 32], "pm")
     got, command = tile_estimates(ctx, CHAPTER, scene, common + ["--connect", "off"], "ppm")
