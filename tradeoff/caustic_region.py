@@ -1,5 +1,7 @@
 """The caustic region of scenes/cornell-spheres.scene: the pixels that see the floor within
-CAUSTIC_RADIUS of the point where the glass ball focuses the light.
+CAUSTIC_RADIUS of the point where the glass ball focuses the light; and the SDS region of
+scenes/sds.scene: the pixels that see the room only in the mirror ball or through the glass ball
+(sds_region: where the paths L S .. D S .. E are).
 
 Geometry, not a threshold on a noisy reference (which would pick the pixels whose noise
 happens to be high): the ball is a lens, so light from the light's centre through the
@@ -14,7 +16,7 @@ import os
 CAUSTIC_RADIUS = 80.0  # mm: the bright core of the caustic and its falloff (the ball's radius is 100)
 
 
-def _scene_numbers(path):
+def _scene_numbers(path, ball_name="glass_ball"):
     camera = ball = light = None
     with open(path) as f:
         for line in f:
@@ -23,7 +25,7 @@ def _scene_numbers(path):
                 continue
             if w[0] == "camera":
                 camera = [float(v) for v in (w[2:5] + w[6:9] + w[10:13] + [w[14]])]
-            elif w[0] == "sphere" and w[1] == "glass_ball":
+            elif w[0] == "sphere" and w[1] == ball_name:
                 ball = [float(v) for v in w[3:7]]
             elif w[0] == "quad" and w[1] == "light":
                 v = [float(x) for x in w[3:15]]
@@ -78,6 +80,48 @@ def caustic_region(width, height, scene_path=None, radius=CAUSTIC_RADIUS):
     return region
 
 
+def _sphere_hit(origin, d, sphere):
+    """Distance along unit d to the first crossing of the sphere after origin, or None."""
+    oc = _sub(origin, sphere[:3])
+    b = _dot(oc, d)
+    disc = b * b - (_dot(oc, oc) - sphere[3] * sphere[3])
+    if disc <= 0:
+        return None
+    for t in (-b - math.sqrt(disc), -b + math.sqrt(disc)):
+        if t > 1e-6:
+            return t
+    return None
+
+
+def sds_region(width, height, scene_path=None):
+    """[(x, y)] pixel coordinates (top row 0) of the SDS region of sds.scene: the pixels whose centre
+    ray hits the mirror ball or the glass ball.  They see the room only by specular reflection or
+    refraction, and the light that reaches what they see through the glass or off the mirror (the
+    glass ball's caustic on the floor, the light the mirror ball throws on the walls) makes paths
+    L S .. D S .. E: no join renders them, only merging, or an eye path that happens to hit the
+    13 mm light.  (The caustic itself, seen in the mirror, covers about 4 pixels of 128 x 128:
+    too few to measure alone.)"""
+    scene_path = scene_path or os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                            "scenes", "sds.scene")
+    camera, glass, _ = _scene_numbers(scene_path)
+    mirror = _scene_numbers(scene_path, "mirror_ball")[1]
+    eye, look, up, fov = camera[0:3], camera[3:6], camera[6:9], camera[9]
+    forward = _unit(_sub(look, eye))
+    right = _unit(_cross(forward, up))
+    true_up = _cross(right, forward)
+    half = math.tan(math.radians(fov) / 2)
+    region = []
+    for py in range(height):
+        for px in range(width):
+            sx = (2 * (px + 0.5) / width - 1) * half * width / height
+            sy = (1 - 2 * (py + 0.5) / height) * half
+            d = _unit([forward[i] + sx * right[i] + sy * true_up[i] for i in range(3)])
+            if _sphere_hit(eye, d, mirror) is not None or _sphere_hit(eye, d, glass) is not None:
+                region.append((px, py))
+    return region
+
+
 if __name__ == "__main__":
     reg = caustic_region(32, 32)
     print(len(reg), reg)
+    print(len(sds_region(32, 32)), "pixels of the SDS region of sds.scene at 32 x 32")

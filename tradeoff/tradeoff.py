@@ -34,17 +34,39 @@ gets caustic_rmse: the RMSE over the caustic region (tradeoff/caustic_region.py:
 the pixels that see the floor within 80 mm of the glass ball's focus), with the
 reference's own MSE there, MSE(a - b) / 4 over the region, subtracted.
 
+Chapter 6 (when build/06_bidirectional exists): light tracing, BDPT and VCM over
+their passes on four scenes, beside chapter 4's MIS path tracer and chapter 5's
+progressive photon map: cornell and cornell-spheres (the full sweeps above), and
+gap.scene (the light behind a 20 mm slit) and sds.scene (a caustic seen in a
+mirror), where only chapters 4, 5 and 6 run.  Their references are chapter 6's
+own long runs, as two halves the same way: BDPT on gap (unbiased; path tracing
+needs hours there) and VCM on sds (the only method that renders its L S .. D S .. E
+paths in minutes; consistent, as the merging radius shrinks with the passes,
+but its remaining bias is not in the halves' difference).  On sds, caustic_rmse
+is the RMSE over the pixels that see the mirror or the glass ball
+(caustic_region.sds_region).  The report and targets.json compare the methods at
+equal time (each curve interpolated in log-log at the others' times, the
+reference's MSE subtracted), in wall-clock time (time_s, the plots' axis) and in
+CPU time (cpu_s, what the children used: steadier on a shared machine); the
+targets of chapter 6: BDPT at most 1/2 of path tracing's RMSE on gap, VCM within
+1.1x of the better of BDPT and photon mapping on every scene, the SDS region's
+error falling with VCM's time.
+
 Outputs (OUT/): tradeoff.csv, tradeoff.md, tradeoff-<scene>.png/.svg (error
-against time, log-log), tradeoff-caustic-cornell-spheres.png/.svg (the caustic
+against time, log-log; cornell and cornell-spheres), tradeoff-caustic-cornell-spheres.png/.svg (the caustic
 region's error against time: path tracing and photon mapping), tradeoff-radiosity-<scene>.png/.svg (error against
-iterations per patch size: the discretisation floor), tradeoff/ (the
-renders, their stats and the plot data).
+iterations per patch size: the discretisation floor), tradeoff-bidirectional-<scene>.png/.svg (chapters 4, 5
+and 6 on each of the four scenes), tradeoff-sds-region.png/.svg (the SDS region's error), tradeoff/ (the
+renders, their stats, the plot data, references.json and targets.json).
+
+SCENES=a,b,... runs only those of the four scenes (a partial run, for trying things out).
 """
 import array
 import csv
 import json
 import math
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -54,14 +76,26 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from caustic_region import caustic_region  # noqa: E402
+from caustic_region import sds_region, caustic_region  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(HERE), "tests"))
 import pfm  # noqa: E402  (tests/pfm.py: the one PFM reader of the Python tools)
 
 CAUSTIC_SCENE = "cornell-spheres"
+SDS_SCENE = "sds"
+# The scenes with a region whose error is measured apart (caustic_rmse).
+REGIONS = {CAUSTIC_SCENE: caustic_region, SDS_SCENE: sds_region}
 
-SCENES = ["cornell", "cornell-spheres"]
+SCENES = ["cornell", "cornell-spheres", "gap", "sds"]
+# Every chapter's sweep runs on these; on the others only chapters 4 (MIS), 5 and 6.
+FULL_SCENES = ["cornell", "cornell-spheres"]
+BIDIR_METHODS = ["light", "bdpt", "vcm"]
+# The reference of each scene: (chapter, its arguments, what it is); samples per pixel or passes per half
+# come from the config (ref_spp for chapter 4, ref_passes for chapter 6).
+PT_REFERENCE = ("04_pathtrace", ["--estimator", "mis", "--probe-samples", 32], "MIS path tracing (chapter 4)")
+REFERENCES = {"cornell": PT_REFERENCE, "cornell-spheres": PT_REFERENCE,
+              "gap": ("06_bidirectional", ["--method", "bdpt"], "BDPT (chapter 6)"),
+              "sds": ("06_bidirectional", ["--method", "vcm"], "VCM (chapter 6)")}
 ESTIMATORS = ["hemisphere", "cosine", "light", "mis"]
 SOLVERS = ["jacobi", "gauss-seidel", "shooting", "direct"]
 # Whitted's soft shadows: points per emitter per pixel sample (its default is
@@ -71,7 +105,8 @@ COMMON_SEED = 424242
 
 CSV_COLUMNS = ["scene", "method", "variant", "curve", "setting", "spp", "patches", "iterations", "light_samples",
                "max_depth", "min_weight", "patch_size", "seed", "time_s", "time_min_s", "repeats", "prepare_s",
-               "render_s", "rmse", "relmse", "ssim", "psnr", "mse_se", "ref_mse", "caustic_rmse", "status"]
+               "render_s", "cpu_s", "rmse", "relmse", "ssim", "psnr", "mse_se", "ref_mse", "caustic_rmse", "pixels", "mean",
+               "region_mean", "region_pixels", "order", "status"]
 
 
 def env_int(name, default):
@@ -90,15 +125,20 @@ def config():
         # Shooting and direct only at the coarsest patch size: they are the
         # slow solvers, and the quick run only checks the pipeline.
         c = dict(quick=True, pm_passes=[2, 8], pm_photons=5000, size=32, ref_spp=4096, pt_max_spp=512, repeats=1, cap=5.0, aa_spp=16,
+                 bd_passes={"light": [2, 8, 32, 128], "bdpt": [2, 8, 32, 128], "vcm": [2, 8, 32, 128]},
+                 ref_passes=256, bd_pm_passes=[2, 8, 32], bd_cap=10.0,
                  patch_sizes=[200, 100], slow_solver_sizes=1, iters=[1, 2, 4, 8, 16], shoot_iters=[1, 2],
                  depths=[0, 1, 2, 4], min_weights=[0.3, 0.03], light_samples=[1, 4, 16, 64])
     else:
         c = dict(quick=False, pm_passes=[2, 8, 32, 128, 512], pm_photons=50000, size=128, ref_spp=8192, pt_max_spp=2048, repeats=3, cap=20.0, aa_spp=64,
+                 bd_passes={"light": [2, 8, 32, 128, 512], "bdpt": [2, 8, 32, 128, 512], "vcm": [2, 8, 32, 128]},
+                 ref_passes=512, bd_pm_passes=[2, 8, 32, 128], bd_cap=60.0,
                  patch_sizes=[200, 141, 100, 71, 50, 35, 25], slow_solver_sizes=7, iters=[1, 2, 3, 4, 6, 8, 12, 16, 24, 32],
                  shoot_iters=[1, 2, 3, 4, 6, 8], depths=[0, 1, 2, 3, 4, 6, 10],
                  min_weights=[0.5, 0.2, 0.1, 0.05, 0.02, 0.01], light_samples=[1, 2, 4, 8, 16, 32, 64])
     c["size"] = env_int("SIZE", c["size"])
     c["ref_spp"] = env_int("REF_SPP", c["ref_spp"])
+    c["ref_passes"] = env_int("REF_PASSES", c["ref_passes"])
     c["pt_max_spp"] = env_int("PT_MAX_SPP", c["pt_max_spp"])
     c["repeats"] = env_int("REPEATS", c["repeats"])
     c["cap"] = env_float("CAP", c["cap"])
@@ -118,6 +158,11 @@ def config():
     c["build"] = os.environ.get("BUILD", "build") or "build"
     c["out"] = os.environ.get("OUT", "") or ("out/quick" if quick else "out")
     c["reuse_ref"] = os.environ.get("REUSE_REF", "") not in ("", "0")
+    wanted = [w for w in os.environ.get("SCENES", "").split(",") if w.strip()]
+    unknown = [w for w in wanted if w not in SCENES]
+    if unknown:
+        sys.exit(f"tradeoff: SCENES: unknown {','.join(unknown)} (known: {','.join(SCENES)})")
+    c["scenes"] = [sc for sc in SCENES if sc in wanted] if wanted else list(SCENES)
     return c
 
 
@@ -139,9 +184,13 @@ def write_pfm(path, width, height, pixels):
     os.replace(tmp, path)
 
 
-def caustic_index(width, height):
-    """Float offsets, in a PFM (bottom row first), of the caustic region's pixels."""
-    return [3 * ((height - 1 - y) * width + x) for x, y in caustic_region(width, height)]
+def caustic_index(width, height, scene=CAUSTIC_SCENE):
+    """Float offsets, in a PFM (bottom row first), of the pixels of the scene's region (REGIONS)."""
+    return [3 * ((height - 1 - y) * width + x) for x, y in REGIONS[scene](width, height)]
+
+
+def region_average(a, index):
+    return sum(a[i + k] for i in index for k in range(3)) / (3 * len(index))
 
 
 def region_mse(a, b, index):
@@ -170,40 +219,49 @@ class Runner:
         self.work = os.path.join(c["out"], "tradeoff")
         self.size = f"{c['size']}x{c['size']}"
         self.log = []
-        self.caustic_ref_mse = {}  # scene -> the reference's own MSE over the caustic region
+        self.caustic_ref_mse = {}  # scene -> the reference's own MSE over its region (REGIONS)
+        # Threads that wait passively: a spinning OpenMP thread would count as CPU time (cpu_s) and take
+        # the CPU of whatever else runs on the machine.
+        self.env = dict(os.environ)
+        self.env.setdefault("OMP_WAIT_POLICY", "passive")
 
     def exe(self, chapter):
         return os.path.join(ROOT, self.c["build"], chapter)
 
     def run_once(self, chapter, scene, args, name, ref=None, timeout=None):
-        """Render once; return the stats dict (None if the run exceeded timeout)."""
+        """Render once; return the stats dict with cpu_s, the CPU seconds of the whole process (None if the
+        run exceeded timeout)."""
         pfm = os.path.join(self.work, scene, name + ".pfm")
         stats = os.path.join(self.work, scene, name + ".json")
         cmd = [self.exe(chapter), os.path.join("scenes", scene + ".scene"), "--quiet", "--size", self.size,
                "--out", pfm, "--stats", stats] + [str(a) for a in args]
         if ref:
             cmd += ["--ref", ref]
+        before = resource.getrusage(resource.RUSAGE_CHILDREN)
         try:
             r = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout,
-                               stdin=subprocess.DEVNULL)
+                               stdin=subprocess.DEVNULL, env=self.env)
         except subprocess.TimeoutExpired:
             return None
+        after = resource.getrusage(resource.RUSAGE_CHILDREN)
         if r.returncode != 0:
             raise RuntimeError(f"{' '.join(cmd)} exited {r.returncode}: {r.stderr.strip()[-2000:]}")
         with open(stats) as f:
-            return json.load(f)
+            result = json.load(f)
+        result["cpu_s"] = after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime
+        return result
 
-    def point(self, chapter, scene, args, name, ref, ref_pixels, repeats=None):
+    def point(self, chapter, scene, args, name, ref, ref_pixels, repeats=None, cap=None):
         """Render one sweep point `repeats` times (the identical image: same
         seed), time = median of prepare_s + render_s; metrics from the
         chapter's --ref.  Returns a row dict, status 'over budget' if the
         first run took longer than the cap (it is killed at the cap)."""
         repeats = self.c["repeats"] if repeats is None else repeats
-        cap = self.c["cap"]
+        cap = self.c["cap"] if cap is None else cap
         first = self.run_once(chapter, scene, args, name, ref, timeout=cap * 1.5 + 5)
         if first is None:
             return {"status": "over budget", "time_s": None}
-        times = [first["prepare_s"] + first["render_s"]]
+        times, cpus = [first["prepare_s"] + first["render_s"]], [first["cpu_s"]]
         # Repeat only runs that are quick: the relative timing noise of a
         # long run is small, and repeating it would cost the most.
         if times[0] < 2.0:
@@ -211,55 +269,64 @@ class Runner:
                 s = self.run_once(chapter, scene, args, name + ".rep", ref, timeout=cap * 1.5 + 5)
                 if s is not None:
                     times.append(s["prepare_s"] + s["render_s"])
+                    cpus.append(s["cpu_s"])
         m = first.get("metrics") or {}
         w, h, pixels = read_pfm(os.path.join(self.work, scene, name + ".pfm"))
         mse, se = mse_standard_error(pixels, ref_pixels)
-        caustic = None
-        if scene == CAUSTIC_SCENE and self.caustic_ref_mse.get(scene) is not None:
-            index = caustic_index(w, h)
+        caustic = region_mean = None
+        if scene in REGIONS and self.caustic_ref_mse.get(scene) is not None:
+            index = caustic_index(w, h, scene)
             caustic = math.sqrt(max(region_mse(pixels, ref_pixels, index) - self.caustic_ref_mse[scene], 0.0))
+            region_mean = region_average(pixels, index)
         # The chapter's rmse and ours are the same quantity (a consistency check).
         if m.get("rmse") is not None and abs(math.sqrt(mse) - m["rmse"]) > 1e-3 * m["rmse"] + 1e-9:
             raise RuntimeError(f"{name}: rmse {m['rmse']} from stats but {math.sqrt(mse)} from the image")
         status = "ok" if times[0] <= cap else "over budget"
         return {"time_s": statistics.median(times), "time_min_s": min(times), "repeats": len(times),
-                "prepare_s": first["prepare_s"], "render_s": first["render_s"], "rmse": m.get("rmse"),
+                "prepare_s": first["prepare_s"], "render_s": first["render_s"], "cpu_s": statistics.median(cpus),
+                "rmse": m.get("rmse"),
                 "relmse": m.get("relmse"), "ssim": m.get("ssim"), "psnr": m.get("psnr"), "mse_se": se,
                 "spp": first.get("spp"), "patches": first.get("patches"), "iterations": first.get("iterations"),
-                "caustic_rmse": caustic, "status": status, "_stats": first}
+                "caustic_rmse": caustic, "pixels": w * h, "mean": sum(pixels) / len(pixels), "region_mean": region_mean,
+                "region_pixels": len(index) if region_mean is not None else None, "status": status, "_stats": first}
 
 
 # --- the sweeps ---------------------------------------------------------------------------
 
 def reference(run, scene):
-    """Two independent MIS halves; returns (ref path, pixels, info)."""
+    """Two independent halves of the scene's REFERENCES method; returns (ref path, pixels, info)."""
     c = run.c
     d = os.path.join(run.work, scene)
     info_path = os.path.join(d, "reference.json")
     ref_path = os.path.join(d, "reference.pfm")
-    key = {"size": c["size"], "spp_half": c["ref_spp"], "build": c["build"],
-           "exe_mtime": os.path.getmtime(run.exe("04_pathtrace"))}
+    chapter, method_args, what = REFERENCES[scene]
+    spp = c["ref_spp"] if chapter == "04_pathtrace" else c["ref_passes"]
+    key = {"size": c["size"], "spp_half": spp, "build": c["build"], "chapter": chapter,
+           "args": [str(a) for a in method_args], "exe_mtime": os.path.getmtime(run.exe(chapter))}
     if c["reuse_ref"] and os.path.exists(info_path) and os.path.exists(ref_path):
         with open(info_path) as f:
             info = json.load(f)
         if info.get("key") == key:
             run.caustic_ref_mse[scene] = info.get("caustic_mse")
             return ref_path, read_pfm(ref_path)[2], info
-    args = ["--estimator", "mis", "--spp", c["ref_spp"], "--probe-samples", 32]
-    a = run.run_once("04_pathtrace", scene, args + ["--seed", 900001], "ref-a")
-    b = run.run_once("04_pathtrace", scene, args + ["--seed", 900002], "ref-b",
-                     ref=os.path.join(d, "ref-a.pfm"))
+    args = list(method_args) + ["--spp", spp]
+    a = run.run_once(chapter, scene, args + ["--seed", 900001], "ref-a")
+    b = run.run_once(chapter, scene, args + ["--seed", 900002], "ref-b", ref=os.path.join(d, "ref-a.pfm"))
     w, h, pa = read_pfm(os.path.join(d, "ref-a.pfm"))
     _, _, pb = read_pfm(os.path.join(d, "ref-b.pfm"))
     avg = array.array("f", [(x + y) * 0.5 for x, y in zip(pa, pb)])
     write_pfm(ref_path, w, h, avg)
     rmse_ab = b["metrics"]["rmse"]
-    if scene == CAUSTIC_SCENE:
-        run.caustic_ref_mse[scene] = region_mse(pa, pb, caustic_index(w, h)) / 4.0
-    info = {"caustic_mse": run.caustic_ref_mse.get(scene), "key": key, "spp": 2 * c["ref_spp"], "seeds": [900001, 900002],
+    region_mean = None
+    if scene in REGIONS:
+        run.caustic_ref_mse[scene] = region_mse(pa, pb, caustic_index(w, h, scene)) / 4.0
+        region_mean = region_average(avg, caustic_index(w, h, scene))
+    info = {"caustic_mse": run.caustic_ref_mse.get(scene), "key": key, "method": what, "chapter": chapter,
+            "spp": 2 * spp, "seeds": [900001, 900002], "cpu_s": a["cpu_s"] + b["cpu_s"],
             "time_s": a["prepare_s"] + a["render_s"] + b["prepare_s"] + b["render_s"],
             "rmse_halves": rmse_ab, "rmse": rmse_ab / 2.0, "mse": (rmse_ab / 2.0) ** 2,
-            "nonfinite_samples": a["nonfinite_samples"] + b["nonfinite_samples"]}
+            "nonfinite_samples": a["nonfinite_samples"] + b["nonfinite_samples"],
+            "mean": sum(avg) / len(avg), "region_mean": region_mean}
     with open(info_path, "w") as f:
         json.dump(info, f, indent=1)
     return ref_path, avg, info
@@ -270,19 +337,20 @@ def sweep_scene(run, scene, rows):
     os.makedirs(os.path.join(run.work, scene), exist_ok=True)
     t0 = time.time()
     ref_path, ref_pixels, ref_info = reference(run, scene)
-    print(f"[{scene}] reference: {ref_info['spp']} spp MIS, estimated RMSE {ref_info['rmse']:.4g} "
+    print(f"[{scene}] reference: {ref_info['method']}, {ref_info['spp']} spp, estimated RMSE {ref_info['rmse']:.4g} "
           f"({time.time() - t0:.0f} s)", flush=True)
+    full = scene in FULL_SCENES
     seed = [0]
 
-    def add(method, variant, curve, setting, chapter, args, name, extra, repeats=None):
+    def add(method, variant, curve, setting, chapter, args, name, extra, repeats=None, cap=None):
         # Path tracing: a new seed per point, so the points of a sweep are
         # independent (the slope fit weighs them as such).  Local, Whitted and
         # radiosity: one common seed (common random numbers), so every point
         # jitters its pixel samples identically and the differences between
         # points are the method's, not the jitter's.
         seed[0] += 1
-        point_seed = seed[0] if method in ("pathtrace", "photonmap") else COMMON_SEED
-        r = run.point(chapter, scene, list(args) + ["--seed", point_seed], name, ref_path, ref_pixels, repeats)
+        point_seed = seed[0] if method in ("pathtrace", "photonmap", "bidirectional") else COMMON_SEED
+        r = run.point(chapter, scene, list(args) + ["--seed", point_seed], name, ref_path, ref_pixels, repeats, cap)
         r.update(extra)
         r.update({"scene": scene, "method": method, "variant": variant, "curve": curve, "setting": setting,
                   "seed": point_seed, "order": seed[0], "ref_mse": ref_info["mse"]})
@@ -293,16 +361,31 @@ def sweep_scene(run, scene, rows):
               (f"time {t:8.4f} s  rmse {r['rmse']:.4g}" if r["status"] == "ok" else r["status"]), flush=True)
         return r
 
-    # Path tracing: spp sweep per estimator.
-    for e in ESTIMATORS:
+    # Chapters 4, 5 and 6 compared: fixed sweeps, so that a loaded machine (slower wall clock) does not cut
+    # them short; their cap (bd_cap) only stops a run that hangs.  On the full scenes path tracing and photon
+    # mapping keep the cap of the other sweeps.
+    cap = None if full else c["bd_cap"]
+    # Path tracing: spp sweep per estimator (MIS only on the scenes of chapter 6 alone).
+    for e in ESTIMATORS if full else ["mis"]:
         for n in c["pt_spp"]:
             add("pathtrace", e, f"pt-{e}", f"spp={n}", "04_pathtrace",
-                ["--estimator", e, "--spp", n, "--probe-samples", 32], f"pt-{e}-{n}", {})
+                ["--estimator", e, "--spp", n, "--probe-samples", 32], f"pt-{e}-{n}", {}, cap=cap)
     # Photon mapping: progressive passes (the radius shrinks by R12 each pass).
     if os.access(run.exe("05_photonmap"), os.X_OK):
-        for n in c["pm_passes"]:
+        for n in c["pm_passes"] if full else c["bd_pm_passes"]:
             add("photonmap", "progressive", "pm", f"passes={n}", "05_photonmap",
-                ["--spp", n, "--photons", c["pm_photons"], "--probe-photons", 32], f"pm-{n}", {})
+                ["--spp", n, "--photons", c["pm_photons"], "--probe-photons", 32], f"pm-{n}", {}, cap=cap)
+    # Chapter 6: light tracing, BDPT and VCM over passes (one light subpath per pixel and pass; VCM's merging
+    # radius shrinks by R12 each pass); passes = 2 x 4^k, as path tracing's spp.
+    if os.access(run.exe("06_bidirectional"), os.X_OK):
+        for m in BIDIR_METHODS:
+            for n in c["bd_passes"][m]:
+                r = add("bidirectional", m, f"bd-{m}", f"passes={n}", "06_bidirectional", ["--method", m, "--spp", n],
+                        f"bd-{m}-{n}", {}, cap=c["bd_cap"])
+                if r["status"] != "ok":
+                    break
+    if not full:
+        return ref_info
     # Local illumination: light samples per emitter (per pixel sample).
     for k in c["light_samples"]:
         add("local", "light-samples", "local", f"light-samples={k}", "01_local",
@@ -410,13 +493,14 @@ def thresholds(rows, scene, ref_rmse):
     return sorted(levels, reverse=True)
 
 
-def report(c, rows, refs, plots):
+def report(c, rows, refs, plots, targets):
     curves_order = [f"pt-{e}" for e in ESTIMATORS] + [f"radiosity-{s}" for s in SOLVERS] + \
-                   ["whitted-depth", "whitted-weight", "local"]
+                   ["whitted-depth", "whitted-weight", "local", "pm", "bd-light", "bd-bdpt", "bd-vcm"]
     curve_title = {f"pt-{e}": f"path tracing ({e})" for e in ESTIMATORS}
     curve_title.update({f"radiosity-{s}": f"radiosity ({s})" for s in SOLVERS})
     curve_title.update({"whitted-depth": "Whitted (max depth)", "whitted-weight": "Whitted (min weight)",
-                        "local": "local (light samples)"})
+                        "local": "local (light samples)", "pm": "photon mapping", "bd-light": "light tracing",
+                        "bd-bdpt": "BDPT", "bd-vcm": "VCM"})
     L = []
     L.append("# Speed against accuracy, every method (generated by tradeoff/tradeoff.py)\n")
     L.append(f"Mode: {'QUICK (a smoke run: tiny images, few points, 1 repeat)' if c['quick'] else 'full'}; "
@@ -427,14 +511,15 @@ def report(c, rows, refs, plots):
              f"{c['aa_spp']} stratified samples per pixel (the reference is a pixel-area average; one sample through "
              f"the pixel centre would add an aliasing error at the light's edges above these methods' own floors); "
              f"their time includes them. All numbers: `tradeoff.csv`.\n")
-    for scene in SCENES:
+    for scene in c["scenes"]:
         ref = refs.get(scene)
         if ref is None:
             continue
+        full = scene in FULL_SCENES
         L.append(f"\n## {scene}.scene\n")
-        L.append(f"![error against time](tradeoff-{scene}.png) "
-                 f"![radiosity floor](tradeoff-radiosity-{scene}.png)\n")
-        L.append(f"**Reference**: MIS path tracing, {ref['spp']} spp as two independent halves "
+        L.append((f"![error against time](tradeoff-{scene}.png) ![radiosity floor](tradeoff-radiosity-{scene}.png) "
+                  if full else "") + f"![chapters 4, 5 and 6](tradeoff-bidirectional-{scene}.png)\n")
+        L.append(f"**Reference**: {ref['method']}, {ref['spp']} spp as two independent halves "
                  f"(seeds {ref['seeds'][0]}, {ref['seeds'][1]}; {ref['time_s']:.1f} s). RMSE between the halves "
                  f"{ref['rmse_halves']:.4g}, so the reference's own RMSE is about {ref['rmse']:.4g} "
                  f"(RMSE(a-b)/2). A point's measured MSE is its true MSE plus this reference MSE; "
@@ -502,23 +587,25 @@ def report(c, rows, refs, plots):
         L.append("| estimator | slope | +- | fitted spp | efficiency 1/(MSE s) | relative to best |")
         L.append("|---|---|---|---|---|---|")
         effs = {}
-        for e in ESTIMATORS:
+        estimators = ESTIMATORS if full else ["mis"]
+        for e in estimators:
             pts = [r for r in ok_rows(rows, scene, f"pt-{e}") if r["spp"] >= 2]
             vals = [1.0 / ((r["rmse"] ** 2 - r["ref_mse"]) * r["time_s"]) for r in pts
                     if r["rmse"] ** 2 > 10 * r["ref_mse"] and r["time_s"] > 0]
             effs[e] = statistics.median(vals) if vals else None
         top = max((v for v in effs.values() if v), default=None)
-        for e in ESTIMATORS:
+        for e in estimators:
             f = pathtrace_slope(rows, scene, e)
             eff = effs[e]
             L.append(f"| {e} | {f['slope']:.3f} | {f['se']:.3f} | {','.join(map(str, f['spp']))} | "
                      f"{fmt(eff)} | {fmt(eff / top) if eff and top else '—'} |" if f else
                      f"| {e} | — | — | too few points | {fmt(eff)} | — |")
         # Radiosity: the discretisation floor.
-        L.append("\n### Radiosity: iterations against patch size\n")
-        L.append("RMSE after K iterations (`--tol 0`) at each patch size S (scene units); the error stops "
-                 "falling once the iteration has converged: what remains is the discretisation (constant "
-                 "patches) and, on a scene with specular objects, what radiosity does not model.\n")
+        if full:
+            L.append("\n### Radiosity: iterations against patch size\n")
+            L.append("RMSE after K iterations (`--tol 0`) at each patch size S (scene units); the error stops "
+                     "falling once the iteration has converged: what remains is the discretisation (constant "
+                     "patches) and, on a scene with specular objects, what radiosity does not model.\n")
         for solver in SOLVERS[:3]:
             pts = ok_rows(rows, scene, f"radiosity-{solver}-iter")
             if not pts:
@@ -538,16 +625,175 @@ def report(c, rows, refs, plots):
             L.append("\nOver budget (stopped at " + f"{c['cap']:g} s, not plotted): " +
                      ", ".join(f"{r['curve']} {r['setting']}" for r in over) + ".")
     L.extend(caustic_report(rows))
+    L.extend(bidirectional_report(c, rows, refs, targets))
     L.append("\n## How to read this\n")
     L.append("- Unbiased Monte Carlo (path tracing) falls along N^-1/2 lines (the grey guide) without floor; "
              "the estimators differ by a constant factor in time (their efficiency).\n"
              "- Radiosity and Whitted / local illumination are biased: each has a floor set by what it leaves "
              "out (discretisation, indirect light, caustics). Cheap at coarse error, unable to go below it.\n"
+             "- Photon mapping and VCM are biased by their radius, which shrinks with the passes (R12): their "
+             "error falls more slowly than N^-1/2 but keeps falling. Light tracing alone misses what the camera "
+             "sees in a mirror or through glass: a floor on cornell-spheres and sds.\n"
              "- Times include radiosity's form factors (prepare_s) and the pixel loop, on "
              f"{os.cpu_count()} cores.")
     with open(os.path.join(c["out"], "tradeoff.md"), "w") as f:
         f.write("\n".join(L) + "\n")
 
+
+# --- chapter 6 at equal time ------------------------------------------------------------------------
+
+BD_CURVES = ["pt-mis", "pm", "bd-light", "bd-bdpt", "bd-vcm"]
+CLOCKS = {"time_s": "wall-clock time", "cpu_s": "CPU time"}
+
+
+def true_rmse(r, key="rmse", ref_mse=None):
+    """A point's RMSE with the reference's own MSE taken out (None where the point does not resolve it: its
+    MSE is within the reference's)."""
+    if r.get(key) is None:
+        return None
+    excess = r[key] ** 2 - (r["ref_mse"] if ref_mse is None else ref_mse)
+    return math.sqrt(excess) if excess > 0 else None
+
+
+def curve_points(rows, scene, curve, clock, key="rmse", ref_mse=None):
+    """[(time, error)] of a curve, sorted by time, the reference's MSE subtracted."""
+    pts = []
+    for r in ok_rows(rows, scene, curve):
+        e = true_rmse(r, key, ref_mse)
+        if e is not None and r.get(clock):
+            pts.append((r[clock], e))
+    return sorted(pts)
+
+
+def error_at(points, t):
+    """A curve's error at time t, interpolated linearly in log-log between its points (None outside them)."""
+    if points and abs(math.log(t / points[0][0])) < 1e-9:
+        return points[0][1]
+    for (ta, ea), (tb, eb) in zip(points, points[1:]):
+        if ta < t <= tb:
+            w = math.log(t / ta) / math.log(tb / ta)
+            return math.exp((1 - w) * math.log(ea) + w * math.log(eb))
+    return None
+
+
+def equal_time(rows, scene, clock, at_curve, key="rmse", ref_mse=None):
+    """[(t, {curve: error})] at the times of at_curve's points."""
+    curves = {cv: curve_points(rows, scene, cv, clock, key, ref_mse) for cv in BD_CURVES}
+    return [(t, {cv: error_at(curves[cv], t) for cv in BD_CURVES}) for t, _ in curves[at_curve]]
+
+
+def bidirectional_targets(rows, refs, scenes):
+    """The targets of chapter 6, from this run's rows: per scene and clock, the ratios at equal time."""
+    out = {}
+    for scene in scenes:
+        if scene not in refs or not ok_rows(rows, scene, "bd-vcm"):
+            continue
+        res = {"reference": refs[scene]["method"], "reference_spp": refs[scene]["spp"]}
+        for clock in CLOCKS:
+            vcm = []
+            for t, e in equal_time(rows, scene, clock, "bd-vcm"):
+                better = [e[cv] for cv in ("bd-bdpt", "pm") if e[cv] is not None]
+                if e["bd-vcm"] is not None and len(better) == 2:
+                    vcm.append({"t": t, "vcm": e["bd-vcm"], "bdpt": e["bd-bdpt"], "pm": e["pm"],
+                                "ratio": e["bd-vcm"] / min(better)})
+            res[clock] = {"vcm_over_better": vcm,
+                          "vcm_worst": max((v["ratio"] for v in vcm), default=None),
+                          "vcm_at_longest": vcm[-1]["ratio"] if vcm else None}
+            if scene == "gap":
+                bd = [{"t": t, "bdpt": e["bd-bdpt"], "pt": e["pt-mis"], "ratio": e["bd-bdpt"] / e["pt-mis"]}
+                      for t, e in equal_time(rows, scene, clock, "bd-bdpt")
+                      if e["bd-bdpt"] is not None and e["pt-mis"] is not None]
+                res[clock].update({"bdpt_over_pt": bd,
+                                   "bdpt_over_pt_median": statistics.median([b["ratio"] for b in bd]) if bd else None,
+                                   "bdpt_over_pt_worst": max((b["ratio"] for b in bd), default=None)})
+            if scene == SDS_SCENE and refs[scene].get("caustic_mse") is not None:
+                pts = curve_points(rows, scene, "bd-vcm", clock, "caustic_rmse", 0.0)
+                fit = fit_slope([(math.log(t), math.log(e), 1.0) for t, e in pts]) if len(pts) >= 3 else None
+                res[clock]["sds_region_vcm"] = [{"t": t, "rmse": e} for t, e in pts]
+                res[clock]["sds_region_vcm_slope"] = fit[0] if fit else None
+                res[clock]["sds_region_vcm_falls"] = all(b[1] < a[1] for a, b in zip(pts, pts[1:]))
+                res[clock]["sds_region_at_vcm_times"] = [
+                    {"t": t, **{cv: v for cv, v in e.items()}}
+                    for t, e in equal_time(rows, scene, clock, "bd-vcm", "caustic_rmse", 0.0)]
+        out[scene] = res
+    return out
+
+
+def reference_check(rows, refs, scene, key="mean"):
+    """Path tracing's longest run against the reference: its image mean (or the region's) minus the
+    reference's, over the standard error sqrt(MSE / pixels) (pixels have independent errors).  Path
+    tracing is unbiased, so a reference from another method that is off shows here."""
+    pts = sorted(ok_rows(rows, scene, "pt-mis"), key=lambda r: r["spp"])
+    ref = refs.get(scene) or {}
+    if not pts or ref.get(key) is None or pts[-1].get(key) is None:
+        return None
+    r = pts[-1]
+    if key == "mean":
+        n, mse = r["pixels"], r["rmse"] ** 2
+    else:
+        n, mse = r["region_pixels"], (r["caustic_rmse"] or 0.0) ** 2 + (ref.get("caustic_mse") or 0.0)
+    se = math.sqrt(mse / n) if n else None
+    return {"spp": r["spp"], "pt": r[key], "reference": ref[key], "se": se,
+            "z": (r[key] - ref[key]) / se if se else None}
+
+
+def bidirectional_report(c, rows, refs, targets):
+    """Markdown: chapters 4, 5 and 6 at equal time on every scene, and the targets."""
+    if not targets:
+        return []
+    title = {"pt-mis": "path tracing (MIS)", "pm": "photon mapping", "bd-light": "light tracing",
+             "bd-bdpt": "BDPT", "bd-vcm": "VCM"}
+    L = ["\n## Chapters 4, 5 and 6 at equal time\n",
+         "Each curve's RMSE with the reference's own MSE subtracted, interpolated (log-log, between its points, "
+         "never beyond them) at the times of VCM's points; '—' where a curve has no point on both sides or does "
+         "not resolve its error from the reference's. Wall-clock time is the plots' axis; CPU time (all threads, "
+         "whole process) is steadier on a shared machine. Targets of chapter 6: BDPT at most 1/2 of path "
+         "tracing's RMSE on gap; VCM within 1.1x of the better of BDPT and photon mapping on every scene; the "
+         "SDS region's error falling with VCM's time.\n"]
+    for scene, res in targets.items():
+        ref = refs[scene]
+        L.append(f"\n### {scene}.scene\n")
+        L.append(f"![chapters 4, 5 and 6](tradeoff-bidirectional-{scene}.png)\n")
+        L.append(f"Reference: {ref['method']}, {ref['spp']} spp as two halves, its own RMSE about "
+                 f"{ref['rmse']:.4g} ({ref['cpu_s']:.0f} CPU s).")
+        chk = reference_check(rows, refs, scene)
+        if chk and chk["z"] is not None:
+            L.append(f" Path tracing at {chk['spp']:.0f} spp (unbiased) against it: image mean {chk['pt']:.5g} "
+                     f"against {chk['reference']:.5g}, {chk['z']:+.1f} standard errors.")
+        if scene == SDS_SCENE:
+            chk = reference_check(rows, refs, scene, "region_mean")
+            if chk and chk["z"] is not None:
+                L.append(f" Over the SDS region: {chk['pt']:.5g} against {chk['reference']:.5g}, "
+                         f"{chk['z']:+.1f} standard errors (path tracing finds those paths only by hitting the "
+                         f"light: rare and large samples, so its mean there is low until it has found enough).")
+        L.append("\n")
+        for clock, name in CLOCKS.items():
+            L.append(f"\n{name}:\n")
+            L.append("| t (s) | " + " | ".join(title[cv] for cv in BD_CURVES) + " | VCM / better of BDPT, PM |")
+            L.append("|---|" + "---|" * (len(BD_CURVES) + 1))
+            for t, e in equal_time(rows, scene, clock, "bd-vcm"):
+                better = [e[cv] for cv in ("bd-bdpt", "pm") if e[cv] is not None]
+                ratio = e["bd-vcm"] / min(better) if len(better) == 2 and e["bd-vcm"] else None
+                L.append(f"| {t:.3g} | " + " | ".join(fmt(e[cv], 4) for cv in BD_CURVES) + f" | {fmt(ratio)} |")
+            r = res[clock]
+            L.append(f"\nVCM / better of BDPT and photon mapping: worst {fmt(r['vcm_worst'])}, at the longest "
+                     f"common time {fmt(r['vcm_at_longest'])} (target <= 1.1: "
+                     f"{'met' if r['vcm_worst'] is not None and r['vcm_worst'] <= 1.1 else 'not met'} at every time"
+                     f"{', met at the longest' if r['vcm_at_longest'] is not None and r['vcm_at_longest'] <= 1.1 else ''}).")
+            if "bdpt_over_pt" in r:
+                L.append(f"BDPT / path tracing at BDPT's times: " +
+                         ", ".join(f"{b['ratio']:.2f} at {b['t']:.3g} s" for b in r["bdpt_over_pt"]) +
+                         f"; median {fmt(r['bdpt_over_pt_median'])} (target <= 0.5: "
+                         f"{'met' if r['bdpt_over_pt_median'] is not None and r['bdpt_over_pt_median'] <= 0.5 else 'not met'}).")
+            if "sds_region_vcm" in r:
+                L.append("SDS region (the pixels that see the mirror or the glass ball), VCM's RMSE there: " +
+                         ", ".join(f"{p['rmse']:.4g} at {p['t']:.3g} s" for p in r["sds_region_vcm"]) +
+                         f"; slope in log-log {fmt(r['sds_region_vcm_slope'])}"
+                         f" ({'falling at every step' if r['sds_region_vcm_falls'] else 'not falling at every step'}"
+                         f"). At VCM's last time the others there: " +
+                         (", ".join(f"{title[cv]} {fmt(v, 4)}" for cv, v in r["sds_region_at_vcm_times"][-1].items()
+                                    if cv != "t") if r["sds_region_at_vcm_times"] else "—") + ".")
+    return L
 
 # --- plots --------------------------------------------------------------------------------------
 
@@ -562,7 +808,7 @@ def write_plot_data(c, rows, refs):
     data_dir = os.path.join(c["out"], "tradeoff", "data")
     os.makedirs(data_dir, exist_ok=True)
     written = {}
-    for scene in SCENES:
+    for scene in c["scenes"]:
         for curve in sorted({r["curve"] for r in rows if r["scene"] == scene}):
             pts = ok_rows(rows, scene, curve)
             if not pts:
@@ -579,8 +825,9 @@ def write_plot_data(c, rows, refs):
             pts = sorted(pts, key=lambda r: r["order"])  # sweep order
             path = os.path.join(data_dir, f"{scene}-{curve}.dat")
             with open(path, "w") as f:
-                f.write("# time_s rmse relmse ssim\n" + "".join(
-                    f"{r['time_s']:.8g} {r['rmse']:.8g} {r['relmse']:.8g} {r['ssim']:.8g}\n" for r in pts))
+                f.write("# time_s rmse relmse ssim cpu_s\n" + "".join(
+                    f"{r['time_s']:.8g} {r['rmse']:.8g} {r['relmse']:.8g} {r['ssim']:.8g} {r['cpu_s']:.8g}\n"
+                    for r in pts))
             written[(scene, curve)] = path
     return written
 
@@ -597,12 +844,13 @@ def gnuplot(script, variables):
 
 
 CURVES = [f"pt-{e}" for e in ESTIMATORS] + [f"radiosity-{s}" for s in SOLVERS] + \
-         ["whitted-depth", "whitted-weight", "local", "pm"]
+         ["whitted-depth", "whitted-weight", "local", "pm", "bd-light", "bd-bdpt", "bd-vcm"]
 CURVE_TITLE = {f"pt-{e}": f"path tracing ({e})" for e in ESTIMATORS}
 CURVE_TITLE.update({f"radiosity-{s}": f"radiosity ({s}, converged; patch sizes)" for s in SOLVERS})
 CURVE_TITLE["pm"] = "photon mapping (progressive passes)"
 CURVE_TITLE.update({"whitted-depth": "Whitted (max depth)", "whitted-weight": "Whitted (min weight)",
-                    "local": "local (light samples)"})
+                    "local": "local (light samples)", "bd-light": "light tracing (chapter 6, passes)",
+                    "bd-bdpt": "BDPT (chapter 6, passes)", "bd-vcm": "VCM (chapter 6, passes)"})
 
 
 def quoted(words):
@@ -676,10 +924,13 @@ def plots(c, rows, refs):
         return []
     data = write_plot_data(c, rows, refs)
     made = []
-    for scene in SCENES:
+    for scene in c["scenes"]:
         if scene not in refs or not ok_rows(rows, scene):
             continue
-        curves = [cv for cv in CURVES if (scene, cv) in data]
+        made += bidirectional_plot(c, rows, refs, data, scene)
+        if scene not in FULL_SCENES:
+            continue
+        curves = [cv for cv in CURVES if (scene, cv) in data and not cv.startswith("bd-")]
         # The guide N^-1/2 (RMSE ~ time^-1/2) through MIS's middle point.
         mis = sorted(ok_rows(rows, scene, "pt-mis"), key=lambda r: r["spp"])
         anchor = mis[len(mis) // 2] if mis else ok_rows(rows, scene)[0]
@@ -713,6 +964,70 @@ def plots(c, rows, refs):
                 made.append(out)
     if CAUSTIC_SCENE in refs:
         made += caustic_plot(c, rows, refs, os.path.join(c["out"], "tradeoff", "data"))
+    if SDS_SCENE in refs:
+        made += sds_region_plot(c, rows, refs, os.path.join(c["out"], "tradeoff", "data"))
+    return made
+
+
+CPU_AXIS = "CPU time (s), all threads"
+
+
+def bidirectional_plot(c, rows, refs, data, scene):
+    """Chapters 4 (MIS), 5 and 6 on one scene against CPU time: tradeoff-bidirectional-<scene>.png/.svg."""
+    curves = [cv for cv in BD_CURVES if (scene, cv) in data]
+    if not any(cv.startswith("bd-") for cv in curves):
+        return []
+    pts = [r for cv in curves for r in ok_rows(rows, scene, cv) if r["cpu_s"] > 0]
+    mis = sorted(ok_rows(rows, scene, "pt-mis"), key=lambda r: r["spp"])
+    anchor = mis[len(mis) // 2] if mis else pts[0]
+    ref = refs[scene]
+    made = []
+    for term in ("png", "svg"):
+        out = os.path.join(c["out"], f"tradeoff-bidirectional-{scene}.{term}")
+        gnuplot("errortime.gp", {
+            "term": term, "out": out,
+            "title": f"{scene}.scene, {c['size']}x{c['size']}: chapters 4, 5 and 6, error against time "
+                     f"(reference: {ref['method']}, {ref['spp']} spp)",
+            "files": " ".join(data[(scene, cv)] for cv in curves), "names": quoted(CURVE_TITLE[cv] for cv in curves),
+            "styles": " ".join(str(CURVES.index(cv) + 1) for cv in curves), "xcol": 5, "xlabel": CPU_AXIS,
+            "t0": anchor["cpu_s"], "e0": anchor["rmse"], "refrmse": ref["rmse"],
+            "tmin": min(r["cpu_s"] for r in pts) / 2, "tmax": max(r["cpu_s"] for r in pts) * 2,
+            "emin": min(min(r["rmse"] for r in pts), ref["rmse"]) / 2, "emax": max(r["rmse"] for r in pts) * 2})
+        made.append(out)
+    return made
+
+
+def sds_region_plot(c, rows, refs, data_dir):
+    """The SDS region's error against CPU time, chapters 4, 5 and 6: tradeoff-sds-region.png/.svg."""
+    series = {cv: sorted([r for r in ok_rows(rows, SDS_SCENE, cv) if r.get("caustic_rmse")], key=lambda r: r["cpu_s"])
+              for cv in BD_CURVES}
+    curves = [cv for cv in BD_CURVES if series[cv]]
+    if "bd-vcm" not in curves:
+        return []
+    files = []
+    for cv in curves:
+        path = os.path.join(data_dir, f"{SDS_SCENE}-{cv}-region.dat")
+        with open(path, "w") as f:
+            f.write("# cpu_s region_rmse\n" + "".join(f"{r['cpu_s']:.8g} {r['caustic_rmse']:.8g}\n"
+                                                      for r in series[cv]))
+        files.append(path)
+    pts = [r for cv in curves for r in series[cv]]
+    anchor = series["bd-vcm"][len(series["bd-vcm"]) // 2]
+    ref_rmse = math.sqrt(max(refs[SDS_SCENE].get("caustic_mse") or 0.0, 1e-12))
+    made = []
+    for term in ("png", "svg"):
+        out = os.path.join(c["out"], f"tradeoff-sds-region.{term}")
+        gnuplot("errortime.gp", {
+            "term": term, "out": out,
+            "title": f"{SDS_SCENE}.scene, {c['size']}x{c['size']}: error over the pixels that see the mirror or the "
+                     f"glass ball (L S .. D S .. E paths)",
+            "files": " ".join(files), "names": quoted(CURVE_TITLE[cv] for cv in curves),
+            "styles": " ".join(str(CURVES.index(cv) + 1) for cv in curves), "xlabel": CPU_AXIS,
+            "t0": anchor["cpu_s"], "e0": anchor["caustic_rmse"], "refrmse": ref_rmse,
+            "tmin": min(r["cpu_s"] for r in pts) / 2, "tmax": max(r["cpu_s"] for r in pts) * 2,
+            "emin": min(min(r["caustic_rmse"] for r in pts), ref_rmse) / 2,
+            "emax": max(r["caustic_rmse"] for r in pts) * 2})
+        made.append(out)
     return made
 
 
@@ -729,7 +1044,7 @@ def main():
     print(f"tradeoff: {'QUICK' if c['quick'] else 'full'} run, {c['size']}x{c['size']}, build {c['build']}, "
           f"output {c['out']}", flush=True)
     rows, refs = [], {}
-    for scene in SCENES:
+    for scene in c["scenes"]:
         refs[scene] = sweep_scene(run, scene, rows)
     csv_path = os.path.join(c["out"], "tradeoff.csv")
     with open(csv_path + ".tmp", "w", newline="") as f:
@@ -740,8 +1055,11 @@ def main():
     os.replace(csv_path + ".tmp", csv_path)
     with open(os.path.join(c["out"], "tradeoff", "references.json"), "w") as f:
         json.dump({"config": {k: v for k, v in c.items()}, "references": refs}, f, indent=1)
+    targets = bidirectional_targets(rows, refs, c["scenes"])
+    with open(os.path.join(c["out"], "tradeoff", "targets.json"), "w") as f:
+        json.dump(targets, f, indent=1)
     made = plots(c, rows, refs)
-    report(c, rows, refs, made)
+    report(c, rows, refs, made, targets)
     print(f"tradeoff: wrote {csv_path}, {os.path.join(c['out'], 'tradeoff.md')} and {len(made)} plots "
           f"in {time.time() - start:.0f} s", flush=True)
 
