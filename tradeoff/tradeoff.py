@@ -59,7 +59,9 @@ iterations per patch size: the discretisation floor), tradeoff-bidirectional-<sc
 and 6 on each of the four scenes), tradeoff-sds-region.png/.svg (the SDS region's error), tradeoff/ (the
 renders, their stats, the plot data, references.json and targets.json).
 
-SCENES=a,b,... runs only those of the four scenes (a partial run, for trying things out).
+SCENES=a,b,... runs only those of the four scenes (a partial run, for trying things out);
+REPORT_ONLY=1 renders nothing: it reads OUT/tradeoff.csv and OUT/tradeoff/references.json
+of an earlier run and writes the report, targets.json and the plots again.
 """
 import array
 import csv
@@ -1033,9 +1035,35 @@ def sds_region_plot(c, rows, refs, data_dir):
 
 # --- main -------------------------------------------------------------------------------------------
 
+def read_rows(c):
+    """The rows and references of an earlier run (REPORT_ONLY=1), numbers as numbers."""
+    text = ("scene", "method", "variant", "curve", "setting", "status")
+    with open(os.path.join(c["out"], "tradeoff.csv")) as f:
+        rows = list(csv.DictReader(f))
+    for i, r in enumerate(rows):
+        for k, v in r.items():
+            if k not in text:
+                r[k] = None if v == "" else (int(float(v)) if float(v).is_integer() and k != "time_s" else float(v))
+        if r.get("order") is None:
+            r["order"] = i  # rows are written in sweep order
+    with open(os.path.join(c["out"], "tradeoff", "references.json")) as f:
+        refs = json.load(f)["references"]
+    c["scenes"] = [sc for sc in c["scenes"] if sc in refs]
+    return rows, refs
+
+
 def main():
     c = config()
     start = time.time()
+    if os.environ.get("REPORT_ONLY", "") not in ("", "0"):
+        rows, refs = read_rows(c)
+        targets = bidirectional_targets(rows, refs, c["scenes"])
+        with open(os.path.join(c["out"], "tradeoff", "targets.json"), "w") as f:
+            json.dump(targets, f, indent=1)
+        made = plots(c, rows, refs)
+        report(c, rows, refs, made, targets)
+        print(f"tradeoff: report and {len(made)} plots again from {c['out']}/tradeoff.csv", flush=True)
+        return
     for ch in ("01_local", "02_whitted", "03_radiosity", "04_pathtrace"):
         if not os.access(os.path.join(ROOT, c["build"], ch), os.X_OK):
             sys.exit(f"tradeoff: {c['build']}/{ch} is missing; run make first")
