@@ -196,19 +196,21 @@ def test_weights_add_to_one_and_densities_match_sampling(ctx):
 
 def test_agrees_with_path_tracing_on_cornell_box(ctx):
     """scenes/cornell.scene against chapter 4 (MIS), by the chapters' own error bars (32 batch means,
-    31 degrees of freedom).  The probes: the chapter puts a sensor at the probe in the camera's place
-    (sensor_sample) and joins light subpaths to eye subpaths from it, by --method light (a light subpath's
-    vertices joined to the probe) and bdpt (every join, weighted by the power heuristic; vcm's probes are
-    bdpt's: one light subpath per sample is no density estimate).  Light tracing skips floor_center: it
-    stands 12 mm from the tall block's foot, and a light vertex on the block beside it joins with G ~
-    1 / d^2, a tail too heavy for 32 batches to measure (2.6 % where bdpt has 0.3 %).  The per-surface
-    mean radiances ("surfaces", --surface-samples) by bdpt only (light tracing's joins to points near a
-    room's corners have no finite variance).  Each within t_bound(31, m) combined standard errors (m = all comparisons),
-    each standard error below 1 % of the probe's value, 4 % of the surfaces' mean radiance in that
-    channel.  Then VCM's image (whose merging these do not use): the means of 2 x 2 tiles (each
-    channel) over RENDERS seeds against chapter 4's, within t_bound(RENDERS - 1, 12) combined standard
-    errors, each below 4 % of the image's mean; merging is biased by its radius, but weighted against
-    the joins it is a small part of a diffuse scene."""
+    31 degrees of freedom).  The probes: the chapter puts a sensor at the probe in the camera's
+    place (sensor_sample) and joins light subpaths to eye subpaths from it, by --method light (a
+    light subpath's vertices joined to the probe) and bdpt (every join, weighted by the power
+    heuristic; vcm's probes are bdpt's: one light subpath per sample is no density estimate).  Light
+    tracing skips floor_center: it stands 12 mm from the tall block's foot, and a light vertex on
+    the block beside it joins with G ~ 1 / d^2, a tail too heavy for 32 batches to measure (2.6 %
+    where bdpt has 0.3 %).  The per-surface mean radiances ("surfaces", --surface-samples) by bdpt
+    only (light tracing's joins to points near a room's corners have no finite variance).  Each
+    within t_bound(31, m) combined standard errors (m = all comparisons), each standard error below
+    1 % of the probe's value, and for a surface below 4 % of the surfaces' mean radiance in that
+    channel or 1 % of its own, the larger (the tall block's lit top is 5 times the mean).  Then
+    VCM's image (whose merging these do not use): the means of 2 x 2 tiles (each channel) over
+    RENDERS seeds against chapter 4's, within t_bound(RENDERS - 1, 12) combined standard errors,
+    each below 4 % of the image's mean; merging is biased by its radius, but weighted against the
+    joins it is a small part of a diffuse scene."""
     scene, size = "scenes/cornell.scene", ["--size", "4x4", "--spp", 1, "--probe-samples", 1 << 16]
     if lib.sanitizer_build(ctx):  # statistics the sanitizers make slow: the sensor's code runs, few samples
         for method in ("light", "bdpt", "vcm"):
@@ -245,7 +247,8 @@ def test_agrees_with_path_tracing_on_cornell_box(ctx):
         ref = surfaces[s["name"]]
         for c in range(3):
             expect_estimate("mean radiance", s["radiance"][c], ref["radiance"][c],
-                            math.hypot(s["standard_error"][c], ref["standard_error"][c]), bound, 0.04 * scale[c],
+                            math.hypot(s["standard_error"][c], ref["standard_error"][c]), bound,
+                            max(0.04 * scale[c], 0.01 * ref["radiance"][c]),
                             where=f"of surface {s['name']} by --method bdpt, {CHANNELS[c]}",
                             by="chapter 4's surface mean (both errors combined)", command=bdpt_image.command)
     reference, _ = tile_estimates(ctx, "04_pathtrace", scene, ["--size", "16x16", "--spp", 64,
@@ -260,7 +263,9 @@ def test_agrees_with_radiosity_on_diffuse_box(ctx):
     (the light seen directly would compare the two images' antialiasing of its edges, not the light
     transport).  The bound is grade_04's: radiosity's discretisation error at 30 mm is at most
     2 |I_60 - I_30| per tile, plus t_bound(RENDERS - 1, 48) standard errors of BDPT's mean (each
-    below 4 % of the image's mean)."""
+    below 4 % of the image's mean).  Radiosity's images take 256 samples per pixel: a pixel is the
+    mean over its square, and at 4 samples their jitter alone moved a tile by 5 % from seed to seed
+    (0.0213 and 0.0227 for one tile whose 256-sample mean is 0.0206)."""
     text = open(os.path.join(ROOT, "scenes", "cornell.scene")).read()
     room = ctx.write("room.scene", "\n".join(line for line in text.splitlines()
                                              if not line.startswith(("quad short", "quad tall", "probe"))) + "\n")
@@ -268,7 +273,7 @@ def test_agrees_with_radiosity_on_diffuse_box(ctx):
         return
     radiosity = {}
     for h in (60, 30):
-        img, _ = ctx.render("03_radiosity", room, "--size", "16x16", "--spp", 4, "--bounces", "1:", "--patch-size",
+        img, _ = ctx.render("03_radiosity", room, "--size", "16x16", "--spp", 256, "--bounces", "1:", "--patch-size",
                             h, "--tol", "1e-7", "--iterations", 10000, name=f"radiosity{h}")
         radiosity[h] = tile_values(img, 4)
     got, command = tile_estimates(ctx, CHAPTER, room, ["--size", "16x16", "--spp", 8, "--method", "bdpt",
