@@ -60,7 +60,8 @@ and 6 on each of the four scenes), tradeoff-sds-region.png/.svg (the SDS region'
 renders, their stats, the plot data, references.json and targets.json).
 
 SCENES=a,b,... runs only those of the four scenes (a partial run, for trying things out);
-REPORT_ONLY=1 renders nothing: it reads OUT/tradeoff.csv and OUT/tradeoff/references.json
+BIDIR_ONLY=1 runs on every scene only what chapter 6's comparisons need (chapter 4's MIS, chapter 5,
+chapter 6); REPORT_ONLY=1 renders nothing: it reads OUT/tradeoff.csv and OUT/tradeoff/references.json
 of an earlier run and writes the report, targets.json and the plots again.
 """
 import array
@@ -165,6 +166,7 @@ def config():
     if unknown:
         sys.exit(f"tradeoff: SCENES: unknown {','.join(unknown)} (known: {','.join(SCENES)})")
     c["scenes"] = [sc for sc in SCENES if sc in wanted] if wanted else list(SCENES)
+    c["bidir_only"] = os.environ.get("BIDIR_ONLY", "") not in ("", "0")
     return c
 
 
@@ -341,7 +343,7 @@ def sweep_scene(run, scene, rows):
     ref_path, ref_pixels, ref_info = reference(run, scene)
     print(f"[{scene}] reference: {ref_info['method']}, {ref_info['spp']} spp, estimated RMSE {ref_info['rmse']:.4g} "
           f"({time.time() - t0:.0f} s)", flush=True)
-    full = scene in FULL_SCENES
+    full = scene in FULL_SCENES and not c["bidir_only"]
     seed = [0]
 
     def add(method, variant, curve, setting, chapter, args, name, extra, repeats=None, cap=None):
@@ -432,6 +434,11 @@ def sweep_scene(run, scene, rows):
 
 # --- analysis --------------------------------------------------------------------------------
 
+def has_full_sweep(rows, scene):
+    """Whether every chapter's sweep ran on the scene (FULL_SCENES, not BIDIR_ONLY)."""
+    return scene in FULL_SCENES and any(r["scene"] == scene and r["method"] == "radiosity" for r in rows)
+
+
 def ok_rows(rows, scene=None, curve=None):
     return [r for r in rows if r["status"] == "ok" and r.get("rmse") is not None
             and (scene is None or r["scene"] == scene) and (curve is None or r["curve"] == curve)]
@@ -517,7 +524,7 @@ def report(c, rows, refs, plots, targets):
         ref = refs.get(scene)
         if ref is None:
             continue
-        full = scene in FULL_SCENES
+        full = has_full_sweep(rows, scene)
         L.append(f"\n## {scene}.scene\n")
         L.append((f"![error against time](tradeoff-{scene}.png) ![radiosity floor](tradeoff-radiosity-{scene}.png) "
                   if full else "") + f"![chapters 4, 5 and 6](tradeoff-bidirectional-{scene}.png)\n")
@@ -930,7 +937,7 @@ def plots(c, rows, refs):
         if scene not in refs or not ok_rows(rows, scene):
             continue
         made += bidirectional_plot(c, rows, refs, data, scene)
-        if scene not in FULL_SCENES:
+        if not has_full_sweep(rows, scene):
             continue
         curves = [cv for cv in CURVES if (scene, cv) in data and not cv.startswith("bd-")]
         # The guide N^-1/2 (RMSE ~ time^-1/2) through MIS's middle point.
