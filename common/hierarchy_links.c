@@ -184,8 +184,22 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
     return exposed > 0.0 ? total / exposed : 0.0;
 }
 
+/* The fraction of the rays from x to q's sample points in front of e's plane
+ * that nothing blocks (to y, q's part in front of e, when none is). */
+static double visible_from(const patch_mesh *m, const scene *s, vec3 x, const patch *ep, const patch *eq, vec3 y)
+{
+    vec3 b[4];
+    int nb = element_sample_points(m, eq, b), tested = 0, visible = 0;
+    for (int k = 0; k < nb; k++)
+        if (v3_dot(ep->normal, v3_sub(b[k], ep->centroid)) > s->epsilon) {
+            tested++;
+            visible += !scene_occluded(s, x, b[k]);
+        }
+    return tested ? (double)visible / tested : !scene_occluded(s, x, y);
+}
+
 /* The shape of link e <- q across the receiver e: its point form factor
- * times visibility (one ray to q's part in front of e) at e's corners, from points
+ * times its visible part (visible_from: rays to q's sample points) at e's corners, from points
  * EDGE_INSET of the way out extrapolated to the corners (a ray from a corner
  * itself would start on the next surface's edge), as multiples of their
  * mean; constant where no corner sees q or e is partly inside
@@ -203,8 +217,8 @@ static void shape_link(const hierarchy *h, const patch_mesh *m, const scene *s, 
     vec3 y = element_point_in_front(eq, ep->centroid, ep->normal, 4.0 * s->epsilon); /* not behind e's plane */
     for (int j = 0; j < ep->corner_count; j++) {
         vec3 x = element_toward_corner(m, ep, mean_corner, j, EDGE_INSET);
-        if (v3_dot(eq->normal, v3_sub(x, eq->centroid)) > s->epsilon && !scene_occluded(s, x, y))
-            g[j] = F(x, ep->normal, eq->corner, eq->corner_count);
+        if (v3_dot(eq->normal, v3_sub(x, eq->centroid)) > s->epsilon)
+            g[j] = F(x, ep->normal, eq->corner, eq->corner_count) * visible_from(m, s, x, ep, eq, y);
         mean += g[j] / ep->corner_count;
     }
     for (int j = 0; j < ep->corner_count; j++) {
