@@ -462,15 +462,8 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
                                    &st->stats.visibility_rays, err, err_size)) /* --formfactors F.csv */
         return 2;
     radiosity_report(&st->opt, &st->stats, st->mesh.patch_count, st->quiet);
-    st->view = (radiosity_view){&st->opt,
-                                &st->stats,
-                                s,
-                                &st->mesh,
-                                st->radiance,
-                                o->exposure,
-                                st->bounce_min == 0,
-                                st->form_factors != NULL,
-                                point_to_polygon};
+    radiosity_view_set(&st->view, &st->opt, &st->stats, s, &st->mesh, st->radiance, o, st->form_factors != NULL,
+                       point_to_polygon);
     return 0;
 }
 

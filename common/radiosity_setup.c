@@ -411,6 +411,21 @@ void radiosity_warn_row_sums(const float *F, const patch_mesh *m, const scene *s
 
 static int warned_back;
 
+void radiosity_view_set(radiosity_view *v, const radiosity_options *opt, const radiosity_stats *stats, const scene *s,
+                        const patch_mesh *m, const vec3 *radiance, const render_options *o, bool have_matrix,
+                        point_to_polygon_fn point_to_polygon)
+{
+    *v = (radiosity_view){.opt = opt,
+                          .stats = stats,
+                          .scene = s,
+                          .mesh = m,
+                          .radiance = radiance,
+                          .exposure = o->exposure,
+                          .point_lights = o->bounce_min == 0,
+                          .have_matrix = have_matrix,
+                          .point_to_polygon = point_to_polygon};
+}
+
 vec3 radiosity_view_radiance(const void *view, const scene *s, ray r, rng *g, render_counters *counters)
 {
     const radiosity_view *v = view;

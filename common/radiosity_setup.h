@@ -129,6 +129,13 @@ typedef struct {
     point_to_polygon_fn point_to_polygon;
 } radiosity_view;
 
+/* *v for a solved chapter: its options, stats, scene, mesh and L per patch;
+ * --exposure and the --bounces window from o; have_matrix: the n x n form
+ * factors were stored. */
+void radiosity_view_set(radiosity_view *v, const radiosity_options *opt, const radiosity_stats *stats, const scene *s,
+                        const patch_mesh *m, const vec3 *radiance, const render_options *o, bool have_matrix,
+                        point_to_polygon_fn point_to_polygon);
+
 /* What the camera sees: the radiance of the patch under the hit
  * (patch_mesh_seen), with a warning once when it is a patch's back. */
 vec3 radiosity_view_radiance(const void *view, const scene *s, ray r, rng *g, render_counters *counters);
