@@ -652,7 +652,7 @@ def report(c, rows, refs, plots, targets):
 # --- chapter 6 at equal time ------------------------------------------------------------------------
 
 BD_CURVES = ["pt-mis", "pm", "bd-light", "bd-bdpt", "bd-vcm"]
-CLOCKS = {"time_s": "wall-clock time", "cpu_s": "CPU time"}
+CLOCKS = {"cpu_s": "CPU time", "time_s": "wall-clock time"}
 
 
 def true_rmse(r, key="rmse", ref_mse=None):
@@ -755,27 +755,28 @@ def bidirectional_report(c, rows, refs, targets):
     L = ["\n## Chapters 4, 5 and 6 at equal time\n",
          "Each curve's RMSE with the reference's own MSE subtracted, interpolated (log-log, between its points, "
          "never beyond them) at the times of VCM's points; '—' where a curve has no point on both sides or does "
-         "not resolve its error from the reference's. Wall-clock time is the plots' axis; CPU time (all threads, "
-         "whole process) is steadier on a shared machine. Targets of chapter 6: BDPT at most 1/2 of path "
+         "not resolve its error from the reference's. CPU time (all threads, the whole process) is the plots' "
+         "axis: on a shared machine it is steadier than the wall clock, given second. Targets of chapter 6: "
+         "BDPT at most 1/2 of path "
          "tracing's RMSE on gap; VCM within 1.1x of the better of BDPT and photon mapping on every scene; the "
          "SDS region's error falling with VCM's time.\n"]
     for scene, res in targets.items():
         ref = refs[scene]
         L.append(f"\n### {scene}.scene\n")
         L.append(f"![chapters 4, 5 and 6](tradeoff-bidirectional-{scene}.png)\n")
-        L.append(f"Reference: {ref['method']}, {ref['spp']} spp as two halves, its own RMSE about "
-                 f"{ref['rmse']:.4g} ({ref['cpu_s']:.0f} CPU s).")
+        text = (f"Reference: {ref['method']}, {ref['spp']} spp as two halves, its own RMSE about "
+                f"{ref['rmse']:.4g} ({ref['cpu_s']:.0f} CPU s).")
         chk = reference_check(rows, refs, scene)
         if chk and chk["z"] is not None:
-            L.append(f" Path tracing at {chk['spp']:.0f} spp (unbiased) against it: image mean {chk['pt']:.5g} "
+            text += (f" Path tracing at {chk['spp']:.0f} spp (unbiased) against it: image mean {chk['pt']:.5g} "
                      f"against {chk['reference']:.5g}, {chk['z']:+.1f} standard errors.")
         if scene == SDS_SCENE:
             chk = reference_check(rows, refs, scene, "region_mean")
             if chk and chk["z"] is not None:
-                L.append(f" Over the SDS region: {chk['pt']:.5g} against {chk['reference']:.5g}, "
+                text += (f" Over the SDS region: {chk['pt']:.5g} against {chk['reference']:.5g}, "
                          f"{chk['z']:+.1f} standard errors (path tracing finds those paths only by hitting the "
                          f"light: rare and large samples, so its mean there is low until it has found enough).")
-        L.append("\n")
+        L.append(text)
         for clock, name in CLOCKS.items():
             L.append(f"\n{name}:\n")
             L.append("| t (s) | " + " | ".join(title[cv] for cv in BD_CURVES) + " | VCM / better of BDPT, PM |")
@@ -785,10 +786,13 @@ def bidirectional_report(c, rows, refs, targets):
                 ratio = e["bd-vcm"] / min(better) if len(better) == 2 and e["bd-vcm"] else None
                 L.append(f"| {t:.3g} | " + " | ".join(fmt(e[cv], 4) for cv in BD_CURVES) + f" | {fmt(ratio)} |")
             r = res[clock]
-            L.append(f"\nVCM / better of BDPT and photon mapping: worst {fmt(r['vcm_worst'])}, at the longest "
-                     f"common time {fmt(r['vcm_at_longest'])} (target <= 1.1: "
-                     f"{'met' if r['vcm_worst'] is not None and r['vcm_worst'] <= 1.1 else 'not met'} at every time"
-                     f"{', met at the longest' if r['vcm_at_longest'] is not None and r['vcm_at_longest'] <= 1.1 else ''}).")
+            if r["vcm_worst"] is None:
+                L.append("\nVCM / better of BDPT and photon mapping: no time where all three have points.")
+            else:
+                L.append(f"\nVCM / better of BDPT and photon mapping: worst {fmt(r['vcm_worst'])}, at the longest "
+                         f"common time {fmt(r['vcm_at_longest'])} (target <= 1.1: "
+                         f"{'met at every common time' if r['vcm_worst'] <= 1.1 else 'not met at every time'}"
+                         f"{'; met at the longest' if r['vcm_worst'] > 1.1 and r['vcm_at_longest'] <= 1.1 else ''}).")
             if "bdpt_over_pt" in r:
                 L.append(f"BDPT / path tracing at BDPT's times: " +
                          ", ".join(f"{b['ratio']:.2f} at {b['t']:.3g} s" for b in r["bdpt_over_pt"]) +
