@@ -2,19 +2,25 @@
 #
 #   make tradeoff           full sweep: 128x128, reference 2 x 8192 spp MIS, path tracing
 #                           2..2048 spp per estimator, radiosity patch size x iterations per
-#                           solver, Whitted max depth / min weight, local light samples
-#                           (about 20 minutes on 2 cores) -> out/tradeoff.csv, out/tradeoff.md,
-#                           out/tradeoff-*.png/.svg
+#                           solver, Whitted max depth / min weight, local light samples, photon
+#                           mapping over passes; chapter 6 (light tracing, BDPT, VCM over passes)
+#                           beside chapter 4's MIS and chapter 5 on cornell, cornell-spheres,
+#                           gap and sds (their references: chapter 6's BDPT on gap, VCM on sds,
+#                           2 x 512 passes) (about 30 CPU minutes: 20 minutes on 2 idle cores)
+#                           -> out/tradeoff.csv, out/tradeoff.md, out/tradeoff-*.png/.svg
 #   make tradeoff QUICK=1   the whole pipeline on a tiny budget (32x32; under a minute)
 #                           -> out/quick/...
-# Overrides (environment or make variables): SIZE, REF_SPP, PT_MAX_SPP, REPEATS, CAP, AA_SPP,
-# OUT, REUSE_REF=1 (see tradeoff/tradeoff.py).
+# Overrides (environment or make variables): SIZE, REF_SPP, REF_PASSES, PT_MAX_SPP, REPEATS, CAP,
+# AA_SPP, OUT, REUSE_REF=1, SCENES=a,b, BIDIR_ONLY=1, REPORT_ONLY=1 (see tradeoff/tradeoff.py).
 
 TRADEOFF_PACKAGES := gnuplot-nox
 
+# Then radiosity, hierarchical against uniform, on the sweep's Cornell box reference (not when a partial
+# run, SCENES without cornell, BIDIR_ONLY or REPORT_ONLY, has none).
 QUICK ?=
 .PHONY: tradeoff
 tradeoff: deps-tradeoff
 	$(MAKE) --no-print-directory all
 	QUICK=$(QUICK) BUILD=$(BUILD) $(PYTHON) tradeoff/tradeoff.py
-	QUICK=$(QUICK) BUILD=$(BUILD) $(PYTHON) tradeoff/hierarchical.py  # radiosity: hierarchical against uniform
+	case ",$${SCENES:-cornell},$${BIDIR_ONLY:-}$${REPORT_ONLY:-}" in *,cornell, | *,cornell,*,) \
+	  QUICK=$(QUICK) BUILD=$(BUILD) $(PYTHON) tradeoff/hierarchical.py ;; esac
