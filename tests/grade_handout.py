@@ -157,7 +157,7 @@ def test_handout_refuses_bad_input_and_writes_nothing(ctx):
 
 
 def assignment_rows(text):
-    return re.findall(r"^\| (\d+\.\d+) \| `(\w+)` \| `([^`:]+):(\d+)` \|", text, re.M)
+    return re.findall(r"^\| (\d+[a-z]?\.\d+) \| `(\w+)` \| `([^`:]+):(\d+)` \|", text, re.M)
 
 
 def test_assignment_points_at_the_stubs_and_computes_its_figures(ctx):
