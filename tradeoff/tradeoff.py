@@ -376,7 +376,7 @@ def sweep_scene(run, scene, rows):
                 cap=cap if e == "mis" else None)
     # Photon mapping: progressive passes (the radius shrinks by R12 each pass).
     if os.access(run.exe("05_photonmap"), os.X_OK):
-        for n in c["pm_passes"] if full else c["bd_pm_passes"]:
+        for n in c["pm_passes"] if scene in FULL_SCENES else c["bd_pm_passes"]:
             add("photonmap", "progressive", "pm", f"passes={n}", "05_photonmap",
                 ["--spp", n, "--photons", c["pm_photons"], "--probe-photons", 32], f"pm-{n}", {}, cap=cap)
     # Chapter 6: light tracing, BDPT and VCM over passes (one light subpath per pixel and pass; VCM's merging
