@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # viewer/demo.sh — `make demo`: render the Cornell box with every built
-# chapter (build/0*_*) into out/demo/ (PFM + PNG + stats JSON each, small
+# chapter (build/0*_*, 03c_hierarchical too) into out/demo/ (PFM + PNG + stats JSON each, small
 # settings: about a minute on 2 cores), then show them side by side: in a
 # window when there is a display, else as out/demo/cornell-side-by-side.png
 # (rendered headless through EGL, or OSMesa).
@@ -20,7 +20,7 @@ ref=()
 [[ -f $reference ]] && ref=(--ref "$reference")
 
 found=0
-for exe in "$build"/[0-9][0-9]_*; do
+for exe in "$build"/[0-9][0-9]*_*; do
   name=$(basename "$exe")
   [[ -f $exe && -x $exe && $name != *.* ]] || continue
   found=1
@@ -28,7 +28,8 @@ for exe in "$build"/[0-9][0-9]_*; do
     01_local)     extra=(--light-samples 16 --spp 4) ;;
     02_whitted)   extra=(--spp 4) ;;
     03_radiosity) extra=(--smooth --out "$out/cornell-$name.ply") ;;
-    04_pathtrace) extra=(--time 20) ;;
+    03c_hierarchical) extra=(--smooth --eps 4e-2 --quadrature 1) ;;
+    04_pathtrace | 06_bidirectional) extra=(--time 20) ;;
     *)            extra=(--time 10) ;;
   esac
   start=$(date +%s.%N)

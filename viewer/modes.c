@@ -194,7 +194,7 @@ static int find_chapters(const char *only_chapter, char *err, size_t err_size)
             snprintf(dir, sizeof dir, "build");
     }
     char pattern[PATH_LEN + 16];
-    snprintf(pattern, sizeof pattern, "%s/[0-9][0-9]_*", dir);
+    snprintf(pattern, sizeof pattern, "%s/[0-9][0-9]*_*", dir);
     glob_t g;
     if (glob(pattern, 0, NULL, &g) != 0)
         g.gl_pathc = 0;
@@ -219,7 +219,7 @@ static int find_chapters(const char *only_chapter, char *err, size_t err_size)
     globfree(&g);
     if (!found) {
         snprintf(err, err_size, "argv:0: no chapter executable %s in %.900s (run make first)",
-                 only_chapter ? only_chapter : "[0-9][0-9]_*", dir);
+                 only_chapter ? only_chapter : "[0-9][0-9]*_*", dir);
         return 2;
     }
     return 0;
