@@ -36,7 +36,7 @@ def make_handout(ctx, name, chapters):
     return out
 
 
-# The chapters whose objects a chapter links (Makefile: chapters/*_model.h).
+# The chapters whose objects a chapter links (the Makefile's model objects, chapters/local_model.h and the like).
 LINKS = {"02_whitted": ["01_local"], "03c_hierarchical": ["03_radiosity"], "05_photonmap": ["04_pathtrace"],
          "06_bidirectional": ["04_pathtrace", "05_photonmap"]}
 
