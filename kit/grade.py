@@ -480,6 +480,7 @@ def run_criterion(src, c, opts, images_dir):
             spec["session"] = opts["session"].client_spec()
         cmd.append(json.dumps(spec))
     scratch = os.path.join(os.path.dirname(src), "scratch")  # the tests' temporary files, removed with the grading
+    os.makedirs(scratch, exist_ok=True)  # a tree graded in place (the calibration) may have none beside it
     env = dict(os.environ, OMP_NUM_THREADS=str(opts["jobs"]), OMP_WAIT_POLICY="passive", PYTHONDONTWRITEBYTECODE="1",
                TMPDIR=scratch)
     code, out, err = run_limited(cmd, src, c.get("timeout", opts["timeout"]),

@@ -340,7 +340,7 @@ FILE_COLON = re.compile(r"`([\w./*\[\]-]+\.(?:c|h|\[ch\]|py))`:\s*([^;|]*)")
 WRITTEN_BY_RUNS = ("tests/fuzz/findings",)
 TOP_DIRS = ("chapters", "common", "kit", "docs", "tests", "slides", "viewer", "bench", "tradeoff", "scenes")
 PATH = re.compile(r"(?<![\w/.-])((?:%s)/(?:[\w./*<>-]|\[ch\])*(?:[\w*/]|\[ch\]))" % "|".join(TOP_DIRS))
-BARE_FILE = re.compile(r"(?<![\w/.<-])([\w*-]+\.(?:c|h|\[ch\]|py|scene|mk|cjs|sh))(?![/\w])")
+BARE_FILE = re.compile(r"(?<![\w/.<+-])([\w*-]+\.(?:c|h|\[ch\]|py|scene|mk|cjs|sh))(?![/\w])")
 # a file of another project: "Chen's `room.c` and `draw.c`" (a possessive earlier in the sentence)
 OTHER_PROJECTS_FILES = re.compile(r"\b[A-Z]\w*'s\s")
 # the stems of files a reader is to write: example.scene, x.scene
