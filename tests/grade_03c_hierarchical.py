@@ -32,6 +32,10 @@ def test_hierarchical_furnace_and_bounces(ctx):
     """scenes/furnace.scene by chapter 03c: every surface, pixel and leaf
     within the row-sum bounds; --bounces 0:0 is Le exactly, 1:1 is Le rho s within
     the bounds of s, and the windows 0:1 and 2: add up to 0: (the Neumann terms, R6)."""
+    # Whole solves the sanitizers make slow: the furnace, its row-sum bounds and --bounces 1:1 run
+    # there in test_hierarchical_matches_the_furnace_and_the_uniform_solve.
+    if lib.sanitizer_build(ctx):
+        return
     args = [*HIER, "--eps", 2e-2, "--levels", 6, "--size", "16x16", "--tol", 1e-10, "--iterations", 1000]
     img, stats = ctx.render(CHAPTER, "scenes/furnace.scene", *args, name="hfull")
     assert stats["solver_used"] == "hierarchical" and stats["converged"]
@@ -113,6 +117,10 @@ def test_hierarchical_second_pass_follows_the_light(ctx):
     pass's (measured: 7.6 % one pass, 1.7 % two).  Both are measured against the
     same path-traced means, so its noise (about 0.3 % per surface at 2^18 walks)
     adds the same floor to both; a second pass that changed nothing would fail."""
+    # Whole solves the sanitizers make slow: the second pass (--eps-spread, the default) runs there in
+    # test_hierarchical_matches_the_furnace_and_the_uniform_solve's furnace.
+    if lib.sanitizer_build(ctx):
+        return
     common = ["--size", "8x8", "--tol", 1e-6, *HIER, "--eps", 4e-2]
     _, traced = ctx.render("04_pathtrace", "scenes/cornell.scene", "--size", "8x8", "--spp", 1,
                            "--surface-samples", 1 << 18, "--probe-samples", 32, name="pt2")
@@ -138,6 +146,10 @@ def test_hierarchical_tiny_bright_light(ctx):
     links (uncapped it passed the 40 M link limit) and agrees with path tracing per
     surface within the bound of the agreement test above, 0.5 sqrt(eps) of the
     surface's radiance plus the scene's mean, and 4 standard errors."""
+    # Whole solves the sanitizers make slow: the second pass's brightness runs there in
+    # test_hierarchical_matches_the_furnace_and_the_uniform_solve's furnace (the cap is a min).
+    if lib.sanitizer_build(ctx):
+        return
     eps = 2e-2
     args = ["--size", "8x8", "--quadrature", 1, "--eps", eps, "--eps-spread", 7e-4]
     _, small = ctx.render(CHAPTER, "scenes/cornell-small-light.scene", *args, name="small")
