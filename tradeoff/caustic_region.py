@@ -121,7 +121,106 @@ def sds_region(width, height, scene_path=None):
     return region
 
 
+SDS_CAUSTIC_RADIUS = 150.0  # mm around the focus, seen in the mirror: the caustic (about 30 mm) and its halo
+LIGHT_IMAGE_MARGIN = 1      # pixels around the light's image in the mirror left out too (its jittered edge)
+
+
+def _light_rect(path):
+    """(y, x_min, x_max, z_min, z_max) of the scene's light quad (horizontal, facing down)."""
+    with open(path) as f:
+        for line in f:
+            w = line.split("#", 1)[0].split()
+            if w and w[0] == "quad" and w[1] == "light":
+                v = [float(x) for x in w[3:15]]
+                return v[1], min(v[0::3]), max(v[0::3]), min(v[2::3]), max(v[2::3])
+    return None
+
+
+def _light_image_pixel(eye, forward, right, true_up, half, width, height, mirror, light):
+    """The pixel (x, y) that sees the light's centre in the mirror ball: the point P on the ball whose normal
+    halves the angle between the eye and the light (the law of reflection), found by iteration, projected."""
+    c, r = mirror[:3], mirror[3]
+    n = _unit(_sub(eye, c))
+    for _ in range(100):
+        p = [c[k] + r * n[k] for k in range(3)]
+        n = _unit([a + b for a, b in zip(_unit(_sub(eye, p)), _unit(_sub(light, p)))])
+    d = _sub([c[k] + r * n[k] for k in range(3)], eye)
+    depth = _dot(d, forward)
+    sx, sy = _dot(d, right) / depth, _dot(d, true_up) / depth
+    return (int((sx / (half * width / height) + 1) / 2 * width), int((1 - sy / half) / 2 * height))
+
+
+def sds_mirror_regions(width, height, scene_path=None, sub=4, light_sub=16):
+    """The SDS region of sds.scene as seen in the mirror ball, by geometry (sub x sub rays per pixel, no
+    image):
+      "mirror":  the pixels every one of whose rays hits the mirror ball (no pixel on the ball's rim),
+                 less the light's image: a pixel any of whose reflected rays hits the light quad, and its
+                 LIGHT_IMAGE_MARGIN neighbours (paths E S L: only an eye path that hits the 13 mm light
+                 renders them, a pixel half on it is the noisiest in the image, and they are no caustic);
+      "caustic": those of them any of whose reflected rays reaches the floor, past the glass ball, within
+                 SDS_CAUSTIC_RADIUS of the glass ball's focus: the caustic L S S D S E itself;
+      "light":   the light's image left out (with its margin; light_sub x light_sub rays a pixel look for
+                 it: at 128 x 128 it is smaller than a pixel).
+    Each a list of (x, y), top row 0."""
+    scene_path = scene_path or os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                            "scenes", "sds.scene")
+    camera, glass, _ = _scene_numbers(scene_path)
+    mirror = _scene_numbers(scene_path, "mirror_ball")[1]
+    ly, x0, x1, z0, z1 = _light_rect(scene_path)
+    f = focus(scene_path)
+    eye, look, up, fov = camera[0:3], camera[3:6], camera[6:9], camera[9]
+    forward = _unit(_sub(look, eye))
+    right = _unit(_cross(forward, up))
+    true_up = _cross(right, forward)
+    half = math.tan(math.radians(fov) / 2)
+    inside, light, caustic = set(), set(), set()
+
+    def _pixel_rays(px, py, n):
+        """(direction, distance to the mirror ball or None) of n x n rays through pixel (px, py)."""
+        out = []
+        for j in range(n):
+            for i in range(n):
+                sx = (2 * (px + (i + 0.5) / n) / width - 1) * half * width / height
+                sy = (1 - 2 * (py + (j + 0.5) / n) / height) * half
+                d = _unit([forward[k] + sx * right[k] + sy * true_up[k] for k in range(3)])
+                out.append((d, _sphere_hit(eye, d, mirror)))
+        return out
+    for py in range(height):
+        for px in range(width):
+            hits = _pixel_rays(px, py, sub)
+            if all(t is None for _, t in hits):
+                continue
+            if all(t is not None for _, t in hits):
+                inside.add((px, py))
+            for d, t in hits + ([] if light_sub == sub else _pixel_rays(px, py, light_sub)):
+                if t is None:
+                    continue  # a ray past the ball's rim
+                p = [eye[k] + t * d[k] for k in range(3)]
+                n = _unit(_sub(p, mirror[:3]))
+                r = [d[k] - 2 * _dot(d, n) * n[k] for k in range(3)]
+                if r[1] > 0:
+                    q = [p[k] + (ly - p[1]) / r[1] * r[k] for k in range(3)]
+                    if x0 <= q[0] <= x1 and z0 <= q[2] <= z1:
+                        light.add((px, py))
+                elif r[1] < 0:
+                    t_floor = -p[1] / r[1]
+                    t_glass = _sphere_hit(p, r, glass)
+                    q = [p[k] + t_floor * r[k] for k in range(3)]
+                    if (t_glass is None or t_glass > t_floor) and \
+                            (q[0] - f[0]) ** 2 + (q[2] - f[2]) ** 2 <= SDS_CAUSTIC_RADIUS ** 2:
+                        caustic.add((px, py))
+    light.add(_light_image_pixel(eye, forward, right, true_up, half, width, height, mirror,
+                                 [(x0 + x1) / 2, ly, (z0 + z1) / 2]))
+    near = {(x + dx, y + dy) for x, y in light for dx in range(-LIGHT_IMAGE_MARGIN, LIGHT_IMAGE_MARGIN + 1)
+            for dy in range(-LIGHT_IMAGE_MARGIN, LIGHT_IMAGE_MARGIN + 1)}
+    keep = sorted(inside - near, key=lambda p: (p[1], p[0]))
+    return {"mirror": keep, "caustic": [p for p in keep if p in caustic],
+            "light": sorted(near & inside, key=lambda p: (p[1], p[0]))}
+
+
 if __name__ == "__main__":
     reg = caustic_region(32, 32)
     print(len(reg), reg)
     print(len(sds_region(32, 32)), "pixels of the SDS region of sds.scene at 32 x 32")
+    for size in (64, 128):
+        print(size, {k: len(v) for k, v in sds_mirror_regions(size, size).items()})
