@@ -33,7 +33,7 @@ static bool keeps_length(const bidir_state *st, const path_vertex *x, int k)
 }
 
 static vec3 unit(vec3 from, vec3 to) { return v3_normalize(v3_sub(to, from)); }
-static bool at_specular(const path_vertex *p) { return p->kind == AT_SURFACE && is_specular(p->m); }
+static bool at_specular(const path_vertex *p) { return p->specular; } /* is_specular(m) where it was made */
 
 /* |cos| between the normal at p and w; 1 at the camera and a point light (they have no surface). */
 static double cos_at(const path_vertex *p, vec3 w) { return p->kind == AT_SURFACE ? fabs(v3_dot(p->n, w)) : 1.0; }
@@ -70,7 +70,7 @@ static int extend(const scene *s, path_vertex *p, int count, int cap, vec3 alpha
         if (!scene_intersect(s, (ray){scene_offset_origin(s, p[count - 1].x, p[count - 1].n, w), w}, INFINITY, &h))
             return count;
         const material *m = material_of(s, h.surface);
-        p[count] = (path_vertex){h.point, h.normal, alpha, m, AT_SURFACE, h.surface, count, p[0].path};
+        p[count] = (path_vertex){h.point, h.normal, alpha, m, AT_SURFACE, h.surface, count, p[0].path, is_specular(m)};
         vertex v = vertex_at(h.point, h.normal, v3_neg(w), m);
         vec3 w_i;
         double pdf;
@@ -413,7 +413,7 @@ static vec3 sensor_sample(const void *state_pointer, const scene *s, vec3 x, vec
 {
     const bidir_state *st = state_pointer;
     path_vertex y[MAX_VERTICES], z[MAX_VERTICES] = {{.x = v3_add(x, w_o), .kind = AT_SENSOR, .surface = k},
-                                                    {x, n, v3_splat(1.0), m, AT_SURFACE, -1, 1, 0}};
+                                                    {x, n, v3_splat(1.0), m, AT_SURFACE, -1, 1, 0, is_specular(m)}};
     uint64_t *rays = &counters->value[COUNT_PROBE_RAYS];
     int light_count = light_subpath(st, s, 0, g, y, rays, true), t_count = 2;
     vertex v = vertex_at(x, n, w_o, m);

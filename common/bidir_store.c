@@ -95,12 +95,16 @@ static int join_chunks(bidir_state *st, chunk *chunks, int n)
     size_t total = 0;
     for (int c = 0; c < n; c++)
         total += chunks[c].vertex_count;
-    path_vertex *all = realloc(st->light_vertices, (total + 1) * sizeof *all);
-    if (all)
-        st->light_vertices = all;
+    if (total + 1 > st->light_vertex_capacity) {
+        path_vertex *all = realloc(st->light_vertices, 2 * (total + 1) * sizeof *all);
+        if (!all)
+            return 2;
+        st->light_vertices = all, st->light_vertex_capacity = 2 * (total + 1);
+    }
+    path_vertex *all = st->light_vertices;
     memset(st->light_image, 0, (size_t)st->light_paths * sizeof *st->light_image);
     for (int c = 0, base = 0; c < n; base += (int)chunks[c].vertex_count, c++) {
-        if (all && chunks[c].vertex_count > 0)
+        if (chunks[c].vertex_count > 0)
             memcpy(all + base, chunks[c].vertices, chunks[c].vertex_count * sizeof *all);
         for (int p = c * CHUNK; p < st->light_paths && p < (c + 1) * CHUNK; p++)
             st->path_first[p] += base;
@@ -108,19 +112,22 @@ static int join_chunks(bidir_state *st, chunk *chunks, int n)
             st->light_image[chunks[c].splats[i].pixel] =
                 v3_add(st->light_image[chunks[c].splats[i].pixel], chunks[c].splats[i].value);
         st->light_rays += chunks[c].rays;
-        free(chunks[c].vertices), free(chunks[c].splats);
     }
     photon_grid_free(&st->grid);
-    if (!all)
-        return 2;
     return st->merge ? photon_grid_build(&st->grid, &all[0].x, sizeof *all, total, st->current_radius) : 0;
 }
 
+static int chunk_count(const bidir_state *st) { return (st->light_paths + CHUNK - 1) / CHUNK; }
+
 int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *trace, char *err, size_t err_size)
 {
-    int n = (st->light_paths + CHUNK - 1) / CHUNK, failed = 0;
-    chunk *chunks = calloc((size_t)n, sizeof *chunks);
+    int n = chunk_count(st), failed = 0;
+    if (!st->chunks)
+        st->chunks = calloc((size_t)n, sizeof *st->chunks);
+    chunk *chunks = st->chunks;
     bool needed = !(st->single_strategy && st->strategy_s == 0); /* no strategy reads light subpaths */
+    for (int c = 0; chunks && c < n; c++)
+        chunks[c].vertex_count = chunks[c].splat_count = 0, chunks[c].rays = 0;
     if (chunks && needed && s->emitter_count + s->light_count > 0) {
 #pragma omp parallel for schedule(dynamic, 1) reduction(| : failed)
         for (int c = 0; c < n; c++)
@@ -128,7 +135,6 @@ int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *tra
                 failed |= trace(st, s, pass, p, &chunks[c]);
     }
     failed |= !chunks || join_chunks(st, chunks, n);
-    free(chunks);
     if (!failed)
         return 0;
     snprintf(err, err_size, "argv:0: out of memory for the light subpaths of pass %d", pass);
@@ -275,7 +281,10 @@ void bidir_finish(void *state)
     bidir_state *st = state;
     photon_grid_free(&st->grid);
     free(st->light_probability), free(st->path_first), free(st->path_count), free(st->light_image);
-    free(st->light_vertices), free(st->surface_averages);
+    for (int c = 0; st->chunks && c < chunk_count(st); c++)
+        free(st->chunks[c].vertices), free(st->chunks[c].splats);
+    free(st->chunks), free(st->light_vertices), free(st->surface_averages);
+    st->chunks = NULL;
     st->surface_averages = NULL, st->light_probability = NULL, st->light_vertices = NULL, st->light_image = NULL;
     st->path_first = st->path_count = NULL;
 }

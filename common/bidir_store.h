@@ -33,6 +33,7 @@ typedef struct {
     const material *m; /* NULL at the camera and a point light */
     int kind, surface; /* vertex_kind; the surface, the point light's number, or (a sensor) the bounce at its point */
     int index, path;   /* its place in its subpath, and (light subpaths) which one of the pass */
+    bool specular;     /* on a mirror or glass (f a delta): asked so often that it is kept */
 } path_vertex;
 
 typedef struct {
@@ -41,6 +42,20 @@ typedef struct {
     double pixel_area;  /* of one pixel on that plane */
     int width, height;
 } pinhole;
+
+/* A chunk of light subpaths, traced by one thread: their vertices, and light
+ * tracing's values for pixels.  Kept from pass to pass (emptied, not freed):
+ * fresh memory every pass cost more than the tracing (page faults). */
+typedef struct {
+    int pixel;
+    vec3 value;
+} splat;
+typedef struct {
+    path_vertex *vertices;
+    splat *splats;
+    size_t vertex_count, vertex_capacity, splat_count, splat_capacity;
+    uint64_t rays;
+} chunk;
 
 /* A chapter's answer to "is this material a mirror or glass?" */
 typedef bool specular_test(const material *m);
@@ -68,6 +83,8 @@ struct bidir_state {
     double current_radius;
     int light_paths, passes; /* per pass: one per pixel */
     path_vertex *light_vertices;
+    size_t light_vertex_capacity;
+    chunk *chunks; /* the pass's chunks of light subpaths (light_pass) */
     int *path_first, *path_count;              /* light subpath p: light_vertices[path_first[p]] ... */
     vec3 *light_image;                         /* this pass's light tracing (t = 1), one value per pixel */
     photon_grid grid;                          /* over light_vertices */
@@ -84,19 +101,6 @@ extern const option BIDIR_OPTIONS[];
  * subpath cut at MAX_VERTICES (warned once).  Thread-safe. */
 void note_dropped_path(void);
 void note_truncated_walk(void);
-
-/* A chunk of light subpaths, traced by one thread: their vertices, and light
- * tracing's values for pixels. */
-typedef struct {
-    int pixel;
-    vec3 value;
-} splat;
-typedef struct {
-    path_vertex *vertices;
-    splat *splats;
-    size_t vertex_count, vertex_capacity, splat_count, splat_capacity;
-    uint64_t rays;
-} chunk;
 
 /* 0, or 2 when out of memory. */
 int chunk_add_vertices(chunk *c, const path_vertex *v, int n);
