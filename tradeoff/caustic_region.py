@@ -10,8 +10,11 @@ through its centre hits the floor (y = 0) within CAUSTIC_RADIUS of the focus wit
 hitting the ball first.  The scene file gives the camera, the ball and the light.
 Standard library only (used by tradeoff.py and bench/bench_05_photonmap.py).
 """
+import hashlib
+import json
 import math
 import os
+import tempfile
 
 CAUSTIC_RADIUS = 80.0  # mm: the bright core of the caustic and its falloff (the ball's radius is 100)
 
@@ -123,6 +126,7 @@ def sds_region(width, height, scene_path=None):
 
 SDS_CAUSTIC_RADIUS = 150.0  # mm around the focus, seen in the mirror: the caustic (about 30 mm) and its halo
 LIGHT_IMAGE_MARGIN = 1      # pixels around the light's image in the mirror left out too (its jittered edge)
+REGION_VERSION = 1          # part of sds_mirror_regions' cache key: raise it when the rule changes
 
 
 def _light_rect(path):
@@ -134,6 +138,38 @@ def _light_rect(path):
                 v = [float(x) for x in w[3:15]]
                 return v[1], min(v[0::3]), max(v[0::3]), min(v[2::3]), max(v[2::3])
     return None
+
+
+def _refract(d, n, eta):
+    """d refracted at a surface of normal n (against d) with eta = n_from / n_to, or None (total reflection)."""
+    c = -_dot(d, n)
+    k = 1 - eta * eta * (1 - c * c)
+    return None if k < 0 else _unit([eta * d[i] + (eta * c - math.sqrt(k)) * n[i] for i in range(3)])
+
+
+def _sees_light(origin, d, mirror, glass, rect, depth=6):
+    """Whether the ray reaches the light quad rect = (y, x0, x1, z0, z1) through mirror and glass alone (E S.. L),
+    following both the reflected and the refracted ray at the glass (index 1.5), up to depth specular bounces."""
+    hits = [(t, ball) for ball in (mirror, glass) for t in [_sphere_hit(origin, d, ball)] if t is not None]
+    t_ball, ball = min(hits) if hits else (math.inf, None)
+    if d[1] > 0:
+        t = (rect[0] - origin[1]) / d[1]
+        q = [origin[i] + t * d[i] for i in range(3)]
+        if t < t_ball and rect[1] <= q[0] <= rect[2] and rect[3] <= q[2] <= rect[4]:
+            return True
+    if ball is None or depth == 0:
+        return False
+    p = [origin[i] + t_ball * d[i] for i in range(3)]
+    n = _unit(_sub(p, ball[:3]))
+    entering = _dot(d, n) < 0
+    n = n if entering else [-x for x in n]
+    reflected = [d[i] - 2 * _dot(d, n) * n[i] for i in range(3)]
+    if _sees_light(p, reflected, mirror, glass, rect, depth - 1):
+        return True
+    if ball is glass:
+        refracted = _refract(d, n, 1 / 1.5 if entering else 1.5)
+        return refracted is not None and _sees_light(p, refracted, mirror, glass, rect, depth - 1)
+    return False
 
 
 def _light_image_pixel(eye, forward, right, true_up, half, width, height, mirror, light):
@@ -150,20 +186,43 @@ def _light_image_pixel(eye, forward, right, true_up, half, width, height, mirror
     return (int((sx / (half * width / height) + 1) / 2 * width), int((1 - sy / half) / 2 * height))
 
 
-def sds_mirror_regions(width, height, scene_path=None, sub=4, light_sub=16):
+def sds_mirror_regions(width, height, scene_path=None, sub=4, light_sub=None):
+    """sds_mirror_regions_traced's answer, kept in a file of the temporary directory under the hash of the scene
+    and the arguments (the fine rays that find the light's images take seconds in Python)."""
+    scene_path = scene_path or os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                                            "scenes", "sds.scene")
+    with open(scene_path, "rb") as f:
+        key = hashlib.sha1(f.read() + repr((width, height, sub, light_sub, REGION_VERSION)).encode()).hexdigest()
+    path = os.path.join(tempfile.gettempdir(), f"sds-regions-{key}.json")
+    try:
+        with open(path) as f:
+            return {k: [tuple(p) for p in v] for k, v in json.load(f).items()}
+    except (OSError, ValueError):
+        pass
+    found = sds_mirror_regions_traced(width, height, scene_path, sub, light_sub)
+    with open(path + f".{os.getpid()}", "w") as f:
+        json.dump(found, f)
+    os.replace(path + f".{os.getpid()}", path)
+    return found
+
+
+def sds_mirror_regions_traced(width, height, scene_path=None, sub=4, light_sub=None):
     """The SDS region of sds.scene as seen in the mirror ball, by geometry (sub x sub rays per pixel, no
     image):
       "mirror":  the pixels every one of whose rays hits the mirror ball (no pixel on the ball's rim),
                  less the light's image: a pixel any of whose reflected rays hits the light quad, and its
-                 LIGHT_IMAGE_MARGIN neighbours (paths E S L: only an eye path that hits the 13 mm light
-                 renders them, a pixel half on it is the noisiest in the image, and they are no caustic);
+                 LIGHT_IMAGE_MARGIN neighbours: every image of the light the mirror shows, directly or
+                 through the glass ball (paths E S .. S L, _sees_light: only an eye path that hits the
+                 13 mm light renders them, rare and huge samples: the noisiest pixels of the image, and
+                 no caustic);
       "caustic": those of them any of whose reflected rays reaches the floor, past the glass ball, within
                  SDS_CAUSTIC_RADIUS of the glass ball's focus: the caustic L S S D S E itself;
-      "light":   the light's image left out (with its margin; light_sub x light_sub rays a pixel look for
-                 it: at 128 x 128 it is smaller than a pixel).
+      "light":   the light's images left out (with their margin; light_sub x light_sub rays a pixel look
+                 for them: at 128 x 128 they are smaller than a pixel).
     Each a list of (x, y), top row 0."""
     scene_path = scene_path or os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
                                             "scenes", "sds.scene")
+    light_sub = light_sub or max(16, 2048 // width)  # rays 1/16 of a pixel of 128 x 128 apart at any size
     camera, glass, _ = _scene_numbers(scene_path)
     mirror = _scene_numbers(scene_path, "mirror_ball")[1]
     ly, x0, x1, z0, z1 = _light_rect(scene_path)
@@ -198,10 +257,8 @@ def sds_mirror_regions(width, height, scene_path=None, sub=4, light_sub=16):
                 p = [eye[k] + t * d[k] for k in range(3)]
                 n = _unit(_sub(p, mirror[:3]))
                 r = [d[k] - 2 * _dot(d, n) * n[k] for k in range(3)]
-                if r[1] > 0:
-                    q = [p[k] + (ly - p[1]) / r[1] * r[k] for k in range(3)]
-                    if x0 <= q[0] <= x1 and z0 <= q[2] <= z1:
-                        light.add((px, py))
+                if _sees_light(p, r, mirror, glass, (ly, x0, x1, z0, z1)):
+                    light.add((px, py))
                 elif r[1] < 0:
                     t_floor = -p[1] / r[1]
                     t_glass = _sphere_hit(p, r, glass)

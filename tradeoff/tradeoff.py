@@ -43,8 +43,10 @@ own long runs, as two halves the same way: BDPT on gap (unbiased; path tracing
 needs hours there) and VCM on sds (the only method that renders its L S .. D S .. E
 paths in minutes; consistent, as the merging radius shrinks with the passes,
 but its remaining bias is not in the halves' difference).  On sds, caustic_rmse
-is the RMSE over the pixels that see the mirror or the glass ball
-(caustic_region.sds_region).  The report and targets.json compare the methods at
+is the RMSE over the caustic seen in the mirror (caustic_region.sds_mirror_regions,
+its "caustic"), and in a full run (not QUICK; SDS_CONVERGENCE=0 skips it)
+tradeoff/sds_convergence.py then measures that region properly (a reference
+extrapolated from two merging radii, variance and bias apart) into OUT/sds/.  The report and targets.json compare the methods at
 equal time (each curve interpolated in log-log at the others' times, the
 reference's MSE subtracted), in wall-clock time (time_s, the plots' axis) and in
 CPU time (cpu_s, what the children used: steadier on a shared machine); the
@@ -56,7 +58,7 @@ Outputs (OUT/): tradeoff.csv, tradeoff.md, tradeoff-<scene>.png/.svg (error
 against time, log-log; cornell and cornell-spheres), tradeoff-caustic-cornell-spheres.png/.svg (the caustic
 region's error against time: path tracing and photon mapping), tradeoff-radiosity-<scene>.png/.svg (error against
 iterations per patch size: the discretisation floor), tradeoff-bidirectional-<scene>.png/.svg (chapters 4, 5
-and 6 on each of the four scenes), tradeoff-sds-region.png/.svg (the SDS region's error), tradeoff/ (the
+and 6 on each of the four scenes), sds/tradeoff-sds-region.png/.svg (sds_convergence.py), tradeoff/ (the
 renders, their stats, the plot data, references.json and targets.json).
 
 SCENES=a,b,... runs only those of the four scenes (a partial run, for trying things out);
@@ -79,7 +81,7 @@ import time
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from caustic_region import sds_region, caustic_region  # noqa: E402
+from caustic_region import sds_mirror_regions, caustic_region  # noqa: E402
 
 sys.path.insert(0, os.path.join(os.path.dirname(HERE), "tests"))
 import pfm  # noqa: E402  (tests/pfm.py: the one PFM reader of the Python tools)
@@ -87,7 +89,7 @@ import pfm  # noqa: E402  (tests/pfm.py: the one PFM reader of the Python tools)
 CAUSTIC_SCENE = "cornell-spheres"
 SDS_SCENE = "sds"
 # The scenes with a region whose error is measured apart (caustic_rmse).
-REGIONS = {CAUSTIC_SCENE: caustic_region, SDS_SCENE: sds_region}
+REGIONS = {CAUSTIC_SCENE: caustic_region, SDS_SCENE: lambda w, h: sds_mirror_regions(w, h)["caustic"]}
 
 SCENES = ["cornell", "cornell-spheres", "gap", "sds"]
 # Every chapter's sweep runs on these; on the others only chapters 4 (MIS), 5 and 6.
@@ -188,9 +190,15 @@ def write_pfm(path, width, height, pixels):
     os.replace(tmp, path)
 
 
+_region_index = {}  # (width, height, scene) -> caustic_index's answer: the geometry takes seconds
+
+
 def caustic_index(width, height, scene=CAUSTIC_SCENE):
     """Float offsets, in a PFM (bottom row first), of the pixels of the scene's region (REGIONS)."""
-    return [3 * ((height - 1 - y) * width + x) for x, y in REGIONS[scene](width, height)]
+    key = (width, height, scene)
+    if key not in _region_index:
+        _region_index[key] = [3 * ((height - 1 - y) * width + x) for x, y in REGIONS[scene](width, height)]
+    return _region_index[key]
 
 
 def region_average(a, index):
@@ -799,7 +807,8 @@ def bidirectional_report(c, rows, refs, targets):
                          f"; median {fmt(r['bdpt_over_pt_median'])} (target <= 0.5: "
                          f"{'met' if r['bdpt_over_pt_median'] is not None and r['bdpt_over_pt_median'] <= 0.5 else 'not met'}).")
             if "sds_region_vcm" in r:
-                L.append("SDS region (the pixels that see the mirror or the glass ball), VCM's RMSE there: " +
+                L.append("SDS region (the caustic seen in the mirror; its proper measurement: sds/sds-convergence.md), "
+                         "VCM's RMSE there: " +
                          ", ".join(f"{p['rmse']:.4g} at {p['t']:.3g} s" for p in r["sds_region_vcm"]) +
                          f"; slope in log-log {fmt(r['sds_region_vcm_slope'])}"
                          f" ({'falling at every step' if r['sds_region_vcm_falls'] else 'not falling at every step'}"
@@ -807,6 +816,72 @@ def bidirectional_report(c, rows, refs, targets):
                          (", ".join(f"{title[cv]} {fmt(v, 4)}" for cv, v in r["sds_region_at_vcm_times"][-1].items()
                                     if cv != "t") if r["sds_region_at_vcm_times"] else "—") + ".")
     return L
+
+def target_lines(targets, refs, clock="cpu_s"):
+    """The issue's targets as lines of text, from targets.json (this run's rows, one reference a scene for every
+    method), at equal CPU time: BDPT / path tracing on gap at BDPT's times (the median of them is the figure);
+    VCM / the better of BDPT and photon mapping at VCM's times (the figure: at the longest time all three
+    reach, beside the worst of all those times)."""
+    def verdict(v, bound):
+        return "met" if v is not None and v <= bound else "not met"
+    L = []
+    for scene, res in targets.items():
+        r = res.get(clock) or {}
+        ref = f"reference {refs[scene]['method']}, {refs[scene]['spp']} spp"
+        if r.get("bdpt_over_pt"):
+            pts = ", ".join(f"{b['ratio']:.2f} at {b['t']:.3g} s" for b in r["bdpt_over_pt"])
+            L.append(f"target {scene} BDPT/PT = {r['bdpt_over_pt_median']:.2f} (<= 0.5: "
+                     f"{verdict(r['bdpt_over_pt_median'], 0.5)}): the median at equal CPU time over BDPT's "
+                     f"{len(r['bdpt_over_pt'])} times ({pts}); {ref}")
+        if r.get("vcm_over_better"):
+            last = r["vcm_over_better"][-1]
+            pts = ", ".join(f"{v['ratio']:.2f} at {v['t']:.3g} s" for v in r["vcm_over_better"])
+            L.append(f"target {scene} VCM/min(BDPT,PM) = {last['ratio']:.2f} at {last['t']:.3g} CPU s, the longest "
+                     f"time all three reach (<= 1.1: {verdict(last['ratio'], 1.1)}; worst of {len(r['vcm_over_better'])}"
+                     f" times {r['vcm_worst']:.2f}: {'met' if r['vcm_worst'] <= 1.1 else 'not met'} at every "
+                     f"time; {pts}); {ref}")
+        elif res.get(clock) is not None:
+            L.append(f"target {scene} VCM/min(BDPT,PM): no CPU time where VCM, BDPT and photon mapping all have "
+                     f"points resolved above the reference's error")
+    return L
+
+
+SDS_SLOPE_MET = -0.25  # VCM's RMSE in the SDS caustic must fall at least like t^-1/4 (R12 with alpha 2/3: t^-1/3)
+
+
+def sds_convergence(c):
+    """tradeoff/sds_convergence.py into OUT/sds (the same build and size; QUICK stays quick)."""
+    env = dict(os.environ, OUT=os.path.join(c["out"], "sds"), BUILD=c["build"], SIZE=str(c["size"]),
+               QUICK="1" if c["quick"] else "")
+    if c["quick"]:
+        env.setdefault("SDS_REF_PASSES", "32")
+    subprocess.run([sys.executable, os.path.join(HERE, "sds_convergence.py")], cwd=ROOT, env=env, check=True,
+                   stdout=subprocess.DEVNULL)
+
+
+def sds_target_line(out):
+    """The issue's third target from OUT/sds/sds-convergence.json: VCM's RMSE in the SDS caustic seen in the
+    mirror against CPU time (slope of the log-log fit over its budgets), beside BDPT's and path tracing's."""
+    path = os.path.join(out, "sds", "sds-convergence.json")
+    if not os.path.exists(path):
+        return []
+    with open(path) as f:
+        got = json.load(f)
+    vcm = [r for r in got["rows"] if r["method"] == "vcm" and r["caustic"]["rmse"]]
+    slope = (got["fits"].get("caustic vcm") or [None])[0]
+    if slope is None or len(vcm) < 2:
+        return ["target sds VCM converging in the SDS caustic: not resolved (fewer than 2 points above the "
+                "reference's noise)"]
+    met = slope <= SDS_SLOPE_MET and vcm[-1]["caustic"]["rmse"] < vcm[0]["caustic"]["rmse"] / 2
+    others = "; ".join(f"{lb} {r['caustic']['rmse']:.2g} (its bias {r['caustic']['bias'] or 0:.2g})"
+                       for lb in ("ppm", "bdpt", "pt")
+                       for r in [[x for x in got["rows"] if x["method"] == lb][-1]] if r["caustic"]["rmse"])
+    return [f"target sds VCM converging in the SDS caustic = slope {slope:.2f} of log RMSE on log CPU time over "
+            f"{len(vcm)} budgets ({vcm[0]['cpu_s']:.3g} to {vcm[-1]['cpu_s']:.3g} s, RMSE "
+            f"{vcm[0]['caustic']['rmse']:.2g} to {vcm[-1]['caustic']['rmse']:.2g}; <= {SDS_SLOPE_MET} and halved: "
+            f"{'met' if met else 'not met'}; R12's alpha 2/3 predicts -1/3 or steeper); at their longest runs: "
+            f"{others}; {out}/sds/sds-convergence.md"]
+
 
 # --- plots --------------------------------------------------------------------------------------
 
@@ -977,8 +1052,6 @@ def plots(c, rows, refs):
                 made.append(out)
     if CAUSTIC_SCENE in refs:
         made += caustic_plot(c, rows, refs, os.path.join(c["out"], "tradeoff", "data"))
-    if SDS_SCENE in refs:
-        made += sds_region_plot(c, rows, refs, os.path.join(c["out"], "tradeoff", "data"))
     return made
 
 
@@ -1006,40 +1079,6 @@ def bidirectional_plot(c, rows, refs, data, scene):
             "t0": anchor["cpu_s"], "e0": anchor["rmse"], "refrmse": ref["rmse"],
             "tmin": min(r["cpu_s"] for r in pts) / 2, "tmax": max(r["cpu_s"] for r in pts) * 2,
             "emin": min(min(r["rmse"] for r in pts), ref["rmse"]) / 2, "emax": max(r["rmse"] for r in pts) * 2})
-        made.append(out)
-    return made
-
-
-def sds_region_plot(c, rows, refs, data_dir):
-    """The SDS region's error against CPU time, chapters 4, 5 and 6: tradeoff-sds-region.png/.svg."""
-    series = {cv: sorted([r for r in ok_rows(rows, SDS_SCENE, cv) if r.get("caustic_rmse")], key=lambda r: r["cpu_s"])
-              for cv in BD_CURVES}
-    curves = [cv for cv in BD_CURVES if series[cv]]
-    if "bd-vcm" not in curves:
-        return []
-    files = []
-    for cv in curves:
-        path = os.path.join(data_dir, f"{SDS_SCENE}-{cv}-region.dat")
-        with open(path, "w") as f:
-            f.write("# cpu_s region_rmse\n" + "".join(f"{r['cpu_s']:.8g} {r['caustic_rmse']:.8g}\n"
-                                                      for r in series[cv]))
-        files.append(path)
-    pts = [r for cv in curves for r in series[cv]]
-    anchor = series["bd-vcm"][len(series["bd-vcm"]) // 2]
-    ref_rmse = math.sqrt(max(refs[SDS_SCENE].get("caustic_mse") or 0.0, 1e-12))
-    made = []
-    for term in ("png", "svg"):
-        out = os.path.join(c["out"], f"tradeoff-sds-region.{term}")
-        gnuplot("errortime.gp", {
-            "term": term, "out": out,
-            "title": f"{SDS_SCENE}.scene, {c['size']}x{c['size']}: error over the pixels that see the mirror or the "
-                     f"glass ball (L S .. D S .. E paths)",
-            "files": " ".join(files), "names": quoted(CURVE_TITLE[cv] for cv in curves),
-            "styles": " ".join(str(CURVES.index(cv) + 1) for cv in curves), "xlabel": CPU_AXIS,
-            "t0": anchor["cpu_s"], "e0": anchor["caustic_rmse"], "refrmse": ref_rmse,
-            "tmin": min(r["cpu_s"] for r in pts) / 2, "tmax": max(r["cpu_s"] for r in pts) * 2,
-            "emin": min(min(r["caustic_rmse"] for r in pts), ref_rmse) / 2,
-            "emax": max(r["caustic_rmse"] for r in pts) * 2})
         made.append(out)
     return made
 
@@ -1073,6 +1112,7 @@ def main():
             json.dump(targets, f, indent=1)
         made = plots(c, rows, refs)
         report(c, rows, refs, made, targets)
+        print("\n".join(target_lines(targets, refs) + sds_target_line(c["out"])), flush=True)
         print(f"tradeoff: report and {len(made)} plots again from {c['out']}/tradeoff.csv", flush=True)
         return
     for ch in ("01_local", "02_whitted", "03_radiosity", "04_pathtrace"):
@@ -1099,6 +1139,9 @@ def main():
         json.dump(targets, f, indent=1)
     made = plots(c, rows, refs)
     report(c, rows, refs, made, targets)
+    if SDS_SCENE in c["scenes"] and os.environ.get("SDS_CONVERGENCE", "") != "0":
+        sds_convergence(c)
+    print("\n".join(target_lines(targets, refs) + sds_target_line(c["out"])), flush=True)
     print(f"tradeoff: wrote {csv_path}, {os.path.join(c['out'], 'tradeoff.md')} and {len(made)} plots "
           f"in {time.time() - start:.0f} s", flush=True)
 
