@@ -59,7 +59,8 @@ against time, log-log; cornell and cornell-spheres), tradeoff-caustic-cornell-sp
 region's error against time: path tracing and photon mapping), tradeoff-radiosity-<scene>.png/.svg (error against
 iterations per patch size: the discretisation floor), tradeoff-bidirectional-<scene>.png/.svg (chapters 4, 5
 and 6 on each of the four scenes), sds/tradeoff-sds-region.png/.svg (sds_convergence.py), tradeoff/ (the
-renders, their stats, the plot data, references.json and targets.json).
+renders, their stats, the plot data, references.json, targets.json and targets.txt: the issue's targets as the
+lines `target <scene> <ratio> = ...` that the run prints last).
 
 SCENES=a,b,... runs only those of the four scenes (a partial run, for trying things out);
 BIDIR_ONLY=1 runs on every scene only what chapter 6's comparisons need (chapter 4's MIS, chapter 5,
@@ -827,7 +828,8 @@ def target_lines(targets, refs, clock="cpu_s"):
     L = []
     for scene, res in targets.items():
         r = res.get(clock) or {}
-        ref = f"reference {refs[scene]['method']}, {refs[scene]['spp']} spp"
+        ref = (f"reference {refs[scene]['method']}, {refs[scene]['spp']} "
+               f"{'spp' if refs[scene].get('chapter') == '04_pathtrace' else 'passes'}")
         if r.get("bdpt_over_pt"):
             pts = ", ".join(f"{b['ratio']:.2f} at {b['t']:.3g} s" for b in r["bdpt_over_pt"])
             L.append(f"target {scene} BDPT/PT = {r['bdpt_over_pt_median']:.2f} (<= 0.5: "
@@ -873,7 +875,8 @@ def sds_target_line(out):
         return ["target sds VCM converging in the SDS caustic: not resolved (fewer than 2 points above the "
                 "reference's noise)"]
     met = slope <= SDS_SLOPE_MET and vcm[-1]["caustic"]["rmse"] < vcm[0]["caustic"]["rmse"] / 2
-    others = "; ".join(f"{lb} {r['caustic']['rmse']:.2g} (its bias {r['caustic']['bias'] or 0:.2g})"
+    others = "; ".join(f"{lb} {r['caustic']['rmse']:.2g} (its bias "
+                       f"{'unresolved' if r['caustic']['bias'] is None else format(r['caustic']['bias'], '.2g')})"
                        for lb in ("ppm", "bdpt", "pt")
                        for r in [[x for x in got["rows"] if x["method"] == lb][-1]] if r["caustic"]["rmse"])
     return [f"target sds VCM converging in the SDS caustic = slope {slope:.2f} of log RMSE on log CPU time over "
@@ -881,6 +884,14 @@ def sds_target_line(out):
             f"{vcm[0]['caustic']['rmse']:.2g} to {vcm[-1]['caustic']['rmse']:.2g}; <= {SDS_SLOPE_MET} and halved: "
             f"{'met' if met else 'not met'}; R12's alpha 2/3 predicts -1/3 or steeper); at their longest runs: "
             f"{others}; {out}/sds/sds-convergence.md"]
+
+
+def print_targets(c, targets, refs):
+    """The target lines on stdout and in OUT/tradeoff/targets.txt."""
+    text = "\n".join(target_lines(targets, refs) + sds_target_line(c["out"])) + "\n"
+    with open(os.path.join(c["out"], "tradeoff", "targets.txt"), "w") as f:
+        f.write(text)
+    print(text, end="", flush=True)
 
 
 # --- plots --------------------------------------------------------------------------------------
@@ -1112,7 +1123,7 @@ def main():
             json.dump(targets, f, indent=1)
         made = plots(c, rows, refs)
         report(c, rows, refs, made, targets)
-        print("\n".join(target_lines(targets, refs) + sds_target_line(c["out"])), flush=True)
+        print_targets(c, targets, refs)
         print(f"tradeoff: report and {len(made)} plots again from {c['out']}/tradeoff.csv", flush=True)
         return
     for ch in ("01_local", "02_whitted", "03_radiosity", "04_pathtrace"):
@@ -1141,7 +1152,7 @@ def main():
     report(c, rows, refs, made, targets)
     if SDS_SCENE in c["scenes"] and os.environ.get("SDS_CONVERGENCE", "") != "0":
         sds_convergence(c)
-    print("\n".join(target_lines(targets, refs) + sds_target_line(c["out"])), flush=True)
+    print_targets(c, targets, refs)
     print(f"tradeoff: wrote {csv_path}, {os.path.join(c['out'], 'tradeoff.md')} and {len(made)} plots "
           f"in {time.time() - start:.0f} s", flush=True)
 
