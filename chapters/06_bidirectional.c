@@ -86,8 +86,7 @@ static int extend(const scene *s, path_vertex *p, int count, int cap, vec3 alpha
     return count;
 }
 
-/* The density per unit area of a light's point x_0: the light's pick by power over its area (a point light: the
- * pick; its position is a delta). */
+/* x_0's density per unit area: the light's pick by power over its area (a point light: the pick; x_0 is given). */
 static double light_point_pdf(const bidir_state *st, const scene *s, const path_vertex *x0)
 {
     if (x0->kind == AT_POINT_LIGHT)
@@ -391,7 +390,8 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
     vec3 L = st->light_image[pixel];
     if (st->single_strategy ? st->strategy_t == 1 : st->method == METHOD_LIGHT) /* light tracing only */
         return L;
-    path_vertex z[MAX_VERTICES] = {{.x = r.origin, .alpha = v3_splat(1.0), .kind = AT_CAMERA}};
+    path_vertex z[MAX_VERTICES]; /* not zeroed: 6 kB a camera ray */
+    z[0] = (path_vertex){.x = r.origin, .alpha = v3_splat(1.0), .kind = AT_CAMERA};
     int t_count =
         extend(s, z, 1, st->eye_cap, v3_splat(1.0), r.direction, true, false, g, &counters->value[COUNT_EYE_RAYS]);
     const path_vertex *y = &st->light_vertices[st->path_first[pixel]];

@@ -84,7 +84,7 @@ struct bidir_state {
     int light_paths, passes; /* per pass: one per pixel */
     path_vertex *light_vertices;
     size_t light_vertex_capacity;
-    chunk *chunks; /* the pass's chunks of light subpaths (light_pass) */
+    chunk *chunks;                             /* the pass's chunks of light subpaths (light_pass) */
     int *path_first, *path_count;              /* light subpath p: light_vertices[path_first[p]] ... */
     vec3 *light_image;                         /* this pass's light tracing (t = 1), one value per pixel */
     photon_grid grid;                          /* over light_vertices */
