@@ -825,7 +825,7 @@ def target_lines(targets, refs, clock="cpu_s"):
     reach, beside the worst of all those times)."""
     def verdict(v, bound):
         return "met" if v is not None and v <= bound else "not met"
-    L = []
+    L, unit = [], "CPU s" if clock == "cpu_s" else "s of wall-clock time"
     for scene, res in targets.items():
         r = res.get(clock) or {}
         ref = (f"reference {refs[scene]['method']}, {refs[scene]['spp']} "
@@ -833,17 +833,17 @@ def target_lines(targets, refs, clock="cpu_s"):
         if r.get("bdpt_over_pt"):
             pts = ", ".join(f"{b['ratio']:.2f} at {b['t']:.3g} s" for b in r["bdpt_over_pt"])
             L.append(f"target {scene} BDPT/PT = {r['bdpt_over_pt_median']:.2f} (<= 0.5: "
-                     f"{verdict(r['bdpt_over_pt_median'], 0.5)}): the median at equal CPU time over BDPT's "
+                     f"{verdict(r['bdpt_over_pt_median'], 0.5)}): the median at equal {CLOCKS[clock]} over BDPT's "
                      f"{len(r['bdpt_over_pt'])} times ({pts}); {ref}")
         if r.get("vcm_over_better"):
             last = r["vcm_over_better"][-1]
             pts = ", ".join(f"{v['ratio']:.2f} at {v['t']:.3g} s" for v in r["vcm_over_better"])
-            L.append(f"target {scene} VCM/min(BDPT,PM) = {last['ratio']:.2f} at {last['t']:.3g} CPU s, the longest "
+            L.append(f"target {scene} VCM/min(BDPT,PM) = {last['ratio']:.2f} at {last['t']:.3g} {unit}, the longest "
                      f"time all three reach (<= 1.1: {verdict(last['ratio'], 1.1)}; worst of {len(r['vcm_over_better'])}"
                      f" times {r['vcm_worst']:.2f}: {'met' if r['vcm_worst'] <= 1.1 else 'not met'} at every "
                      f"time; {pts}); {ref}")
         elif res.get(clock) is not None:
-            L.append(f"target {scene} VCM/min(BDPT,PM): no CPU time where VCM, BDPT and photon mapping all have "
+            L.append(f"target {scene} VCM/min(BDPT,PM): no {CLOCKS[clock]} where VCM, BDPT and photon mapping all have "
                      f"points resolved above the reference's error")
     return L
 
