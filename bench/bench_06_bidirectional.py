@@ -18,7 +18,9 @@ of the Cornell box, 1.3 %, and 96 % of path tracing's MSE) per scene and method,
 targets, one line each at each budget (`target gap BDPT/PT = 0.50 at 8 CPU s (<= 0.5: met;
 ...)`), all of them again at the end: BDPT at most 1/2 of path tracing's RMSE on gap; VCM
 within 1.1x of the better of BDPT and photon mapping (the whole image's RMSE, the issue's
-figure; the ratio off the light's edges beside it).  BENCH6_SCENES=a,b picks scenes.  A benchmark, not a test: it
+figure; the ratio off the light's edges beside it); on sds also over the mirror ball without the
+light's images in it (caustic_region.sds_mirror_regions: the whole image and "off the edges" there
+are a few fireflies of the light seen through mirror and glass).  BENCH6_SCENES=a,b picks scenes.  A benchmark, not a test: it
 prints what it measures, met or not.
 """
 import math
@@ -30,7 +32,9 @@ import sys
 from common import BUILD, ROOT
 
 sys.path.insert(0, os.path.join(ROOT, "tests"))
+sys.path.insert(0, os.path.join(ROOT, "tradeoff"))
 from pfm import read_pfm  # noqa: E402
+from caustic_region import sds_mirror_regions  # noqa: E402
 
 # CPU seconds per method: the targets are printed at each (BENCH6_BUDGETS=2,8; BENCH6_BUDGET=8 alone).
 BUDGETS = [float(b) for b in (os.environ.get("BENCH6_BUDGETS") or os.environ.get("BENCH6_BUDGET") or "2,8").split(",")]
@@ -52,7 +56,7 @@ def render(chapter, scene, args, out):
            "--threads", "1", "--quiet", "--out", out, *args]
     subprocess.run(cmd, check=True, stderr=subprocess.DEVNULL)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    shown = f"build/{chapter} scenes/{scene}.scene --size 64x64 --threads 1 " + " ".join(args)
+    shown = f"{os.path.relpath(BUILD, ROOT)}/{chapter} scenes/{scene}.scene --size 64x64 --threads 1 " + " ".join(args)
     return after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, shown
 
 
@@ -85,12 +89,24 @@ def off_edges(ref, width=64, height=64):
     return keep
 
 
-def errors(x, ref, ref_var, keep):
-    """(RMSE, relative MSE, RMSE over the channels in keep) of image x, the reference's own noise taken out."""
+def errors(x, ref, ref_var, keep, region=None):
+    """(RMSE, relative MSE, RMSE over the channels in keep, RMSE over the channels in region or None) of image x,
+    the reference's own noise taken out."""
     mse = sum((a - r) ** 2 - v for a, r, v in zip(x, ref, ref_var)) / len(x)
     rel = sum(((a - r) ** 2 - v) / (r * r + 0.01) for a, r, v in zip(x, ref, ref_var)) / len(x)
     off = sum((x[i] - ref[i]) ** 2 - ref_var[i] for i in keep) / max(len(keep), 1)
-    return math.sqrt(max(mse, 0.0)), rel, math.sqrt(max(off, 0.0))
+    inside = sum((x[i] - ref[i]) ** 2 - ref_var[i] for i in region) / len(region) if region else None
+    return (math.sqrt(max(mse, 0.0)), rel, math.sqrt(max(off, 0.0)),
+            None if inside is None else math.sqrt(max(inside, 0.0)))
+
+
+def mirror_region(width=64, height=64):
+    """Channel indices (PFM order, bottom row first) of sds.scene's mirror ball without the light's images in it
+    (caustic_region.sds_mirror_regions: only there are the scene's L S .. D S E paths measured without the
+    fireflies of the light seen through mirror and glass, E S .. S L, which only an eye path that hits the
+    13 mm light renders)."""
+    return [3 * ((height - 1 - y) * width + x) + k for x, y in sds_mirror_regions(width, height)["mirror"]
+            for k in range(3)]
 
 
 def target_lines(scene, found):
@@ -99,6 +115,10 @@ def target_lines(scene, found):
     L = []
     for budget in sorted(found):
         f = found[budget]
+        if f["vcm"][3] is not None:
+            q = f["vcm"][3] / min(f["bdpt"][3], f["pm"][3])
+            L.append(f"target {scene} VCM/min(BDPT,PM) in the mirror ball (the SDS paths, no light image) = {q:.2f} "
+                     f"at {budget:g} CPU s (<= 1.1: {'met' if q <= 1.1 else 'not met'})")
         if scene == "gap":
             q, off = f["bdpt"][0] / f["pt"][0], f["bdpt"][2] / f["pt"][2]
             L.append(f"target {scene} BDPT/PT = {q:.2f} at {budget:g} CPU s (<= 0.5: {'met' if q <= 0.5 else 'not met'};"
@@ -119,6 +139,7 @@ def main():
     for scene in [sc for sc in REFERENCES if not wanted or sc in wanted]:
         ref, ref_var = reference(scene)
         keep = off_edges(ref)
+        region = mirror_region() if scene == "sds" else None
         found = {b: {} for b in BUDGETS}
         for label, chapter, args in METHODS:
             cpu, _ = render(chapter, scene, args + ["--spp", "8", "--seed", "3"], os.path.join(OUT, "pilot.pfm"))
@@ -127,12 +148,14 @@ def main():
                 out = os.path.join(OUT, f"{scene}-{label}-{budget:g}.pfm")
                 used, cmd = render(chapter, scene, args + ["--spp", str(spp), "--seed", str(7 + BUDGETS.index(budget))],
                                    out)
-                rmse, rel, off = errors(pixels(out), ref, ref_var, keep)
+                rmse, rel, off, inside = errors(pixels(out), ref, ref_var, keep, region)
                 scale = math.sqrt(used / budget)  # to the budget: error^2 ~ 1/time
                 rmse, rel, off = rmse * scale, rel * scale ** 2, off * scale
-                found[budget][label] = (rmse, rel, off)
+                inside = None if inside is None else inside * scale
+                found[budget][label] = (rmse, rel, off, inside)
                 print(f"  {scene:16s} {label:6s} {budget:4g} s {spp:6d} spp {used:6.2f} s  RMSE {rmse:.5f}  relMSE "
-                      f"{rel:.5f}  RMSE off the light's edges {off:.5f}   {cmd}", flush=True)
+                      f"{rel:.5f}  RMSE off the light's edges {off:.5f}" +
+                      ("" if inside is None else f"  in the mirror ball {inside:.5f}") + f"   {cmd}", flush=True)
         print(f"  {scene:16s} reference noise RMSE {math.sqrt(sum(ref_var) / len(ref_var)):.5f}; "
               f"{(len(ref) - len(keep)) // 3} pixels on the light's edges")
         lines = target_lines(scene, found)
