@@ -1,5 +1,6 @@
 /* hierarchy.c — the hierarchical solver's bookkeeping (hierarchy.h); nothing here is the lecture. */
 #include "hierarchy.h"
+#include "rng.h"
 
 #include <math.h>
 #include <stdlib.h>
@@ -183,6 +184,22 @@ int element_sample_points(const patch_mesh *m, const patch *e, vec3 *out)
     for (int k = 0; k < e->corner_count; k++)
         out[k] = element_toward_corner(m, e, mean, k, 0.5);
     return e->corner_count;
+}
+
+int element_stratified_points(const patch_mesh *m, const patch *e, uint64_t salt, vec3 *out)
+{
+    vec3 mean = element_corner_mean(e);
+    int n = e->corner_count;
+    for (int k = 0; k < n; k++) {
+        uint64_t bits = hash64(salt ^ (uint64_t)k * 0x9e3779b97f4a7c15ull);
+        double u = (double)(bits >> 40) / (double)(1ull << 24), v = (double)(bits & 0xffffff) / (double)(1ull << 24);
+        vec3 corner = e->corner[k], next = v3_scale(v3_add(corner, e->corner[(k + 1) % n]), 0.5),
+             previous = v3_scale(v3_add(corner, e->corner[(k + n - 1) % n]), 0.5);
+        vec3 x = v3_add(v3_add(v3_scale(corner, (1 - u) * (1 - v)), v3_scale(next, u * (1 - v))),
+                        v3_add(v3_scale(mean, u * v), v3_scale(previous, (1 - u) * v))); /* bilinear over the kite */
+        out[k] = patch_mesh_on_surface(m, e->surface, x);
+    }
+    return n;
 }
 
 bool element_point_buried(const scene *s, vec3 x, vec3 n)

@@ -96,6 +96,13 @@ vec3 element_point_in_front(const patch *q, vec3 origin, vec3 n, double epsilon)
 /* Points for visibility rays: the corners moved half-way to the centroid, on the surface. */
 int element_sample_points(const patch_mesh *m, const patch *e, vec3 *out);
 
+/* Points for estimating how much of a pair is visible: one in each corner's
+ * kite of e (the corner, its two edges' midpoints, the centre), at a place
+ * drawn from `salt`, on the surface.  The kites' centres
+ * (element_sample_points) miss a shadow along e's edge every time, and an
+ * edge is where a box standing on a floor or a wall's corner shadows. */
+int element_stratified_points(const patch_mesh *m, const patch *e, uint64_t salt, vec3 *out);
+
 /* Is x (on a surface of normal n) inside a solid: does a ray along the
  * normal meet the back of a surface first (the floor under a box meets the
  * underside of the box's top)? */
@@ -118,10 +125,12 @@ void hierarchy_report(const hierarchy *h, const patch_mesh *m, radiosity_stats *
 
 /* ---- the links (hierarchy_links.c) ---- */
 
-/* Does a shadow edge cross the pair?  Of the rays from each element's
- * corners (near them) to the other's centroid, and between the centroids,
- * some are blocked and some not (at most 9 rays). */
-bool shadow_edge(const refiner *r, const patch *ep, const patch *eq);
+/* Does a shadow edge cross the pair, and across which element?  Of the rays
+ * from an element's corners (near them) to the other's centroid, and
+ * between the centroids, some are blocked and some not (at most 9 rays);
+ * the receiver ep is asked first. */
+enum shadow_side { NO_SHADOW_EDGE, SHADOW_ACROSS_RECEIVER, SHADOW_ACROSS_SOURCE };
+enum shadow_side shadow_edge(const refiner *r, int p, int q);
 
 /* Is the pair worth a shadow test?  First pass: where F >= eps / 8.  Second
  * pass: where F times q's radiance over the scene's mean (capped) >= --eps. */

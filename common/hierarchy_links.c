@@ -20,17 +20,26 @@ static const double NEAR_FACTOR = 6.0;
  * links by that split every receiver and the light to --levels (over 40 M
  * links at --eps 2e-2), though its form factors are accurate long before. */
 static const double BRIGHTNESS_CAP = 256.0;
+#ifndef SHADOW_DIV
+#define SHADOW_DIV 8.0
+#endif
 
+
+/* Where a pair's visibility points are drawn (element_stratified_points):
+ * from the pair alone, so the same at any --threads. */
+static uint64_t pair_salt(int p, int q) { return hash64((uint64_t)(unsigned)p << 32 | (unsigned)q); }
 
 /* The fraction of up to four rays between the two elements that nothing
  * blocks.  Only pairs of sample points in front of each other's element
  * count: a ray to a point behind the receiver's plane would run into the
  * receiver's own solid, which Lambert's clipped formula has already left
  * out.  No such pair: 1 (the pair hardly exchanges light). */
-static double visible_fraction(const patch_mesh *m, const scene *s, const patch *ep, const patch *eq, uint64_t *rays)
+static double visible_fraction(const patch_mesh *m, const scene *s, const patch *ep, const patch *eq, uint64_t salt,
+                               uint64_t *rays)
 {
     vec3 a[4], b[4];
-    int na = element_sample_points(m, ep, a), nb = element_sample_points(m, eq, b), tested = 0, visible = 0;
+    int na = element_stratified_points(m, ep, salt, a), nb = element_stratified_points(m, eq, ~salt, b);
+    int tested = 0, visible = 0;
     for (int k = 0; k < na * nb && tested < 4; k++) {
         vec3 x = a[k % na], y = b[(k + k / na) % nb]; /* the diagonal pairs first, then shifted */
         if (v3_dot(ep->normal, v3_sub(y, ep->centroid)) <= s->epsilon ||
@@ -57,22 +66,34 @@ static void count_ray(const scene *s, const patch *a, vec3 x, const patch *b, ve
     scene_occluded(s, x, y) ? ++*blocked : ++*visible;
 }
 
-/* Does a shadow edge cross the pair?  Of the rays from each element's
- * corners (EDGE_INSET of the way from its centre) to the other's centroid,
- * and between the centroids, some are blocked and some not (at most 9 rays,
- * stopping at the first mixed pair). */
-bool shadow_edge(const refiner *r, const patch *ep, const patch *eq)
+/* Where does a shadow edge cross the pair?  Across the receiver when its
+ * corners (EDGE_INSET of the way from its centre) see different numbers of
+ * q's four stratified points: what its links' linear shapes cannot follow
+ * (a box's shadow on the floor beside it).  Else across the source when,
+ * of the rays from q's corners to p's centroid and between the centroids,
+ * some are blocked and some not.  At most 21 rays. */
+enum shadow_side shadow_edge(const refiner *r, int p, int q)
 {
+    const patch *ep = &r->h->element[p], *eq = &r->h->element[q];
+    vec3 b[4], mean = element_corner_mean(ep);
+    int nb = element_stratified_points(r->m, eq, pair_salt(p, q), b), first_count = -1;
+    for (int k = 0; k < ep->corner_count; k++) {
+        vec3 x = element_toward_corner(r->m, ep, mean, k, EDGE_INSET);
+        int visible = 0, blocked = 0;
+        for (int j = 0; j < nb; j++)
+            count_ray(r->s, ep, x, eq, b[j], &visible, &blocked);
+        if (first_count < 0)
+            first_count = visible;
+        else if (visible != first_count)
+            return SHADOW_ACROSS_RECEIVER;
+    }
     int visible = 0, blocked = 0;
     count_ray(r->s, ep, ep->centroid, eq, eq->centroid, &visible, &blocked);
-    for (int side = 0; side < 2; side++) {
-        const patch *e = side ? eq : ep, *other = side ? ep : eq;
-        vec3 mean = element_corner_mean(e);
-        for (int k = 0; k < e->corner_count && !(visible && blocked); k++)
-            count_ray(r->s, e, element_toward_corner(r->m, e, mean, k, EDGE_INSET), other, other->centroid, &visible,
-                      &blocked);
-    }
-    return visible && blocked;
+    vec3 source_mean = element_corner_mean(eq);
+    for (int k = 0; k < eq->corner_count && !(visible && blocked); k++)
+        count_ray(r->s, eq, element_toward_corner(r->m, eq, source_mean, k, EDGE_INSET), ep, ep->centroid, &visible,
+                  &blocked);
+    return visible && blocked ? SHADOW_ACROSS_SOURCE : NO_SHADOW_EDGE;
 }
 
 /* ---- the second pass's tests: the oracle with the first pass's solution B ---------------- */
@@ -90,12 +111,12 @@ bool shadow_test_worthwhile(const refiner *r, int p, int q, const patch *eq, dou
     if (r->h->covered[p] == COVERED_ALL)
         return false; /* under a cover p sees the rest through a slit, all of it alike */
     if (!r->radiance)
-        return f >= r->eps / 8.0;
+        return f >= r->eps / SHADOW_DIV;
     int known = q;
     while (known >= r->known)
         known = r->h->parent[known];
     double radiance = fmax(v3_average(r->radiance[known]), v3_average(eq->emission));
-    return f * fmin(radiance / r->mean_radiance, BRIGHTNESS_CAP) >= r->eps;
+    return f * fmin(radiance / r->mean_radiance, BRIGHTNESS_CAP) >= r->eps * 8.0 / SHADOW_DIV;
 }
 
 /* Second pass: how many times brighter than the scene's mean q is, at
@@ -135,8 +156,9 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
                                int p, int q, uint64_t *rays)
 {
     const patch *ep = &h->element[p], *eq = &h->element[q];
+    uint64_t salt = pair_salt(p, q);
     vec3 b[4];
-    int nb = element_sample_points(m, eq, b);
+    int nb = element_stratified_points(m, eq, salt, b);
     bool covered = h->covered[p] != 0; /* part of p may be inside a solid: integrate over the rest only */
     if (!covered && v3_length(v3_sub(eq->centroid, ep->centroid)) > NEAR_FACTOR * (ep->radius + eq->radius)) {
         /* The outer integral by the points 1/sqrt(3) of the way from the centroid
@@ -151,7 +173,7 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
         }
         if (f <= 0.0)
             return 0.0;
-        return f / ep->corner_count * visible_fraction(m, s, ep, eq, rays);
+        return f / ep->corner_count * visible_fraction(m, s, ep, eq, salt, rays);
     }
     double total = 0.0, exposed = 0.0;
     int point = 0;
@@ -186,10 +208,11 @@ static double link_form_factor(const hierarchy *h, const patch_mesh *m, const sc
 
 /* The fraction of the rays from x to q's sample points in front of e's plane
  * that nothing blocks (to y, q's part in front of e, when none is). */
-static double visible_from(const patch_mesh *m, const scene *s, vec3 x, const patch *ep, const patch *eq, vec3 y)
+static double visible_from(const patch_mesh *m, const scene *s, vec3 x, const patch *ep, const patch *eq, vec3 y,
+                           uint64_t salt)
 {
     vec3 b[4];
-    int nb = element_sample_points(m, eq, b), tested = 0, visible = 0;
+    int nb = element_stratified_points(m, eq, salt, b), tested = 0, visible = 0;
     for (int k = 0; k < nb; k++)
         if (v3_dot(ep->normal, v3_sub(b[k], ep->centroid)) > s->epsilon) {
             tested++;
@@ -218,7 +241,7 @@ static void shape_link(const hierarchy *h, const patch_mesh *m, const scene *s, 
     for (int j = 0; j < ep->corner_count; j++) {
         vec3 x = element_toward_corner(m, ep, mean_corner, j, EDGE_INSET);
         if (v3_dot(eq->normal, v3_sub(x, eq->centroid)) > s->epsilon)
-            g[j] = F(x, ep->normal, eq->corner, eq->corner_count) * visible_from(m, s, x, ep, eq, y);
+            g[j] = F(x, ep->normal, eq->corner, eq->corner_count) * visible_from(m, s, x, ep, eq, y, pair_salt(e, h->link_source[k]) + (uint64_t)j);
         mean += g[j] / ep->corner_count;
     }
     for (int j = 0; j < ep->corner_count; j++) {
