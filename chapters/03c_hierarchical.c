@@ -144,7 +144,8 @@ static enum verdict judge(const refiner *r, int p, int q)
         shadow = shadow_edge(r, p, q);
     if ((small && shadow == NO_SHADOW_EDGE) || (!can_p && !can_q))
         return LINK;
-    if (shadow == SHADOW_ACROSS_RECEIVER && can_p && shadow_test_worthwhile(r, p, q, eq, RECEIVER_SHADOW_REACH * fqp))
+    bool receiver_shadowed = shadow == SHADOW_ACROSS_RECEIVER && can_p;
+    if (receiver_shadowed && shadow_test_worthwhile(r, p, q, eq, RECEIVER_SHADOW_REACH * fqp))
         return SPLIT_RECEIVER; /* a link's shape is linear across p: it cannot follow the shadow's step */
     if (can_q && (fpq > fqp || !can_p))
         return SPLIT_SOURCE;

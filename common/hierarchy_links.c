@@ -241,7 +241,8 @@ static void shape_link(const hierarchy *h, const patch_mesh *m, const scene *s, 
     for (int j = 0; j < ep->corner_count; j++) {
         vec3 x = element_toward_corner(m, ep, mean_corner, j, EDGE_INSET);
         if (v3_dot(eq->normal, v3_sub(x, eq->centroid)) > s->epsilon)
-            g[j] = F(x, ep->normal, eq->corner, eq->corner_count) * visible_from(m, s, x, ep, eq, y, pair_salt(e, h->link_source[k]) + (uint64_t)j);
+            g[j] = F(x, ep->normal, eq->corner, eq->corner_count) *
+                   visible_from(m, s, x, ep, eq, y, pair_salt(e, h->link_source[k]) + (uint64_t)j);
         mean += g[j] / ep->corner_count;
     }
     for (int j = 0; j < ep->corner_count; j++) {
