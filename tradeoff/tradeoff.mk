@@ -6,9 +6,11 @@
 #                           mapping over passes; chapter 6 (light tracing, BDPT, VCM over passes)
 #                           beside chapter 4's MIS and chapter 5 on cornell, cornell-spheres,
 #                           gap and sds (their references: chapter 6's BDPT on gap, VCM on sds,
-#                           2 x 512 passes) (about 30 CPU minutes: 20 minutes on 2 idle cores)
+#                           2 x 512 passes), and the SDS caustic seen in the mirror
+#                           (tradeoff/sds_convergence.py, about 12 CPU minutes; SDS_CONVERGENCE=0
+#                           skips it) (about 42 CPU minutes in all)
 #                           -> out/tradeoff.csv, out/tradeoff.md, out/tradeoff-*.png/.svg
-#   make tradeoff QUICK=1   the whole pipeline on a tiny budget (32x32; under a minute)
+#   make tradeoff QUICK=1   the whole pipeline on a tiny budget (32x32; 2 min 20 s at load 4)
 #                           -> out/quick/...
 # Overrides (environment or make variables): SIZE, REF_SPP, REF_PASSES, PT_MAX_SPP, REPEATS, CAP,
 # AA_SPP, OUT, REUSE_REF=1, SCENES=a,b, BIDIR_ONLY=1, REPORT_ONLY=1 (see tradeoff/tradeoff.py).
