@@ -114,11 +114,12 @@ static double largest_form_factor(const refiner *r, const patch *ep, const patch
 enum verdict { NO_LINK, LINK, SPLIT_RECEIVER, SPLIT_SOURCE };
 
 /* A shadow across the receiver p splits p (not the larger element) while q
- * sees p at F_qp of at least 1/8 of what is worth a shadow test: p's links
- * are linear across it and cannot follow the shadow's step, and a floor
- * beside a box gets the same step from every source behind the box (at 1/4,
- * leaves beside its corners were still 2.1 % bright in the furnace). */
-static const double RECEIVER_SHADOW_REACH = 8.0;
+ * sees p at F_qp of at least this: p's links are linear across it and
+ * cannot follow the shadow's step, and a floor beside a box gets the same
+ * step from every source behind the box.  Not a fraction of --eps: at
+ * eps/512 a finer --eps split receivers without end (over 40 M links on the
+ * Cornell box at --eps 5e-3); this is that at the default --eps. */
+static const double RECEIVER_SHADOW_F = 3e-4;
 
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.
  * Link here when both form-factor estimates are below eps (times q's
@@ -145,7 +146,7 @@ static enum verdict judge(const refiner *r, int p, int q)
     if ((small && shadow == NO_SHADOW_EDGE) || (!can_p && !can_q))
         return LINK;
     bool receiver_shadowed = shadow == SHADOW_ACROSS_RECEIVER && can_p;
-    if (receiver_shadowed && shadow_test_worthwhile(r, p, q, eq, RECEIVER_SHADOW_REACH * fqp))
+    if (receiver_shadowed && fqp >= RECEIVER_SHADOW_F)
         return SPLIT_RECEIVER; /* a link's shape is linear across p: it cannot follow the shadow's step */
     if (can_q && (fpq > fqp || !can_p))
         return SPLIT_SOURCE;

@@ -117,7 +117,7 @@ def test_furnace_warns_when_rows_fall_short(ctx):
 
 HIERARCHICAL = "03c_hierarchical"  # chapter 03c, at these settings:
 HIERARCHICAL_ARGS = ["--levels", "6", "--eps", "2e-2"]
-# The furnace at 03c's default --eps, two levels fewer than its default (a quarter of the time).
+# The furnace at 03c's default --eps, two levels fewer than its default (a sixth of the time).
 HIERARCHICAL_FURNACE_ARGS = ["--levels", "6"]
 
 
@@ -132,7 +132,7 @@ def test_furnace_with_a_box_hierarchical(ctx):
     """The hierarchical solve (HIERARCHICAL_FURNACE_ARGS), with the box 1 mm above the floor in
     metres and resting on it in millimetres: within 2 % of L at every probe and pixel (flat
     shading: a pixel is its leaf's L) and at every leaf of its PLY mesh not under the box.  Not
-    held: the cavity 1 mm high under the floating box, whose leaves reach +2.5 % (README).
+    held: the cavity 1 mm high under the floating box, whose leaves reach +2.3 % (README).
     Before: links' visibility from the kites' centres missed every shadow along an element's
     edge (the walls' row sums 1.002 on average, the image 0.8 % bright), and a shadow across a
     receiver split the source, whose links' linear shapes could not follow it (floor leaves
