@@ -138,7 +138,7 @@ def test_furnace_with_a_box_hierarchical(ctx):
     receiver split the source, whose links' linear shapes could not follow it (floor leaves
     beside the box's corners at row sums 1.043, the brightest pixels 10.22)."""
     # Whole solves the sanitizers make slow: links' visibility, shadow edges and shapes run there in
-    # grade_03c_hierarchical's test_hierarchical_matches_the_furnace_and_the_uniform_solve.
+    # grade_03c_hierarchical's test_hierarchical_floor_under_a_box_carries_no_light (a box's shadows on a floor).
     if lib.sanitizer_build(ctx):
         return
     from grade_03_radiosity import read_ply
