@@ -116,19 +116,21 @@ enum verdict { NO_LINK, LINK, SPLIT_RECEIVER, SPLIT_SOURCE };
 /* A shadow across the receiver p splits p (not the larger element) while q
  * sees p at F_qp of at least this: p's links are linear across it and
  * cannot follow the shadow's step, and a floor beside a box gets the same
- * step from every source behind the box.  Not a fraction of --eps: at
- * eps/512 a finer --eps split receivers without end (over 40 M links on the
- * Cornell box at --eps 5e-3); this is that at the default --eps. */
+ * step from every source behind the box.  A fixed F, about eps/32 at the
+ * default --eps (2e-2 in the first pass, over 64): as a fraction of --eps a
+ * finer --eps split receivers without end (over 40 M links on the Cornell
+ * box at --eps 5e-3). */
 static const double RECEIVER_SHADOW_F = 3e-4;
 
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.
  * Link here when both form-factor estimates are below eps (times q's
  * brightness in the second pass), the source's spread is within
  * --eps-spread, and no shadow edge crosses the pair where a test is worth
- * it; otherwise split the element that looks larger from the other (q when
- * F_pq > F_qp), or p when the shadow edge crosses p.  An element partly covered (a box resting on part of it)
- * is split first, so that its parts get their own links: the light steps
- * there, and no link's shape follows a step. [exercise 3c.2] */
+ * it; otherwise split p when the shadow edge crosses p, else the element
+ * that looks larger from the other (q when F_pq > F_qp).  An element partly
+ * covered (a box resting on part of it) is split first, so that its parts
+ * get their own links: the light steps there, and no link's shape follows a
+ * step. [exercise 3c.2] */
 static enum verdict judge(const refiner *r, int p, int q)
 {
     const patch *ep = &r->h->element[p], *eq = &r->h->element[q];

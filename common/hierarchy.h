@@ -125,10 +125,11 @@ void hierarchy_report(const hierarchy *h, const patch_mesh *m, radiosity_stats *
 
 /* ---- the links (hierarchy_links.c) ---- */
 
-/* Does a shadow edge cross the pair, and across which element?  Of the rays
- * from an element's corners (near them) to the other's centroid, and
- * between the centroids, some are blocked and some not (at most 9 rays);
- * the receiver ep is asked first. */
+/* Does a shadow edge cross the pair p <- q, and across which element?
+ * Across the receiver p when its corners (near them) see different numbers
+ * of q's four stratified points; else across the source q when, of the rays
+ * from q's corners to p's centroid and between the centroids, some are
+ * blocked and some not (at most 21 rays). */
 enum shadow_side { NO_SHADOW_EDGE, SHADOW_ACROSS_RECEIVER, SHADOW_ACROSS_SOURCE };
 enum shadow_side shadow_edge(const refiner *r, int p, int q);
 

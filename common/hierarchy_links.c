@@ -20,9 +20,6 @@ static const double NEAR_FACTOR = 6.0;
  * links by that split every receiver and the light to --levels (over 40 M
  * links at --eps 2e-2), though its form factors are accurate long before. */
 static const double BRIGHTNESS_CAP = 256.0;
-#ifndef SHADOW_DIV
-#define SHADOW_DIV 8.0
-#endif
 
 
 /* Where a pair's visibility points are drawn (element_stratified_points):
@@ -111,12 +108,12 @@ bool shadow_test_worthwhile(const refiner *r, int p, int q, const patch *eq, dou
     if (r->h->covered[p] == COVERED_ALL)
         return false; /* under a cover p sees the rest through a slit, all of it alike */
     if (!r->radiance)
-        return f >= r->eps / SHADOW_DIV;
+        return f >= r->eps / 8.0;
     int known = q;
     while (known >= r->known)
         known = r->h->parent[known];
     double radiance = fmax(v3_average(r->radiance[known]), v3_average(eq->emission));
-    return f * fmin(radiance / r->mean_radiance, BRIGHTNESS_CAP) >= r->eps * 8.0 / SHADOW_DIV;
+    return f * fmin(radiance / r->mean_radiance, BRIGHTNESS_CAP) >= r->eps;
 }
 
 /* Second pass: how many times brighter than the scene's mean q is, at
