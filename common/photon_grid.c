@@ -10,8 +10,8 @@ static int64_t cell_of(double v, double cell_size) { return (int64_t)floor(v / c
 
 static uint32_t bucket_of(const photon_grid *g, int64_t cx, int64_t cy, int64_t cz)
 {
-    uint64_t h = hash64((uint64_t)cx ^ hash64((uint64_t)cy ^ hash64((uint64_t)cz)));
-    return (uint32_t)(h % g->bucket_count);
+    uint64_t h = hash64((uint64_t)cx * 0x9e3779b97f4a7c15ull ^ (uint64_t)cy * 0xc2b2ae3d27d4eb4full ^ (uint64_t)cz);
+    return (uint32_t)(((h >> 32) * g->bucket_count) >> 32); /* h's top bits scaled to [0, bucket_count) */
 }
 
 static uint32_t bucket_of_point(const photon_grid *g, vec3 p)
@@ -26,7 +26,7 @@ static vec3 point_at(const void *first, size_t stride, size_t i)
 
 int photon_grid_build(photon_grid *g, const void *first, size_t stride, size_t count, double cell_size)
 {
-    *g = (photon_grid){.cell_size = cell_size, .count = count};
+    *g = (photon_grid){.cell_size = 2.0 * cell_size, .count = count}; /* cubes of side 2 r: 2 x 2 x 2 per query */
     /* About two buckets per point keeps most buckets short; at least one. */
     g->bucket_count = (uint32_t)(count < (1u << 30) ? 2 * count + 1 : (1u << 31));
     g->bucket_start = calloc((size_t)g->bucket_count + 1, sizeof *g->bucket_start);
@@ -76,11 +76,16 @@ void photon_grid_search(const photon_grid *g, vec3 x, double radius2, photon_gri
     *c = (photon_grid_cursor){.center = x, .radius2 = radius2, .current = -1};
     if (g->count == 0)
         return;
-    int64_t cx = cell_of(x.x, g->cell_size), cy = cell_of(x.y, g->cell_size), cz = cell_of(x.z, g->cell_size);
-    for (int dx = -1; dx <= 1; dx++)
-        for (int dy = -1; dy <= 1; dy++)
-            for (int dz = -1; dz <= 1; dz++) {
-                uint32_t b = bucket_of(g, cx + dx, cy + dy, cz + dz);
+    /* The cube holding x and, along each axis, its neighbour on the side nearer x: a ball of radius
+     * r <= cell_size / 2 around x lies in these 2 x 2 x 2. */
+    double fx = x.x / g->cell_size, fy = x.y / g->cell_size, fz = x.z / g->cell_size;
+    int64_t cx = (int64_t)floor(fx), cy = (int64_t)floor(fy), cz = (int64_t)floor(fz);
+    int64_t sx = fx - (double)cx < 0.5 ? -1 : 1, sy = fy - (double)cy < 0.5 ? -1 : 1,
+            sz = fz - (double)cz < 0.5 ? -1 : 1;
+    for (int dx = 0; dx <= 1; dx++)
+        for (int dy = 0; dy <= 1; dy++)
+            for (int dz = 0; dz <= 1; dz++) {
+                uint32_t b = bucket_of(g, cx + dx * sx, cy + dy * sy, cz + dz * sz);
                 bool seen = false;
                 for (int k = 0; k < c->bucket_count && !seen; k++)
                     seen = c->bucket[k] == b;

@@ -7,8 +7,9 @@
  * cube's integer coordinates are hashed into one of `bucket_count` buckets
  * (so the table's size depends on the number of points, not on the scene's
  * extent over the radius, which grows without bound as a progressive
- * radius shrinks).  A query of radius r <= cell_size visits the 3 x 3 x 3
- * cubes around x; two cubes that hash to the same bucket are visited once.
+ * radius shrinks).  The cubes' side is twice the largest radius, so a query
+ * visits only 2 x 2 x 2 cubes: x's own and, along each axis, its neighbour on
+ * the side nearer x; two cubes that hash to the same bucket are visited once.
  *
  * Points are kept in bucket order, and in their original order within a
  * bucket (a stable counting sort): a query returns the same points in the
@@ -45,7 +46,7 @@ void photon_grid_free(photon_grid *grid);
 typedef struct {
     vec3 center;
     double radius2;
-    uint32_t bucket[27];
+    uint32_t bucket[8]; /* the 2 x 2 x 2 cubes' buckets, each once */
     int bucket_count, current;
     uint32_t next, end;
 } photon_grid_cursor;
