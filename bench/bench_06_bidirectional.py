@@ -3,13 +3,17 @@
 Scenes: cornell, cornell-spheres, gap (the light in a closet behind a 20 mm slit: eye paths
 rarely find it) and sds (a caustic seen in a mirror, L S S D S E: only merging renders it).
 Methods: path tracing (04, MIS), photon mapping (05), and chapter 6's light tracing, BDPT,
-VCM and VCM without joins (progressive photon mapping).  Each renders 64x64 on one thread:
-first 8 passes to measure its CPU seconds per pass, then, for each budget of BENCH6_BUDGETS
-(CPU seconds, default 2,8), as many passes as fit in it (its error scaled to the budget
-exactly by error^2 ~ 1/time).  The reference is the mean of two independent long
+VCM and VCM without joins (progressive photon mapping).  Each renders 64x64 (BENCH6_SIZE=N: NxN)
+on one thread: first 8 passes to measure its CPU seconds per pass, then, for each budget of
+BENCH6_BUDGETS (CPU seconds, default 2,8), as many passes as fit in it, BENCH6_REPEATS times
+(default 1) with different seeds: its MSE is the mean over the repeats, its CPU time the
+least (the run least disturbed by whatever else the machine does), and its error is scaled
+to the budget exactly by error^2 ~ 1/time.  BENCH6_METHODS=pt,pm,bdpt,vcm picks methods
+(the targets need these four).  The reference is the mean of two independent long
 renders a and b (chapter 4 where it converges, chapter 6's BDPT on gap and VCM on sds; kept
-in out/bench/ and reused); its own noise, mean((a - b)^2) / 4 per pixel, is subtracted from
-each method's MSE, so a method is not charged for the reference's noise.  Prints RMSE,
+in out/bench/06/ by size and reused; on two threads, which gives the same image); its own
+noise, mean((a - b)^2) / 4 per pixel, is subtracted from each method's MSE, so a method is
+not charged for the reference's noise.  Prints RMSE,
 relative MSE (per pixel (x - r)^2 / (r^2 + 0.01)) and the RMSE off the light's edges (the
 pixels whose reference jumps by more than EDGE_JUMP to a neighbour left out: there a pixel
 half on the light, radiance 17 next to 0, is what path tracing's jittered camera rays
@@ -36,6 +40,8 @@ sys.path.insert(0, os.path.join(ROOT, "tradeoff"))
 from pfm import read_pfm  # noqa: E402
 from caustic_region import sds_mirror_regions  # noqa: E402
 
+SIZE = int(os.environ.get("BENCH6_SIZE", "64"))
+REPEATS = int(os.environ.get("BENCH6_REPEATS", "1"))
 # CPU seconds per method: the targets are printed at each (BENCH6_BUDGETS=2,8; BENCH6_BUDGET=8 alone).
 BUDGETS = [float(b) for b in (os.environ.get("BENCH6_BUDGETS") or os.environ.get("BENCH6_BUDGET") or "2,8").split(",")]
 EDGE_JUMP = 3.0  # radiance: the light's edges (17 next to 0), not the walls' shading (below 2)
@@ -49,14 +55,16 @@ METHODS = [("pt", "04_pathtrace", ["--probe-samples", "32"]), ("pm", "05_photonm
            ("vcm", "06_bidirectional", []), ("ppm", "06_bidirectional", ["--connect", "off"])]
 
 
-def render(chapter, scene, args, out):
-    """(CPU seconds, the command) of one 64x64 single-thread render."""
+def render(chapter, scene, args, out, threads=1):
+    """(CPU seconds, the command) of one SIZE x SIZE render."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cmd = [os.path.join(BUILD, chapter), os.path.join(ROOT, "scenes", scene + ".scene"), "--size", "64x64",
-           "--threads", "1", "--quiet", "--out", out, *args]
+    size = f"{SIZE}x{SIZE}"
+    cmd = [os.path.join(BUILD, chapter), os.path.join(ROOT, "scenes", scene + ".scene"), "--size", size,
+           "--threads", str(threads), "--quiet", "--out", out, *args]
     subprocess.run(cmd, check=True, stderr=subprocess.DEVNULL)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    shown = f"{os.path.relpath(BUILD, ROOT)}/{chapter} scenes/{scene}.scene --size 64x64 --threads 1 " + " ".join(args)
+    shown = f"{os.path.relpath(BUILD, ROOT)}/{chapter} scenes/{scene}.scene --size {size} --threads {threads} " + \
+        " ".join(args)
     return after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, shown
 
 
@@ -68,14 +76,14 @@ def reference(scene):
     chapter, args = REFERENCES[scene]
     halves = []
     for seed in (901, 902):
-        path = os.path.join(OUT, f"ref-{scene}-{seed}.pfm")
+        path = os.path.join(OUT, f"ref-{scene}-{seed}.pfm" if SIZE == 64 else f"ref-{scene}-{SIZE}-{seed}.pfm")
         if not os.path.exists(path):
-            render(chapter, scene, args + ["--seed", str(seed)], path)
+            render(chapter, scene, args + ["--seed", str(seed)], path, threads=2)
         halves.append(pixels(path))
     return [(a + b) / 2 for a, b in zip(*halves)], [(a - b) ** 2 / 4 for a, b in zip(*halves)]
 
 
-def off_edges(ref, width=64, height=64):
+def off_edges(ref, width=SIZE, height=SIZE):
     """Indices (into the flat channel list) of the pixels without a jump above EDGE_JUMP in the reference's
     mean of the channels to a 4-neighbour."""
     lum = [sum(ref[3 * p:3 * p + 3]) / 3 for p in range(width * height)]
@@ -100,7 +108,15 @@ def errors(x, ref, ref_var, keep, region=None):
             None if inside is None else math.sqrt(max(inside, 0.0)))
 
 
-def mirror_region(width=64, height=64):
+def mean_errors(runs):
+    """errors()'s tuple over repeated runs: RMSEs as the root of the mean MSE, relative MSE as the mean."""
+    def root_mean_square(values):
+        return None if values[0] is None else math.sqrt(sum(v * v for v in values) / len(values))
+    rmse, rel, off, inside = zip(*runs)
+    return root_mean_square(rmse), sum(rel) / len(rel), root_mean_square(off), root_mean_square(inside)
+
+
+def mirror_region(width=SIZE, height=SIZE):
     """Channel indices (PFM order, bottom row first) of sds.scene's mirror ball without the light's images in it
     (caustic_region.sds_mirror_regions: only there are the scene's L S .. D S E paths measured without the
     fireflies of the light seen through mirror and glass, E S .. S L, which only an eye path that hits the
@@ -115,6 +131,8 @@ def target_lines(scene, found):
     L = []
     for budget in sorted(found):
         f = found[budget]
+        if not all(m in f for m in ("pt", "pm", "bdpt", "vcm")):
+            continue
         if f["vcm"][3] is not None:
             q = f["vcm"][3] / min(f["bdpt"][3], f["pm"][3])
             L.append(f"target {scene} VCM/min(BDPT,PM) in the mirror ball (the SDS paths, no light image) = {q:.2f} "
@@ -132,23 +150,30 @@ def target_lines(scene, found):
 
 def main():
     os.makedirs(OUT, exist_ok=True)
-    print(f"chapters 4, 5, 6 at {', '.join(f'{b:g}' for b in BUDGETS)} CPU seconds each, 64x64, one thread "
-          f"(BENCH6_BUDGETS); one reference a scene for every method and budget:")
+    print(f"chapters 4, 5, 6 at {', '.join(f'{b:g}' for b in BUDGETS)} CPU seconds each, {SIZE}x{SIZE}, one thread, "
+          f"{REPEATS} run(s) each (BENCH6_BUDGETS, BENCH6_SIZE, BENCH6_REPEATS); one reference a scene for every "
+          f"method and budget; load: {os.getloadavg()[0]:.1f}")
     wanted = [w for w in os.environ.get("BENCH6_SCENES", "").split(",") if w]
+    picked = [w for w in os.environ.get("BENCH6_METHODS", "").split(",") if w]
     targets = []
     for scene in [sc for sc in REFERENCES if not wanted or sc in wanted]:
         ref, ref_var = reference(scene)
         keep = off_edges(ref)
         region = mirror_region() if scene == "sds" else None
         found = {b: {} for b in BUDGETS}
-        for label, chapter, args in METHODS:
+        for label, chapter, args in [m for m in METHODS if not picked or m[0] in picked]:
             cpu, _ = render(chapter, scene, args + ["--spp", "8", "--seed", "3"], os.path.join(OUT, "pilot.pfm"))
             for budget in BUDGETS:
                 spp = max(1, round(8 * budget / max(cpu, 1e-3)))
-                out = os.path.join(OUT, f"{scene}-{label}-{budget:g}.pfm")
-                used, cmd = render(chapter, scene, args + ["--spp", str(spp), "--seed", str(7 + BUDGETS.index(budget))],
-                                   out)
-                rmse, rel, off, inside = errors(pixels(out), ref, ref_var, keep, region)
+                out = os.path.join(OUT, f"{scene}-{label}-{budget:g}.pfm" if SIZE == 64 else
+                                   f"{scene}-{label}-{budget:g}-{SIZE}.pfm")
+                runs = []
+                for rep in range(REPEATS):
+                    seed = 7 + BUDGETS.index(budget) + 100 * rep
+                    used, cmd = render(chapter, scene, args + ["--spp", str(spp), "--seed", str(seed)], out)
+                    runs.append((used, errors(pixels(out), ref, ref_var, keep, region)))
+                used = min(u for u, _ in runs)
+                rmse, rel, off, inside = mean_errors([e for _, e in runs])
                 scale = math.sqrt(used / budget)  # to the budget: error^2 ~ 1/time
                 rmse, rel, off = rmse * scale, rel * scale ** 2, off * scale
                 inside = None if inside is None else inside * scale
@@ -157,7 +182,7 @@ def main():
                       f"{rel:.5f}  RMSE off the light's edges {off:.5f}" +
                       ("" if inside is None else f"  in the mirror ball {inside:.5f}") + f"   {cmd}", flush=True)
         print(f"  {scene:16s} reference noise RMSE {math.sqrt(sum(ref_var) / len(ref_var)):.5f}; "
-              f"{(len(ref) - len(keep)) // 3} pixels on the light's edges")
+              f"{(len(ref) - len(keep)) // 3} pixels on the light's edges; load {os.getloadavg()[0]:.1f}")
         lines = target_lines(scene, found)
         targets += lines
         print("\n".join("  " + line for line in lines), flush=True)
