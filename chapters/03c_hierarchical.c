@@ -399,8 +399,9 @@ static int build(hierarchical_state *st, const scene *s, char *err, size_t err_s
     if (!r.failed && hierarchy_measure_unburied(h, &st->mesh, s))
         r.failed = 1;
     refiner_free(&r);
-    st->stats.formfactor_s += omp_get_wtime() - start; /* refinement and the links' form factors */
-    return hierarchy_complete(&r, o, &st->stats, err, err_size);
+    int status = hierarchy_complete(&r, o, &st->stats, err, err_size); /* with the links' shapes */
+    st->stats.formfactor_s += omp_get_wtime() - start; /* refinement, the links' form factors and shapes */
+    return status;
 }
 
 /* Step 3: the sources (point lights shoot once, R1, as in chapter 3) and

@@ -260,7 +260,11 @@ int hierarchy_shape_links(hierarchy *h, const patch_mesh *m, const scene *s, poi
 #pragma omp parallel for schedule(dynamic, 64)
     for (int e = 0; e < h->element_count; e++)
         for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
-            shape_link(h, m, s, F, e, k);
+            if (m->cells[e].first_child >= 0)
+                shape_link(h, m, s, F, e, k);
+            else /* a leaf keeps the mean over its corners (push_pull), whatever the shape: none needed */
+                for (int j = 0; j < 4; j++)
+                    h->link_shape[4 * k + j] = (float)(h->unburied[e] > 0.0);
     return 0;
 }
 
