@@ -91,6 +91,25 @@ int chunk_add_splat(chunk *c, int pixel, vec3 value)
     return append((void **)&c->splats, &c->splat_count, &c->splat_capacity, sizeof s, &s, 1);
 }
 
+/* The photon grid over the pass's light vertices that merging can use: none on a light's own point (y_0) or on a
+ * mirror or glass, which the chapter's merges() would pass over (fewer points to sort and to visit). */
+static int index_mergeable(bidir_state *st, size_t total)
+{
+    if (total > st->mergeable_capacity) {
+        uint32_t *grown = realloc(st->mergeable, 2 * total * sizeof *grown);
+        if (!grown)
+            return 2;
+        st->mergeable = grown;
+        st->mergeable_capacity = 2 * total;
+    }
+    size_t n = 0;
+    for (size_t i = 0; i < total; i++)
+        if (st->light_vertices[i].index > 0 && !st->light_vertices[i].specular)
+            st->mergeable[n++] = (uint32_t)i;
+    return photon_grid_rebuild(&st->grid, &st->light_vertices[0].x, sizeof *st->light_vertices, st->mergeable, n,
+                               st->current_radius);
+}
+
 static int join_chunks(bidir_state *st, chunk *chunks, int n)
 {
     size_t total = 0;
@@ -114,8 +133,7 @@ static int join_chunks(bidir_state *st, chunk *chunks, int n)
                 v3_add(st->light_image[chunks[c].splats[i].pixel], chunks[c].splats[i].value);
         st->light_rays += chunks[c].rays;
     }
-    photon_grid_free(&st->grid);
-    return st->merge ? photon_grid_build(&st->grid, &all[0].x, sizeof *all, total, st->current_radius) : 0;
+    return st->merge ? index_mergeable(st, total) : 0;
 }
 
 static int chunk_count(const bidir_state *st) { return (st->light_paths + CHUNK - 1) / CHUNK; }
@@ -288,8 +306,8 @@ void bidir_finish(void *state)
     free(st->light_probability), free(st->path_first), free(st->path_count), free(st->light_image);
     for (int c = 0; st->chunks && c < chunk_count(st); c++)
         free(st->chunks[c].vertices), free(st->chunks[c].splats);
-    free(st->chunks), free(st->light_vertices), free(st->surface_averages);
-    st->chunks = NULL;
+    free(st->chunks), free(st->light_vertices), free(st->surface_averages), free(st->mergeable);
+    st->chunks = NULL, st->mergeable = NULL;
     st->surface_averages = NULL, st->light_probability = NULL, st->light_vertices = NULL, st->light_image = NULL;
     st->path_first = st->path_count = NULL;
 }

@@ -84,10 +84,12 @@ struct bidir_state {
     int light_paths, passes; /* per pass: one per pixel */
     path_vertex *light_vertices;
     size_t light_vertex_capacity;
-    chunk *chunks;                             /* the pass's chunks of light subpaths (light_pass) */
-    int *path_first, *path_count;              /* light subpath p: light_vertices[path_first[p]] ... */
-    vec3 *light_image;                         /* this pass's light tracing (t = 1), one value per pixel */
-    photon_grid grid;                          /* over light_vertices */
+    chunk *chunks;                /* the pass's chunks of light subpaths (light_pass) */
+    int *path_first, *path_count; /* light subpath p: light_vertices[path_first[p]] ... */
+    vec3 *light_image;            /* this pass's light tracing (t = 1), one value per pixel */
+    photon_grid grid;             /* over the light vertices merging can use: */
+    uint32_t *mergeable;          /* their indices in light_vertices (not on a light, mirror, glass) */
+    size_t mergeable_capacity;
     double check_worst_sum, check_worst_ratio; /* --check: the largest |sum of weights - 1|, |C p / f - 1| */
     long check_connections;
     const scene *scene;

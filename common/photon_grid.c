@@ -2,6 +2,7 @@
 #include "photon_grid.h"
 
 #include <stdlib.h>
+#include <string.h>
 
 #include "rng.h"
 
@@ -24,42 +25,69 @@ static vec3 point_at(const void *first, size_t stride, size_t i)
     return *(const vec3 *)((const char *)first + i * stride);
 }
 
+static bool grow(void **array, size_t n, size_t size)
+{
+    void *grown = realloc(*array, n * size);
+    if (grown)
+        *array = grown;
+    return grown != NULL;
+}
+
+/* Room for `points` points and `buckets` buckets (half as much again when it grows, as counts vary from pass to
+ * pass): 0, or 2 when out of memory. */
+static int reserve(photon_grid *g, size_t points, size_t buckets)
+{
+    if (points > g->point_capacity) {
+        points += points / 2;
+        if (!grow((void **)&g->order, points, sizeof *g->order) ||
+            !grow((void **)&g->position, points, sizeof *g->position) ||
+            !grow((void **)&g->point_bucket, points, sizeof *g->point_bucket))
+            return 2;
+        g->point_capacity = points;
+    }
+    if (buckets > g->bucket_capacity) {
+        buckets += buckets / 2;
+        if (!grow((void **)&g->bucket_start, buckets, sizeof *g->bucket_start))
+            return 2;
+        g->bucket_capacity = buckets;
+    }
+    return 0;
+}
+
 int photon_grid_build(photon_grid *g, const void *first, size_t stride, size_t count, double cell_size)
 {
-    *g = (photon_grid){.cell_size = 2.0 * cell_size, .count = count}; /* cubes of side 2 r: 2 x 2 x 2 per query */
+    *g = (photon_grid){0};
+    return photon_grid_rebuild(g, first, stride, NULL, count, cell_size);
+}
+
+int photon_grid_rebuild(photon_grid *g, const void *first, size_t stride, const uint32_t *which, size_t count,
+                        double cell_size)
+{
+    g->cell_size = 2.0 * cell_size; /* cubes of side 2 r: 2 x 2 x 2 per query */
+    g->count = count;
     /* About two buckets per point keeps most buckets short; at least one. */
     g->bucket_count = (uint32_t)(count < (1u << 30) ? 2 * count + 1 : (1u << 31));
-    g->bucket_start = calloc((size_t)g->bucket_count + 1, sizeof *g->bucket_start);
-    g->order = malloc((count + 1) * sizeof *g->order);
-    g->position = malloc((count + 1) * sizeof *g->position);
-    uint32_t *bucket = malloc((count + 1) * sizeof *bucket);
-    if (!g->bucket_start || !g->order || !g->position || !bucket) {
-        free(bucket);
+    if (reserve(g, count + 1, (size_t)g->bucket_count + 1)) {
         photon_grid_free(g);
         return 2;
     }
-    /* Counting sort by bucket, stable: count, prefix sums, place in order. */
+    memset(g->bucket_start, 0, ((size_t)g->bucket_count + 1) * sizeof *g->bucket_start);
+    /* Counting sort by bucket, stable: count into bucket_start[b + 1]; prefix sums, so that bucket b ends at
+     * bucket_start[b + 1]; each point, last to first, into the last free place of its bucket, moving that end
+     * down to the bucket's start; then the offsets one place down. */
     for (size_t i = 0; i < count; i++) {
-        bucket[i] = bucket_of_point(g, point_at(first, stride, i));
-        g->bucket_start[bucket[i] + 1]++;
+        g->point_bucket[i] = bucket_of_point(g, point_at(first, stride, which ? which[i] : i));
+        g->bucket_start[g->point_bucket[i] + 1]++;
     }
     for (uint32_t b = 0; b < g->bucket_count; b++)
         g->bucket_start[b + 1] += g->bucket_start[b];
-    uint32_t *next_slot = malloc(((size_t)g->bucket_count + 1) * sizeof *next_slot);
-    if (!next_slot) {
-        free(bucket);
-        photon_grid_free(g);
-        return 2;
+    for (size_t i = count; i-- > 0;) {
+        uint32_t slot = --g->bucket_start[g->point_bucket[i] + 1];
+        g->order[slot] = (uint32_t)(which ? which[i] : i);
+        g->position[slot] = point_at(first, stride, g->order[slot]);
     }
-    for (uint32_t b = 0; b <= g->bucket_count; b++)
-        next_slot[b] = g->bucket_start[b];
-    for (size_t i = 0; i < count; i++) {
-        uint32_t slot = next_slot[bucket[i]]++;
-        g->order[slot] = (uint32_t)i;
-        g->position[slot] = point_at(first, stride, i);
-    }
-    free(next_slot);
-    free(bucket);
+    memmove(g->bucket_start, g->bucket_start + 1, g->bucket_count * sizeof *g->bucket_start);
+    g->bucket_start[g->bucket_count] = (uint32_t)count;
     return 0;
 }
 
@@ -68,6 +96,7 @@ void photon_grid_free(photon_grid *g)
     free(g->bucket_start);
     free(g->order);
     free(g->position);
+    free(g->point_bucket);
     *g = (photon_grid){0};
 }
 

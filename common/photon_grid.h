@@ -31,12 +31,20 @@ typedef struct {
     uint32_t *order;        /* the points' indices, grouped by bucket */
     vec3 *position;         /* position[j] is the point order[j]: the search reads only this array */
     size_t count;
+    /* Kept for photon_grid_rebuild: the arrays' sizes, and each point's bucket while sorting. */
+    uint32_t *point_bucket;
+    size_t bucket_capacity, point_capacity;
 } photon_grid;
 
 /* Index `count` points: point i is at *(const vec3 *)((const char *)first + i * stride)
  * (a member of an array of structs).  Returns 0, or 2 when out of memory.
  * cell_size > 0 is the largest radius the grid will be asked about. */
 int photon_grid_build(photon_grid *grid, const void *first, size_t stride, size_t count, double cell_size);
+/* The same, but of the `count` points whose indices are which[0 .. count - 1] (in increasing order; NULL: all of
+ * 0 .. count - 1), into the arrays of the grid's earlier build, grown when too small (a zeroed grid the first
+ * time): a grid rebuilt every pass needs no fresh memory, whose page faults cost more than the sort. */
+int photon_grid_rebuild(photon_grid *grid, const void *first, size_t stride, const uint32_t *which, size_t count,
+                        double cell_size);
 void photon_grid_free(photon_grid *grid);
 
 /* for (photon_grid_search(g, x, r2, &c); photon_grid_next(g, &c, &i, &d2);) ...
