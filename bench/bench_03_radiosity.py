@@ -106,7 +106,7 @@ reached = {}
 # link) are the fastest way found to the uniform solve's error (README, "Benchmarks").
 # eps in steps of sqrt(2): the time to reach an error is the first run that reaches it, so a coarser
 # grid would overstate it (by up to the step's ratio of times).
-for eps in (8e-2, 5.6e-2, 4e-2, 2.8e-2, 2e-2, 1.4e-2, 1e-2, 5e-3):
+for eps in (1.6e-1, 1.1e-1, 8e-2, 5.6e-2, 4e-2, 2.8e-2, 2e-2, 1.4e-2, 1e-2, 5e-3):
     s, t, peak, times = median_run("--eps", eps, "--eps-spread", 7e-4, "--quadrature", 1, "--tol", "1e-3",
                                    program="03c_hierarchical")
     error = {"surfaces": surface_error(s, truth), "image": s["metrics"]["relmse"]}

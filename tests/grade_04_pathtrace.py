@@ -33,9 +33,9 @@ from lib import furnace_scene  # the furnace of scenes/furnace-pt.scene with Le 
 from lib import (BATCH_DF, ROOT, check_bad_input, check_probes_match_lambert, check_thread_independence,
                  finite_image, kit_stats, probe, radiosity_surfaces, read_pfm, t_bound)
 
-from lib import expect_estimate  # the report's sentences
+from lib import expect_estimate, expect_surfaces_match_radiosity  # the report's sentences
 from lib import CHANNELS, expect, expect_close, lambert_polygon_irradiance  # several lights, MIS
-from lib import expect_at_least, expect_at_most, expect_image  # the report's sentences
+from lib import expect_at_least, expect_image  # the report's sentences
 
 CHAPTER = "04_pathtrace"
 ESTIMATORS = ("hemisphere", "cosine", "light", "mis")
@@ -311,7 +311,6 @@ def test_caustic_under_glass_ball(ctx):
     _, stats = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 1, "--probe-samples", 1 << 17,
                           "--bounces", "2:2")
     c, a = probe(stats, "caustic"), probe(stats, "aside")
-    diff = c["irradiance"][0] - a["irradiance"][0]
     se = math.hypot(c["standard_error"][0], a["standard_error"][0])
     expect_at_least("irradiance (--bounces 2:2, red) at the caustic under the glass ball", c["irradiance"][0],
                     max(2 * a["irradiance"][0], a["irradiance"][0] + 4 * se),
@@ -456,23 +455,7 @@ def test_radiosity_and_path_tracing_agree_on_cornell_box(ctx):
     _, stats = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 1, "--surface-samples", 1 << 16,
                           "--probe-samples", 32, name="pt")
     traced = {s["name"]: s for s in stats["surfaces"]}
-    expect(set(traced) == set(radiosity[25]) == set(radiosity[50]),
-           f"surfaces of the Cornell box: path tracing {sorted(traced)}, radiosity {sorted(radiosity[25])}; "
-           "expected the same names")
-    t = t_bound(BATCH_DF, 3 * len(traced))
-    for name, s in traced.items():
-        r25, r50 = radiosity[25][name], radiosity[50][name]
-        expect_close("area", s["area"], r25["area"], rel=1e-6, where=f"of the Cornell box's {name}",
-                     by="build/03_radiosity's")
-        for c in range(3):
-            bound = 2 * abs(r50["radiance"][c] - r25["radiance"][c]) + t * s["standard_error"][c]
-            expect_close("radiance", s["radiance"][c], r25["radiance"][c], tol=bound, se=s["standard_error"][c],
-                         where=f"of the Cornell box's {name}, {CHANNELS[c]} (surface average)",
-                         by=f"radiosity at 25 mm patches (50 mm: {r50['radiance'][c]:.5g}), within twice their "
-                            f"difference + {t:.2f} standard errors")
-            expect_at_most("standard error of the radiance", s["standard_error"][c], 0.02 * s["radiance"][c] + 1e-4,
-                           where=f"of the Cornell box's {name}, {CHANNELS[c]}", by="2 % of the radiance + 1e-4",
-                           words=("too noisy", "less noisy"))
+    expect_surfaces_match_radiosity(traced, radiosity, "path tracing", "surface average")
 
 
 # ---- plumbing -----------------------------------------------------------------------------------

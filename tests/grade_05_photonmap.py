@@ -30,10 +30,10 @@ import os
 
 import lib
 from lib import furnace_scene  # the furnace of scenes/furnace-pt.scene with Le and rho
-from lib import BATCH_DF, CRITERION_ALPHA, ROOT, Image, radiosity_surfaces, check_bad_input, \
+from lib import BATCH_DF, CRITERION_ALPHA, ROOT, radiosity_surfaces, check_bad_input, \
     check_thread_independence, finite_image, lambert_polygon_irradiance, probe, t_bound
 
-from lib import expect_estimate  # the report's sentences
+from lib import expect_estimate, expect_surfaces_match_radiosity  # the report's sentences
 from lib import CHANNELS, expect, expect_between  # several lights, probes and the radius
 from lib import expect_at_least, expect_at_most, expect_close, expect_image  # the report's sentences
 
@@ -288,23 +288,7 @@ def test_radiosity_and_photon_mapping_agree_on_cornell_box(ctx):
     _, stats = ctx.render(CHAPTER, scene, "--size", "8x8", "--spp", 8, "--photons", 200000,
                           "--probe-photons", 32, name="pm")
     mapped = {s["name"]: s for s in stats["surfaces"]}
-    expect(set(mapped) == set(radiosity[25]),
-           f"surfaces of the Cornell box: photon mapping {sorted(mapped)}, radiosity {sorted(radiosity[25])}; "
-           "expected the same names")
-    t = t_bound(BATCH_DF, 3 * len(mapped))
-    for name, s in mapped.items():
-        r25, r50 = radiosity[25][name], radiosity[50][name]
-        expect_close("area", s["area"], r25["area"], rel=1e-6, where=f"of the Cornell box's {name}",
-                     by="build/03_radiosity's")
-        for c in range(3):
-            bound = 2 * abs(r50["radiance"][c] - r25["radiance"][c]) + t * s["standard_error"][c]
-            expect_close("radiance", s["radiance"][c], r25["radiance"][c], tol=bound, se=s["standard_error"][c],
-                         where=f"of the Cornell box's {name}, {CHANNELS[c]} (from the power the photons deposit)",
-                         by=f"radiosity at 25 mm patches (50 mm: {r50['radiance'][c]:.5g}), within twice their "
-                            f"difference + {t:.2f} standard errors")
-            expect_at_most("standard error of the radiance", s["standard_error"][c], 0.02 * s["radiance"][c] + 1e-4,
-                           where=f"of the Cornell box's {name}, {CHANNELS[c]}", by="2 % of the radiance + 1e-4",
-                           words=("too noisy", "less noisy"))
+    expect_surfaces_match_radiosity(mapped, radiosity, "photon mapping", "from the power the photons deposit")
 
 
 # ---- convergence to the path tracer -----------------------------------------------------------------

@@ -514,6 +514,30 @@ def radiosity_surfaces(ctx, scene, patch_sizes=(50, 25)):
     return found
 
 
+def expect_surfaces_match_radiosity(estimated, radiosity, method, how):
+    """Each surface's mean radiance (a chapter's "surfaces", with standard errors from 32 batch
+    means) against radiosity_surfaces(): within 2 |L_50 - L_25| (radiosity's discretisation
+    error at 25 mm, for convergence of order >= 0.585) plus t_bound standard errors, and each
+    standard error below 2 %.  method names the estimate, how says where its mean comes from."""
+    expect(set(estimated) == set(radiosity[25]) == set(radiosity[50]),
+           f"surfaces of the Cornell box: {method} {sorted(estimated)}, radiosity {sorted(radiosity[25])}; "
+           "expected the same names")
+    t = t_bound(BATCH_DF, 3 * len(estimated))
+    for name, s in estimated.items():
+        r25, r50 = radiosity[25][name], radiosity[50][name]
+        expect_close("area", s["area"], r25["area"], rel=1e-6, where=f"of the Cornell box's {name}",
+                     by="build/03_radiosity's")
+        for c in range(3):
+            bound = 2 * abs(r50["radiance"][c] - r25["radiance"][c]) + t * s["standard_error"][c]
+            expect_close("radiance", s["radiance"][c], r25["radiance"][c], tol=bound, se=s["standard_error"][c],
+                         where=f"of the Cornell box's {name}, {CHANNELS[c]} ({how})",
+                         by=f"radiosity at 25 mm patches (50 mm: {r50['radiance'][c]:.5g}), within twice their "
+                            f"difference + {t:.2f} standard errors")
+            expect_at_most("standard error of the radiance", s["standard_error"][c], 0.02 * s["radiance"][c] + 1e-4,
+                           where=f"of the Cornell box's {name}, {CHANNELS[c]}", by="2 % of the radiance + 1e-4",
+                           words=("too noisy", "less noisy"))
+
+
 def furnace_scene(ctx, rho, emission=1.0, name="furnace"):
     """scenes/furnace-pt.scene (a 2 x 2 x 2 cube seen from its centre) with its wall material
     replaced by `emitter E E E diffuse rho rho rho`: L = E / (1 - rho) everywhere."""
