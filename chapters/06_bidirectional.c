@@ -1,8 +1,7 @@
 /* 06_bidirectional.c — Lecture 6: bidirectional methods.
  *
- * Path tracing (chapter 4) builds paths from the eye, photon mapping (chapter 5) from the lights.  A path x_0 (on
- * a light) ... x_k (the eye) of k edges carries the term K^(k-1) E (R6), and a pixel is the path integral ((R9)
- * unrolled)
+ * Path tracing (chapter 4) builds paths from the eye, photon mapping (chapter 5) from the lights.  A path x_0 (a
+ * light) ... x_k (the eye) of k edges carries the term K^(k-1) E (R6); a pixel is the path integral ((R9) unrolled)
  *
  *   (R13)  I_j = sum_k Int L_e(x_0) G(x_0,x_1) f(x_1) G(x_1,x_2) ... f(x_(k-1)) G(x_(k-1),x_k) W_e(x_k) dA_0 .. dA_k
  *
@@ -340,9 +339,10 @@ static vec3 merges(const bidir_state *st, const scene *s, const path_vertex *z, 
         const path_vertex *y = &st->light_vertices[i], *first = y - y->index;
         vec3 from = y->index > 0 ? unit(y->x, y[-1].x) : v3_splat(0.0);
         vertex at_y = vertex_at(y->x, y->n, from, y->m);
-        int k = join(first, y->index, z, t, x);
-        if (y->index == 0 || at_specular(y) || v3_dot(at_y.n, v.n) < 0.9 || !(v3_dot(from, v.n) > 0.0) ||
-            !keeps_length(st, x, k) || !strategy_allowed(st, x, k, MERGE, y->index))
+        if (y->index == 0 || at_specular(y) || v3_dot(at_y.n, v.n) < 0.9 || !(v3_dot(from, v.n) > 0.0))
+            continue;
+        int k = join(first, y->index, z, t, x); /* only now: most light vertices found are passed over */
+        if (!keeps_length(st, x, k) || !strategy_allowed(st, x, k, MERGE, y->index))
             continue;
         counters->value[COUNT_MERGES]++;
         vec3 C =
@@ -460,7 +460,7 @@ static void check_join(bidir_state *st, const scene *s, const path_vertex *y, in
     }
     path_pdfs(st, s, x, k, pdf_light, pdf_eye, merge_chance);
     double p = strategy_density(st, x, k, pdf_light, pdf_eye, merge_chance, CONNECT, s_count);
-    bidir_check_record(st, sum, specular ? -1.0 : v3_average(C) * p / v3_average(path_integrand(st, s, x, k)));
+    bidir_check_record(st, sum, specular ? -1.0 : v3_average(C), p, v3_average(path_integrand(st, s, x, k)));
 }
 
 /* --check: pairs of random subpaths, without roulette, and every join of them. */

@@ -1,5 +1,6 @@
 /* bidir_store.c — chapter 6's bookkeeping: options, light subpath storage,
  * warnings and stats (bidir_store.h). */
+#include <float.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -260,12 +261,21 @@ int bidir_prepare(void *state, const scene *s, const render_options *o, char *er
                                        &st->surface_average_count, &st->surface_rays, err, err_size);
 }
 
-void bidir_check_record(bidir_state *st, double weight_sum, double value_ratio)
+/* An error that is not a number is as large as can be: DBL_MAX, which the JSON can still hold. */
+static double worse(double worst, double error) { return fmax(worst, isfinite(error) ? error : DBL_MAX); }
+
+void bidir_check_record(bidir_state *st, double weight_sum, double value, double density, double integrand)
 {
-    st->check_worst_sum = fmax(st->check_worst_sum, fabs(weight_sum - 1.0));
-    if (value_ratio >= 0.0)
-        st->check_worst_ratio = fmax(st->check_worst_ratio, fabs(value_ratio - 1.0));
+    st->check_worst_sum = worse(st->check_worst_sum, fabs(weight_sum - 1.0));
     st->check_connections++;
+    if (value < 0.0)
+        return;
+    if (!isnormal(density) || !isnormal(integrand)) {
+        st->check_out_of_range++;
+        return;
+    }
+    /* In logarithms: value * density / integrand would overflow or underflow where the quotient does not. */
+    st->check_worst_ratio = worse(st->check_worst_ratio, fabs(exp(log(value) + log(density) - log(integrand)) - 1.0));
 }
 
 probe_result bidir_probe(const void *state, const scene *s, const probe *p, uint64_t seed, render_counters *counters)
@@ -293,7 +303,8 @@ void bidir_write_stats(const void *state, FILE *json)
     json_field_number(json, "surface_rays", (double)st->surface_rays);
     json_surface_averages(json, st->scene, st->surface_averages, st->surface_average_count);
     if (st->check_paths > 0) {
-        fprintf(json, ",\n  \"check\": {\"paths\": %d, \"connections\": %ld", st->check_paths, st->check_connections);
+        fprintf(json, ",\n  \"check\": {\"paths\": %d, \"connections\": %ld, \"out_of_range\": %ld", st->check_paths,
+                st->check_connections, st->check_out_of_range);
         fprintf(json, ", \"worst_weight_sum_error\": %.17g, \"worst_f_over_p_error\": %.17g}", st->check_worst_sum,
                 st->check_worst_ratio);
     }

@@ -91,7 +91,7 @@ struct bidir_state {
     uint32_t *mergeable;          /* their indices in light_vertices (not on a light, mirror, glass) */
     size_t mergeable_capacity;
     double check_worst_sum, check_worst_ratio; /* --check: the largest |sum of weights - 1|, |C p / f - 1| */
-    long check_connections;
+    long check_connections, check_out_of_range;
     const scene *scene;
     surface_average *surface_averages; /* --surface-samples (walk_stats.h) */
     int surface_average_count;
@@ -121,10 +121,13 @@ int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *tra
  * (from st->sensor), and --check N (N pairs by st->check).  0, or 2 with a
  * message. */
 int bidir_prepare(void *state, const scene *s, const render_options *o, char *err, size_t err_size);
-/* --check: one join's weights summed over all strategies, and (-1 when the
- * path has a mirror or glass on it) its value times its density over the
- * path integral's integrand: the worst of each. */
-void bidir_check_record(bidir_state *st, double weight_sum, double value_ratio);
+/* --check: one join's weights summed over all strategies, and its value
+ * (-1 when the path has a mirror or glass on it: not compared) times its
+ * density over the path integral's integrand: the worst of each.  A path
+ * whose density or integrand is out of a double's normal range (0,
+ * subnormal or infinite: 64 vertices of G ~ 1e-6 / mm^2 underflow) is
+ * counted (out_of_range), not compared; a NaN error counts as DBL_MAX. */
+void bidir_check_record(bidir_state *st, double weight_sum, double value, double density, double integrand);
 /* The chapter's .probe: a probe's irradiance from st->sensor (walk_probe). */
 probe_result bidir_probe(const void *state, const scene *s, const probe *p, uint64_t seed, render_counters *counters);
 /* A light (a surface number, or surface_count + a point light's) picked by
