@@ -78,7 +78,8 @@ static int extend(const scene *s, path_vertex *p, int count, int cap, vec3 alpha
             weight = as_flux(&v, weight, w_i);
         if (!(v3_max_component(weight) > 0.0) || (roulette && !survives_roulette(&weight, g)))
             return count + 1;
-        alpha = v3_mul(alpha, weight), w = w_i;
+        alpha = v3_mul(alpha, weight);
+        w = w_i;
     }
     if (cap == MAX_VERTICES)
         note_truncated_walk();
@@ -103,10 +104,11 @@ static int light_subpath(const bidir_state *st, const scene *s, int path, rng *g
     vec3 w, power;
     if (i >= s->surface_count) {
         const point_light *l = &s->lights[i - s->surface_count];
-        y[0] = (path_vertex){.x = l->position, .kind = AT_POINT_LIGHT, .surface = i - s->surface_count};
-        w = uniform_sample_sphere(u1, u2), power = v3_scale(l->intensity, 4.0 * M_PI); /* I / (1 / 4 pi) */
+        y[0] = (path_vertex){.x = l->position, .kind = AT_POINT_LIGHT, .surface = i - s->surface_count, .path = path};
+        w = uniform_sample_sphere(u1, u2);
+        power = v3_scale(l->intensity, 4.0 * M_PI); /* I / (1 / 4 pi) */
     } else {
-        y[0] = (path_vertex){.m = material_of(s, i), .kind = AT_SURFACE, .surface = i};
+        y[0] = (path_vertex){.m = material_of(s, i), .kind = AT_SURFACE, .surface = i, .path = path};
         surface_sample_point(s, i, u1, u2, rng_uniform(g), &y[0].x, &y[0].n);
         w = onb_to_world(onb_from_normal(y[0].n), cosine_sample_hemisphere(rng_uniform(g), rng_uniform(g)));
         power = v3_scale(y[0].m->emission, M_PI); /* L_e cos / (cos / pi) */
@@ -114,7 +116,7 @@ static int light_subpath(const bidir_state *st, const scene *s, int path, rng *g
     double pdf = light_point_pdf(st, s, &y[0]);
     if (!(pdf > 0.0))
         return 0;
-    y[0].alpha = v3_splat(1.0 / pdf), y[0].path = path;
+    y[0].alpha = v3_splat(1.0 / pdf);
     return extend(s, y, 1, st->light_cap, v3_scale(power, 1.0 / pdf), w, roulette, true, g, rays);
 }
 
@@ -163,8 +165,7 @@ static int join(const path_vertex *y, int s_count, const path_vertex *z, int t_c
     return s_count + t_count - 1;
 }
 
-/* The density per steradian of the direction from x_j to x_{j+dir} as a walk arriving from x_{j-dir} draws it: dir
- * = +1 a light walk, -1 an eye walk. */
+/* The density per steradian of direction x_j -> x_{j+dir} as a walk from x_{j-dir} draws it (dir 1: light, -1: eye). */
 static double direction_pdf(const path_vertex *x, int j, int dir, const pinhole *c)
 {
     vec3 w = unit(x[j].x, x[j + dir].x);
@@ -178,8 +179,7 @@ static double direction_pdf(const path_vertex *x, int j, int dir, const pinhole 
 
 /* (R14) The density per unit area of x_i as the walk in direction dir drew it: p(w) at the last non-specular vertex
  * x_j before it, times cos theta_i over the squared length D of the way from x_j (through mirrors and glass,
- * unfolded) to x_i (R7).  A light's own point: light_point_pdf; the eye: 1 (a delta in all strategies).
- * [exercise 6.3] */
+ * unfolded) to x_i (R7).  A light's own point: light_point_pdf; the eye: 1 (a delta in all). [exercise 6.3] */
 static double area_pdf(const bidir_state *st, const scene *s, const path_vertex *x, int k, int i, int dir)
 {
     if (dir == 1 && i == 0)
@@ -225,10 +225,9 @@ static bool strategy_allowed(const bidir_state *st, const path_vertex *x, int k,
     return st->method != METHOD_LIGHT || t == 1 + sensor;
 }
 
-/* (R15) n_s p_s: the strategy's number of samples per pixel (N light subpaths for t = 1 and merging, else 1) times
- * its density, the product over the path's non-specular vertices of the light walk's pdf_light for the first s and
- * the eye walk's pdf_eye for the rest (R14); merging at x_s also needs a light vertex within r of it:
- * pdf_light(x_s) pi r^2 (R16). */
+/* (R15) n_s p_s: the strategy's samples per pixel (N light subpaths for t = 1 and merging, else 1) times its density,
+ * the product over the path's non-specular vertices of the light walk's pdf_light for the first s and the eye walk's
+ * pdf_eye for the rest (R14); merging at x_s also needs a light vertex within r of it: pdf_light(x_s) pi r^2 (R16). */
 static double strategy_density(const bidir_state *st, const path_vertex *x, int k, const double *pdf_light,
                                const double *pdf_eye, const double *merge_chance, technique how, int s)
 {
@@ -244,7 +243,8 @@ static void path_pdfs(const bidir_state *st, const scene *s, const path_vertex *
                       double *pdf_eye, double *merge_chance)
 {
     for (int i = 0; i <= k; i++) {
-        pdf_light[i] = area_pdf(st, s, x, k, i, 1), pdf_eye[i] = area_pdf(st, s, x, k, i, -1);
+        pdf_light[i] = area_pdf(st, s, x, k, i, 1);
+        pdf_eye[i] = area_pdf(st, s, x, k, i, -1);
         merge_chance[i] = pdf_light[i] * M_PI * st->current_radius * st->current_radius;
     }
 }
@@ -261,8 +261,8 @@ static double mis_weight(const bidir_state *st, const scene *s, const path_verte
     path_pdfs(st, s, x, k, pdf_light, pdf_eye, merge_chance);
     for (int i = 0; i <= k; i++) {
         double larger = fmax(pdf_light[i], pdf_eye[i]);
-        if (larger > 0.0)
-            pdf_light[i] /= larger, pdf_eye[i] /= larger;
+        pdf_light[i] /= larger > 0.0 ? larger : 1.0;
+        pdf_eye[i] /= larger > 0.0 ? larger : 1.0;
     }
     double p = strategy_density(st, x, k, pdf_light, pdf_eye, merge_chance, how, used);
     for (int j = 0; j <= k + 1; j++)
@@ -360,7 +360,8 @@ static int trace_light_path(const bidir_state *st, const scene *s, int pass, int
     path_vertex y[MAX_VERTICES], x[MAX_PATH], eye = {.x = st->camera.eye, .kind = AT_CAMERA};
     rng g = rng_for(st->seed ^ 0x6c69676874ull, (uint64_t)pass, (uint64_t)path);
     int count = light_subpath(st, s, path, &g, y, &out->rays, true), failed = 0, pixel;
-    st->path_first[path] = (int)out->vertex_count, st->path_count[path] = count;
+    st->path_first[path] = (int)out->vertex_count;
+    st->path_count[path] = count;
     for (int s_count = 1; s_count <= count; s_count++) {
         vec3 value;
         int k = join(y, s_count, &eye, 1, x);
@@ -440,8 +441,7 @@ static vec3 path_integrand(const bidir_state *st, const scene *s, const path_ver
 }
 
 /* One join (s, t): the weights of all strategies for its path must add up to 1, and with no mirror or glass on it
- * (and no roulette on the subpaths, so that alpha is exactly the product of f cos / p) its value must be f(x) /
- * p_s(x). */
+ * (and no roulette on the subpaths, so alpha is exactly the product of f cos / p) its value must be f(x) / p_s(x). */
 static void check_join(bidir_state *st, const scene *s, const path_vertex *y, int s_count, const path_vertex *z, int t)
 {
     path_vertex x[MAX_PATH];

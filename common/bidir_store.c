@@ -37,7 +37,9 @@ static int parse_strategy(void *state, const char *value, int argv_index, char *
         snprintf(why, why_size, "wants S,T with 0 <= S, T <= %d and S + T >= 2, not '%s'", MAX_VERTICES, value);
         return 2;
     }
-    st->single_strategy = true, st->strategy_s = (int)s, st->strategy_t = (int)t;
+    st->single_strategy = true;
+    st->strategy_s = (int)s;
+    st->strategy_t = (int)t;
     return 0;
 }
 
@@ -74,7 +76,8 @@ static int append(void **items, size_t *count, size_t *capacity, size_t size, co
         void *p = realloc(*items, grown * size);
         if (!p)
             return 2;
-        *items = p, *capacity = grown;
+        *items = p;
+        *capacity = grown;
     }
     memcpy((char *)*items + *count * size, item, n * size);
     *count += n;
@@ -120,7 +123,8 @@ static int join_chunks(bidir_state *st, chunk *chunks, int n)
         path_vertex *all = realloc(st->light_vertices, 2 * (total + 1) * sizeof *all);
         if (!all)
             return 2;
-        st->light_vertices = all, st->light_vertex_capacity = 2 * (total + 1);
+        st->light_vertices = all;
+        st->light_vertex_capacity = 2 * (total + 1);
     }
     path_vertex *all = st->light_vertices;
     memset(st->light_image, 0, (size_t)st->light_paths * sizeof *st->light_image);
@@ -146,8 +150,10 @@ int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *tra
         st->chunks = calloc((size_t)n, sizeof *st->chunks);
     chunk *chunks = st->chunks;
     bool needed = !(st->single_strategy && st->strategy_s == 0); /* no strategy reads light subpaths */
-    for (int c = 0; chunks && c < n; c++)
-        chunks[c].vertex_count = chunks[c].splat_count = 0, chunks[c].rays = 0;
+    for (int c = 0; chunks && c < n; c++) {
+        chunks[c].vertex_count = chunks[c].splat_count = 0;
+        chunks[c].rays = 0;
+    }
     if (chunks && needed && s->emitter_count + s->light_count > 0) {
 #pragma omp parallel for schedule(dynamic, 1) reduction(| : failed)
         for (int c = 0; c < n; c++)
@@ -236,7 +242,9 @@ static void warn_impossible(const bidir_state *st, const scene *s, specular_test
 int bidir_prepare(void *state, const scene *s, const render_options *o, char *err, size_t err_size)
 {
     bidir_state *st = state;
-    st->bounces = bounce_window_of(o), st->seed = o->seed, st->scene = s;
+    st->bounces = bounce_window_of(o);
+    st->seed = o->seed;
+    st->scene = s;
     st->light_cap = st->bounces.last + 1 < MAX_VERTICES ? st->bounces.last + 1 : MAX_VERTICES;
     st->eye_cap = st->bounces.last + 2 < MAX_VERTICES ? st->bounces.last + 2 : MAX_VERTICES;
     st->merge = st->method == METHOD_VCM && !st->merge_off && !st->single_strategy;
@@ -314,11 +322,23 @@ void bidir_finish(void *state)
 {
     bidir_state *st = state;
     photon_grid_free(&st->grid);
-    free(st->light_probability), free(st->path_first), free(st->path_count), free(st->light_image);
-    for (int c = 0; st->chunks && c < chunk_count(st); c++)
-        free(st->chunks[c].vertices), free(st->chunks[c].splats);
-    free(st->chunks), free(st->light_vertices), free(st->surface_averages), free(st->mergeable);
-    st->chunks = NULL, st->mergeable = NULL;
-    st->surface_averages = NULL, st->light_probability = NULL, st->light_vertices = NULL, st->light_image = NULL;
+    free(st->light_probability);
+    free(st->path_first);
+    free(st->path_count);
+    free(st->light_image);
+    for (int c = 0; st->chunks && c < chunk_count(st); c++) {
+        free(st->chunks[c].vertices);
+        free(st->chunks[c].splats);
+    }
+    free(st->chunks);
+    free(st->light_vertices);
+    free(st->surface_averages);
+    free(st->mergeable);
+    st->chunks = NULL;
+    st->mergeable = NULL;
+    st->surface_averages = NULL;
+    st->light_probability = NULL;
+    st->light_vertices = NULL;
+    st->light_image = NULL;
     st->path_first = st->path_count = NULL;
 }

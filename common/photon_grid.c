@@ -155,7 +155,8 @@ static void sift_down(double *d2, int n, int i)
         if (largest == i)
             return;
         double di = d2[i];
-        d2[i] = d2[largest], d2[largest] = di;
+        d2[i] = d2[largest];
+        d2[largest] = di;
         i = largest;
     }
 }
@@ -165,7 +166,8 @@ static void sift_up(double *d2, int i)
     while (i > 0 && d2[(i - 1) / 2] < d2[i]) {
         int p = (i - 1) / 2;
         double di = d2[i];
-        d2[i] = d2[p], d2[p] = di;
+        d2[i] = d2[p];
+        d2[p] = di;
         i = p;
     }
 }
