@@ -12,11 +12,10 @@
  *   2. bdpt   every (s, t), weighted by (R15) computed plainly from the path's densities (R14);
  *   3. vcm    (the default) also chapter 5's density estimate (R11) at every eye vertex, as one more strategy
  *             (R16), with the radius of (R12).  --merge off is bdpt; --connect off progressive photon mapping.
- * --strategy S,T: one strategy, unweighted.  --check N: the weights and densities tested on random paths.
- * Probes and surface means (walk_stats.h) put a sensor at a point in the camera's place: sensor_sample.
- * Each pass traces one light subpath per pixel (begin_pass: light tracing, the photon grid); the camera ray of
- * pixel p makes one eye subpath and joins it to light subpath p.  Materials and scattering are chapter 4's
- * (pathtrace_model.h), a photon's flux chapter 5's (photonmap_model.h), the photon grid common's. */
+ * --strategy S,T: one strategy, unweighted.  --check N: weights and densities tested on random paths.  Probes and
+ * surface means (walk_stats.h) put a sensor in the camera's place: sensor_sample.  Each pass traces one light subpath
+ * per pixel (begin_pass: light tracing, the photon grid); pixel p's camera ray makes one eye subpath, joined to light
+ * subpath p.  Materials and scattering: chapter 4's (pathtrace_model.h); flux: chapter 5's (photonmap_model.h). */
 #include <string.h>
 
 #include "render.h"
@@ -265,10 +264,11 @@ static double mis_weight(const bidir_state *st, const scene *s, const path_verte
         pdf_eye[i] /= larger > 0.0 ? larger : 1.0;
     }
     double p = strategy_density(st, x, k, pdf_light, pdf_eye, merge_chance, how, used);
-    for (int j = 0; j <= k + 1; j++)
-        for (technique h = CONNECT; h <= MERGE; h++)
-            if (strategy_allowed(st, x, k, h, j))
-                sum += pow(strategy_density(st, x, k, pdf_light, pdf_eye, merge_chance, h, j), 2.0);
+    for (int j = 0; j <= k + 1; j++) { /* merging at x_j (t >= 2) is joining there (n = 1) times N pi r^2 pdf_light */
+        bool join = strategy_allowed(st, x, k, CONNECT, j), merge = strategy_allowed(st, x, k, MERGE, j);
+        double q = join || merge ? strategy_density(st, x, k, pdf_light, pdf_eye, merge_chance, CONNECT, j) : 0.0;
+        sum += (join ? q * q : 0.0) + (merge ? pow(q * st->light_paths * merge_chance[j], 2.0) : 0.0);
+    }
     if (p > 0.0 && sum > 0.0 && isfinite(sum))
         return p * p / sum;
     note_dropped_path();
