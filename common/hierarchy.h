@@ -144,7 +144,8 @@ double source_brightness(const refiner *r, int q);
 
 /* Second pass: a link takes its source's radiance as constant; where q's
  * leaves differ by spread_q, p's gather may be off by rho_p F_pq spread_q:
- * that as a fraction of p's radiance (worst channel).  0 when unknown. */
+ * that as a fraction of p's radiance (worst channel), with the B and spread
+ * of p's and q's nearest first-pass ancestors.  0 before the first pass. */
 double spread_bound(const refiner *r, int p, int q, const patch *ep, double fpq);
 
 /* h->link_start/source/F from r's links grouped by receiver, each F (R10)

@@ -126,15 +126,38 @@ double source_brightness(const refiner *r, int q)
     return fmin(fmax(1.0, v3_average(r->radiance[q]) / r->mean_radiance), BRIGHTNESS_CAP);
 }
 
+/* spread_bound's errors are relative to p's radiance; for a receiver the
+ * second pass made (which takes its first-pass ancestor's B), to no less
+ * than this fraction of the scene's mean.  Without the floor such receivers
+ * in the dark link to every first-pass leaf of a source with a shadow on it:
+ * the Cornell box at the defaults passes the 40 M link limit (11.1 M with
+ * it; 10.9 M when they were not refined at all).  First-pass elements keep
+ * their own B, however dark: under a box 1 mm above a lit floor, the same
+ * floor on them (0.03 or 0.1 of the mean) let 2 and 6.4 times the light
+ * its slit lets in through (grade_03_furnace's contact-line test). */
+static const double DARKEST_RECEIVER = 0.03;
+
 /* Second pass: a link takes its source's radiance as constant.  Where the
  * source's leaves differ by spread_q, what p gathers may be off by up to
  * rho_p F_pq spread_q: this bound as a fraction of p's radiance (the worst
- * channel).  0 when unknown. */
+ * channel; see DARKEST_RECEIVER).  An element the second pass made takes its
+ * nearest first-pass ancestor's B and spread: a first-pass leaf's spread is
+ * 0 (one B), and a receiver the second pass made is still refined for its
+ * sources' spread (it was not: the faces of the Cornell box's blocks lit
+ * only by other surfaces gathered the floor's shadow edges through coarse
+ * links, the short block's front face +3 % at --eps 8e-2, +1.4 % now).  0
+ * before the first pass's solution is known. */
 double spread_bound(const refiner *r, int p, int q, const patch *ep, double fpq)
 {
-    if (!r->radiance || p >= r->known || q >= r->known)
+    if (!r->radiance)
         return 0.0;
-    vec3 bound = v3_scale(v3_mul(ep->albedo, r->spread[q]), fpq), b = r->radiance[p];
+    double darkest = 0.0;
+    for (; p >= r->known; p = r->h->parent[p])
+        darkest = DARKEST_RECEIVER * r->mean_radiance;
+    while (q >= r->known)
+        q = r->h->parent[q];
+    vec3 bound = v3_scale(v3_mul(ep->albedo, r->spread[q]), fpq);
+    vec3 b = v3_max(r->radiance[p], v3_splat(darkest));
     double worst = 0.0;
     for (int c = 0; c < 3; c++)
         if (v3_get(b, c) > 0.0)
