@@ -13,7 +13,9 @@ to the budget exactly by error^2 ~ 1/time.  BENCH6_METHODS=pt,pm,bdpt,vcm picks 
 renders a and b (chapter 4 where it converges, chapter 6's BDPT on gap and VCM on sds; kept
 in out/bench/06/ by size and reused; on two threads, which gives the same image); its own
 noise, mean((a - b)^2) / 4 per pixel, is subtracted from each method's MSE, so a method is
-not charged for the reference's noise.  Prints RMSE,
+not charged for the reference's noise.  BENCH6_COST_ROUNDS=N (default 0: off) takes each method's CPU time
+per pass instead from N rounds of short runs of every method in turn (pass_costs), the least of each: on a
+loaded machine the CPU time of the long runs varies by 10-50 % with what runs beside them.  Prints RMSE,
 relative MSE (per pixel (x - r)^2 / (r^2 + 0.01)) and the RMSE off the light's edges (the
 pixels whose reference jumps by more than EDGE_JUMP to a neighbour left out: there a pixel
 half on the light, radiance 17 next to 0, is what path tracing's jittered camera rays
@@ -24,8 +26,8 @@ targets, one line each at each budget (`target gap BDPT/PT = 0.50 at 8 CPU s (<=
 within 1.1x of the better of BDPT and photon mapping (the whole image's RMSE, the issue's
 figure; the ratio off the light's edges beside it); on sds also over the mirror ball without the
 light's images in it (caustic_region.sds_mirror_regions: the whole image and "off the edges" there
-are a few fireflies of the light seen through mirror and glass).  BENCH6_SCENES=a,b picks scenes.  A benchmark, not a test: it
-prints what it measures, met or not.
+are a few fireflies of the light seen through mirror and glass).  BENCH6_SCENES=a,b picks scenes.
+A benchmark, not a test: it prints what it measures, met or not.
 """
 import math
 import os
@@ -42,6 +44,8 @@ from caustic_region import sds_mirror_regions  # noqa: E402
 
 SIZE = int(os.environ.get("BENCH6_SIZE", "64"))
 REPEATS = int(os.environ.get("BENCH6_REPEATS", "1"))
+COST_ROUNDS = int(os.environ.get("BENCH6_COST_ROUNDS", "0"))
+COST_PASSES = 32  # a short run's passes (x8 for path tracing's spp): the scene's set-up is under 2 % of it
 # CPU seconds per method: the targets are printed at each (BENCH6_BUDGETS=2,8; BENCH6_BUDGET=8 alone).
 BUDGETS = [float(b) for b in (os.environ.get("BENCH6_BUDGETS") or os.environ.get("BENCH6_BUDGET") or "2,8").split(",")]
 EDGE_JUMP = 3.0  # radiance: the light's edges (17 next to 0), not the walls' shading (below 2)
@@ -139,13 +143,28 @@ def target_lines(scene, found):
                      f"at {budget:g} CPU s (<= 1.1: {'met' if q <= 1.1 else 'not met'})")
         if scene == "gap":
             q, off = f["bdpt"][0] / f["pt"][0], f["bdpt"][2] / f["pt"][2]
-            L.append(f"target {scene} BDPT/PT = {q:.2f} at {budget:g} CPU s (<= 0.5: {'met' if q <= 0.5 else 'not met'};"
+            L.append(f"target {scene} BDPT/PT = {q:.2f} at {budget:g} CPU s (<= 0.5: "
+                     f"{'met' if q <= 0.5 else 'not met'};"
                      f" off the light's edges {off:.2f})")
         q = f["vcm"][0] / min(f["bdpt"][0], f["pm"][0])
         off = f["vcm"][2] / min(f["bdpt"][2], f["pm"][2])
         L.append(f"target {scene} VCM/min(BDPT,PM) = {q:.2f} at {budget:g} CPU s (<= 1.1: "
                  f"{'met' if q <= 1.1 else 'not met'}; off the light's edges {off:.2f})")
     return L
+
+
+def pass_costs(scene, methods):
+    """CPU seconds per pass (per 8 spp for path tracing) of each method: the least over COST_ROUNDS rounds of one
+    short run of each method in turn, so that every method meets the machine's load alike and the quietest
+    round counts (the CPU time of a run beside another job's is inflated: two cores share caches, or are one)."""
+    cost = {}
+    for _ in range(COST_ROUNDS):
+        for label, chapter, args in methods:
+            passes = COST_PASSES * (8 if label == "pt" else 1)
+            used, _ = render(chapter, scene, args + ["--spp", str(passes), "--seed", "5"],
+                             os.path.join(OUT, "cost.pfm"))
+            cost[label] = min(cost.get(label, math.inf), used / passes)
+    return cost
 
 
 def main():
@@ -161,7 +180,12 @@ def main():
         keep = off_edges(ref)
         region = mirror_region() if scene == "sds" else None
         found = {b: {} for b in BUDGETS}
-        for label, chapter, args in [m for m in METHODS if not picked or m[0] in picked]:
+        methods = [m for m in METHODS if not picked or m[0] in picked]
+        cost = pass_costs(scene, methods) if COST_ROUNDS > 0 else {}
+        if cost:
+            print(f"  {scene:16s} CPU ms per pass (least of {COST_ROUNDS} rounds of {COST_PASSES}): " +
+                  ", ".join(f"{m} {c * 1000 * (8 if m == 'pt' else 1):.1f}" for m, c in cost.items()), flush=True)
+        for label, chapter, args in methods:
             cpu, _ = render(chapter, scene, args + ["--spp", "8", "--seed", "3"], os.path.join(OUT, "pilot.pfm"))
             for budget in BUDGETS:
                 spp = max(1, round(8 * budget / max(cpu, 1e-3)))
@@ -172,7 +196,7 @@ def main():
                     seed = 7 + BUDGETS.index(budget) + 100 * rep
                     used, cmd = render(chapter, scene, args + ["--spp", str(spp), "--seed", str(seed)], out)
                     runs.append((used, errors(pixels(out), ref, ref_var, keep, region)))
-                used = min(u for u, _ in runs)
+                used = cost[label] * spp if cost else min(u for u, _ in runs)
                 rmse, rel, off, inside = mean_errors([e for _, e in runs])
                 scale = math.sqrt(used / budget)  # to the budget: error^2 ~ 1/time
                 rmse, rel, off = rmse * scale, rel * scale ** 2, off * scale
