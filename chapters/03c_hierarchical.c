@@ -122,12 +122,21 @@ enum verdict { NO_LINK, LINK, SPLIT_RECEIVER, SPLIT_SOURCE };
  * box at --eps 5e-3). */
 static const double RECEIVER_SHADOW_F = 3e-4;
 
+/* A receiver split already (for other sources) follows a shadow across it
+ * to its children on every link of F_pq >= eps / this: it costs links, not
+ * elements.  The parent's linear shape put half the light of the walls
+ * behind a box on the floor leaves beside its corners, in the box's shadow
+ * (row sums 0.97-1.04 at the defaults, now within 1.1 %); with no bound on
+ * F the Cornell box had 3 times the links at --eps 1.1e-1. */
+static const double FOLLOW_SHADOW_DIV = 64.0;
+
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.
  * Link here when both form-factor estimates are below eps (times q's
  * brightness in the second pass), the source's spread is within
  * --eps-spread, and no shadow edge crosses the pair where a test is worth
- * it; otherwise split p when the shadow edge crosses p, else the element
- * that looks larger from the other (q when F_pq > F_qp).  An element partly
+ * it (always where p is split already); otherwise split p when the shadow
+ * edge crosses p, else the element that looks larger from the other (q when
+ * F_pq > F_qp).  An element partly
  * covered (a box resting on part of it) is split first, so that its parts
  * get their own links: the light steps there, and no link's shape follows a
  * step. [exercise 3c.2] */
@@ -142,13 +151,15 @@ static enum verdict judge(const refiner *r, int p, int q)
     double fpq = largest_form_factor(r, ep, eq), fqp = largest_form_factor(r, eq, ep);
     double bright = source_brightness(r, q);
     bool small = fpq * bright < r->eps && fqp * bright < r->eps && spread_bound(r, p, q, ep, fpq) <= r->eps_spread;
+    bool split_already = r->m->cells[p].first_child >= 0 && r->h->covered[p] != COVERED_ALL &&
+                         fpq >= r->eps / FOLLOW_SHADOW_DIV;
     enum shadow_side shadow = NO_SHADOW_EDGE;
-    if (small && shadow_test_worthwhile(r, p, q, eq, fmax(fpq, fqp)))
+    if (small && (split_already || shadow_test_worthwhile(r, p, q, eq, fmax(fpq, fqp))))
         shadow = shadow_edge(r, p, q);
     if ((small && shadow == NO_SHADOW_EDGE) || (!can_p && !can_q))
         return LINK;
     bool receiver_shadowed = shadow == SHADOW_ACROSS_RECEIVER && can_p;
-    if (receiver_shadowed && fqp >= RECEIVER_SHADOW_F)
+    if (receiver_shadowed && (fqp >= RECEIVER_SHADOW_F || split_already))
         return SPLIT_RECEIVER; /* a link's shape is linear across p: it cannot follow the shadow's step */
     if (can_q && (fpq > fqp || !can_p))
         return SPLIT_SOURCE;
