@@ -86,7 +86,27 @@ static int append(void **items, size_t *count, size_t *capacity, size_t size, co
 
 int chunk_add_vertices(chunk *c, const path_vertex *v, int n)
 {
-    return append((void **)&c->vertices, &c->vertex_count, &c->vertex_capacity, sizeof *v, v, (size_t)n);
+    bool in_slice = c->vertices != c->spill;
+    if (in_slice && c->vertex_count + (size_t)n > c->vertex_capacity) { /* out of its slice: on in the spill */
+        size_t needed = 2 * (c->vertex_count + (size_t)n) + 64;
+        if (needed > c->spill_capacity) {
+            path_vertex *grown = realloc(c->spill, needed * sizeof *grown);
+            if (!grown)
+                return 2;
+            c->spill = grown;
+            c->spill_capacity = needed;
+        }
+        memcpy(c->spill, c->vertices, c->vertex_count * sizeof *v);
+        c->vertices = c->spill;
+        c->vertex_capacity = c->spill_capacity;
+        in_slice = false;
+    }
+    int failed = append((void **)&c->vertices, &c->vertex_count, &c->vertex_capacity, sizeof *v, v, (size_t)n);
+    if (!in_slice) { /* append may have moved it */
+        c->spill = c->vertices;
+        c->spill_capacity = c->vertex_capacity;
+    }
+    return failed;
 }
 
 int chunk_add_splat(chunk *c, int pixel, vec3 value)
@@ -97,8 +117,11 @@ int chunk_add_splat(chunk *c, int pixel, vec3 value)
 
 /* The photon grid over the pass's light vertices that merging can use: none on a light's own point (y_0) or on a
  * mirror or glass, which the chapter's merges() would pass over (fewer points to sort and to visit). */
-static int index_mergeable(bidir_state *st, size_t total)
+static int index_mergeable(bidir_state *st, const chunk *chunks, int n)
 {
+    size_t total = 0, found = 0;
+    for (int c = 0; c < n; c++)
+        total += chunks[c].vertex_count;
     if (total > st->mergeable_capacity) {
         uint32_t *grown = realloc(st->mergeable, 2 * total * sizeof *grown);
         if (!grown)
@@ -106,39 +129,64 @@ static int index_mergeable(bidir_state *st, size_t total)
         st->mergeable = grown;
         st->mergeable_capacity = 2 * total;
     }
-    size_t n = 0;
-    for (size_t i = 0; i < total; i++)
-        if (st->light_vertices[i].index > 0 && !st->light_vertices[i].specular)
-            st->mergeable[n++] = (uint32_t)i;
-    return photon_grid_rebuild(&st->grid, &st->light_vertices[0].x, sizeof *st->light_vertices, st->mergeable, n,
+    for (int c = 0; c < n; c++)
+        for (size_t i = (size_t)c * st->slice; i < (size_t)c * st->slice + chunks[c].vertex_count; i++)
+            if (st->light_vertices[i].index > 0 && !st->light_vertices[i].specular)
+                st->mergeable[found++] = (uint32_t)i;
+    return photon_grid_rebuild(&st->grid, &st->light_vertices[0].x, sizeof *st->light_vertices, st->mergeable, found,
                                st->current_radius);
+}
+
+/* light_vertices with room for n slices of `slice` vertices: 0, or 2 when out of memory. */
+static int reserve_slices(bidir_state *st, int n, size_t slice)
+{
+    size_t needed = (size_t)n * slice;
+    if (needed > st->light_vertex_capacity) {
+        path_vertex *all = realloc(st->light_vertices, needed * sizeof *all);
+        if (!all)
+            return 2;
+        st->light_vertices = all;
+        st->light_vertex_capacity = needed;
+    }
+    st->slice = slice;
+    return 0;
+}
+
+/* After a pass in which a chunk outgrew its slice: wider slices, every chunk's vertices moved into its own (the last
+ * first: a chunk's new place may overlap the next one's old place, never the one before's). */
+static int widen_slices(bidir_state *st, chunk *chunks, int n)
+{
+    size_t most = 0, old = st->slice;
+    for (int c = 0; c < n; c++)
+        most = chunks[c].vertex_count > most ? chunks[c].vertex_count : most;
+    if (reserve_slices(st, n, most + most / 4 + MAX_VERTICES))
+        return 2;
+    for (int c = n - 1; c >= 0; c--) {
+        const path_vertex *from =
+            chunks[c].vertices == chunks[c].spill ? chunks[c].spill : st->light_vertices + (size_t)c * old;
+        if (chunks[c].vertex_count > 0)
+            memmove(st->light_vertices + (size_t)c * st->slice, from, chunks[c].vertex_count * sizeof *from);
+    }
+    return 0;
 }
 
 static int join_chunks(bidir_state *st, chunk *chunks, int n)
 {
-    size_t total = 0;
+    bool spilled = false;
     for (int c = 0; c < n; c++)
-        total += chunks[c].vertex_count;
-    if (total + 1 > st->light_vertex_capacity) {
-        path_vertex *all = realloc(st->light_vertices, 2 * (total + 1) * sizeof *all);
-        if (!all)
-            return 2;
-        st->light_vertices = all;
-        st->light_vertex_capacity = 2 * (total + 1);
-    }
-    path_vertex *all = st->light_vertices;
+        spilled |= chunks[c].vertices == chunks[c].spill;
+    if (spilled && widen_slices(st, chunks, n))
+        return 2;
     memset(st->light_image, 0, (size_t)st->light_paths * sizeof *st->light_image);
-    for (int c = 0, base = 0; c < n; base += (int)chunks[c].vertex_count, c++) {
-        if (chunks[c].vertex_count > 0)
-            memcpy(all + base, chunks[c].vertices, chunks[c].vertex_count * sizeof *all);
+    for (int c = 0; c < n; c++) {
         for (int p = c * CHUNK; p < st->light_paths && p < (c + 1) * CHUNK; p++)
-            st->path_first[p] += base;
+            st->path_first[p] += c * (int)st->slice;
         for (size_t i = 0; i < chunks[c].splat_count; i++)
             st->light_image[chunks[c].splats[i].pixel] =
                 v3_add(st->light_image[chunks[c].splats[i].pixel], chunks[c].splats[i].value);
         st->light_rays += chunks[c].rays;
     }
-    return st->merge ? index_mergeable(st, total) : 0;
+    return st->merge ? index_mergeable(st, chunks, n) : 0;
 }
 
 static int chunk_count(const bidir_state *st) { return (st->light_paths + CHUNK - 1) / CHUNK; }
@@ -149,8 +197,12 @@ int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *tra
     if (!st->chunks)
         st->chunks = calloc((size_t)n, sizeof *st->chunks);
     chunk *chunks = st->chunks;
-    bool needed = !(st->single_strategy && st->strategy_s == 0); /* no strategy reads light subpaths */
+    bool needed = !(st->single_strategy && st->strategy_s == 0);      /* no strategy reads light subpaths */
+    if (chunks && st->slice == 0 && reserve_slices(st, n, 8 * CHUNK)) /* 8 vertices a subpath: widened if not */
+        chunks = NULL;
     for (int c = 0; chunks && c < n; c++) {
+        chunks[c].vertices = st->light_vertices + (size_t)c * st->slice;
+        chunks[c].vertex_capacity = st->slice;
         chunks[c].vertex_count = chunks[c].splat_count = 0;
         chunks[c].rays = 0;
     }
@@ -327,7 +379,7 @@ void bidir_finish(void *state)
     free(st->path_count);
     free(st->light_image);
     for (int c = 0; st->chunks && c < chunk_count(st); c++) {
-        free(st->chunks[c].vertices);
+        free(st->chunks[c].spill);
         free(st->chunks[c].splats);
     }
     free(st->chunks);

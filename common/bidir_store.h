@@ -45,15 +45,19 @@ typedef struct {
 
 /* A chunk of light subpaths, traced by one thread: their vertices, and light
  * tracing's values for pixels.  Kept from pass to pass (emptied, not freed):
- * fresh memory every pass cost more than the tracing (page faults). */
+ * fresh memory every pass cost more than the tracing (page faults).  The
+ * vertices go straight into the chunk's slice of the pass's light_vertices
+ * (not copied there afterwards: 10 MB a pass at 128x128); a chunk that
+ * outgrows its slice goes on in `spill`, and the slices are widened. */
 typedef struct {
     int pixel;
     vec3 value;
 } splat;
 typedef struct {
-    path_vertex *vertices;
+    path_vertex *vertices; /* its slice, or spill */
+    path_vertex *spill;
     splat *splats;
-    size_t vertex_count, vertex_capacity, splat_count, splat_capacity;
+    size_t vertex_count, vertex_capacity, spill_capacity, splat_count, splat_capacity;
     uint64_t rays;
 } chunk;
 
@@ -81,9 +85,9 @@ struct bidir_state {
     pinhole camera;
     double *light_probability; /* per surface (0: not a light), then per point light */
     double current_radius;
-    int light_paths, passes; /* per pass: one per pixel */
-    path_vertex *light_vertices;
-    size_t light_vertex_capacity;
+    int light_paths, passes;     /* per pass: one per pixel */
+    path_vertex *light_vertices; /* chunk c's slice from c * slice (the rest of a slice is unused) */
+    size_t light_vertex_capacity, slice;
     chunk *chunks;                /* the pass's chunks of light subpaths (light_pass) */
     int *path_first, *path_count; /* light subpath p: light_vertices[path_first[p]] ... */
     vec3 *light_image;            /* this pass's light tracing (t = 1), one value per pixel */
