@@ -68,7 +68,7 @@ static int extend(const scene *s, path_vertex *p, int count, int cap, vec3 alpha
         if (!scene_intersect(s, (ray){scene_offset_origin(s, p[count - 1].x, p[count - 1].n, w), w}, INFINITY, &h))
             return count;
         const material *m = material_of(s, h.surface);
-        p[count] = (path_vertex){h.point, h.normal, alpha, m, AT_SURFACE, h.surface, count, p[0].path, is_specular(m)};
+        p[count] = (path_vertex){h.point, h.normal, alpha, m, AT_SURFACE, h.surface, count, is_specular(m)};
         vertex v = vertex_at(h.point, h.normal, v3_neg(w), m);
         vec3 w_i;
         double pdf;
@@ -95,19 +95,18 @@ static double light_point_pdf(const bidir_state *st, const scene *s, const path_
 
 /* A light subpath: a light picked by power, a point on it, a direction drawn like the emitted power (cosine; a
  * point light: the sphere), then a walk.  y_0's weight is 1 / its density, y_1's L_e cos / p(w) more. */
-static int light_subpath(const bidir_state *st, const scene *s, int path, rng *g, path_vertex *y, uint64_t *rays,
-                         bool roulette)
+static int light_subpath(const bidir_state *st, const scene *s, rng *g, path_vertex *y, uint64_t *rays, bool roulette)
 {
     int i = pick_light(st, s, rng_uniform(g));
     double u1 = rng_uniform(g), u2 = rng_uniform(g);
     vec3 w, power;
     if (i >= s->surface_count) {
         const point_light *l = &s->lights[i - s->surface_count];
-        y[0] = (path_vertex){.x = l->position, .kind = AT_POINT_LIGHT, .surface = i - s->surface_count, .path = path};
+        y[0] = (path_vertex){.x = l->position, .kind = AT_POINT_LIGHT, .surface = i - s->surface_count};
         w = uniform_sample_sphere(u1, u2);
         power = v3_scale(l->intensity, 4.0 * M_PI); /* I / (1 / 4 pi) */
     } else {
-        y[0] = (path_vertex){.m = material_of(s, i), .kind = AT_SURFACE, .surface = i, .path = path};
+        y[0] = (path_vertex){.m = material_of(s, i), .kind = AT_SURFACE, .surface = i};
         surface_sample_point(s, i, u1, u2, rng_uniform(g), &y[0].x, &y[0].n);
         w = onb_to_world(onb_from_normal(y[0].n), cosine_sample_hemisphere(rng_uniform(g), rng_uniform(g)));
         power = v3_scale(y[0].m->emission, M_PI); /* L_e cos / (cos / pi) */
@@ -312,7 +311,7 @@ static vec3 connections(const bidir_state *st, const scene *s, const path_vertex
     path_vertex x[MAX_PATH];
     vec3 L = v3_splat(0.0);
     for (int s_count = 0, pixel; s_count <= light_count; s_count++) {
-        int k = join(y, s_count, z, t, x);
+        int k = bidir_join_step(x, y, s_count, z, t); /* join(): x held s_count - 1's path */
         if (!keeps_length(st, x, k) || !strategy_allowed(st, x, k, CONNECT, s_count))
             continue;
         vec3 C = strategy_value(st, s, y, s_count, z, t, &pixel, rays);
@@ -359,12 +358,13 @@ static int trace_light_path(const bidir_state *st, const scene *s, int pass, int
 {
     path_vertex y[MAX_VERTICES], x[MAX_PATH], eye = {.x = st->camera.eye, .kind = AT_CAMERA};
     rng g = rng_for(st->seed ^ 0x6c69676874ull, (uint64_t)pass, (uint64_t)path);
-    int count = light_subpath(st, s, path, &g, y, &out->rays, true), failed = 0, pixel;
+    int count = light_subpath(st, s, &g, y, &out->rays, true), failed = 0, pixel;
     st->path_first[path] = (int)out->vertex_count;
     st->path_count[path] = count;
+    bidir_join_step(x, y, 0, &eye, 1);
     for (int s_count = 1; s_count <= count; s_count++) {
         vec3 value;
-        int k = join(y, s_count, &eye, 1, x);
+        int k = bidir_join_step(x, y, s_count, &eye, 1); /* join(): x held s_count - 1's path */
         if (keeps_length(st, x, k) && strategy_allowed(st, x, k, CONNECT, s_count) &&
             connect_to_camera(st, s, y, s_count, &pixel, &value, &out->rays))
             failed |= chunk_add_splat(out, pixel, v3_scale(value, mis_weight(st, s, x, k, CONNECT, s_count)));
@@ -414,9 +414,9 @@ static vec3 sensor_sample(const void *state_pointer, const scene *s, vec3 x, vec
 {
     const bidir_state *st = state_pointer;
     path_vertex y[MAX_VERTICES], z[MAX_VERTICES] = {{.x = v3_add(x, w_o), .kind = AT_SENSOR, .surface = k},
-                                                    {x, n, v3_splat(1.0), m, AT_SURFACE, -1, 1, 0, is_specular(m)}};
+                                                    {x, n, v3_splat(1.0), m, AT_SURFACE, -1, 1, is_specular(m)}};
     uint64_t *rays = &counters->value[COUNT_PROBE_RAYS];
-    int light_count = light_subpath(st, s, 0, g, y, rays, true), t_count = 2;
+    int light_count = light_subpath(st, s, g, y, rays, true), t_count = 2;
     vertex v = vertex_at(x, n, w_o, m);
     vec3 w;
     double pdf;
@@ -468,7 +468,7 @@ static void check_pair(bidir_state *st, const scene *s, rng *g)
 {
     path_vertex y[MAX_VERTICES], z[MAX_VERTICES] = {{.x = st->camera.eye, .alpha = v3_splat(1.0)}};
     uint64_t rays = 0;
-    int light_count = light_subpath(st, s, 0, g, y, &rays, false);
+    int light_count = light_subpath(st, s, g, y, &rays, false);
     ray r = camera_frame_ray(&st->camera.frame, rng_uniform(g) * st->camera.width, rng_uniform(g) * st->camera.height);
     int eye_count = extend(s, z, 1, st->eye_cap, v3_splat(1.0), r.direction, false, false, g, &rays);
     for (int t = 1; t <= eye_count; t++)

@@ -270,6 +270,18 @@ bool pixel_seen(const pinhole *c, vec3 w, int *pixel, double *cos_theta)
     return true;
 }
 
+int bidir_join_step(path_vertex *x, const path_vertex *y, int s, const path_vertex *z, int t)
+{
+    if (s == 0) {
+        for (int i = 0; i < t; i++)
+            x[i] = z[t - 1 - i];
+        return t - 1;
+    }
+    memmove(x + s, x + s - 1, (size_t)t * sizeof *x);
+    x[s - 1] = y[s - 1];
+    return s + t - 1;
+}
+
 /* What the options cannot render, said once (a pinhole is never hit: t = 0). */
 static void warn_impossible(const bidir_state *st, const scene *s, specular_test *is_specular)
 {

@@ -32,7 +32,7 @@ typedef struct {
     vec3 alpha;
     const material *m; /* NULL at the camera and a point light */
     int kind, surface; /* vertex_kind; the surface, the point light's number, or (a sensor) the bounce at its point */
-    int index, path;   /* its place in its subpath, and (light subpaths) which one of the pass */
+    int index;         /* its place in its subpath */
     bool specular;     /* on a mirror or glass (f a delta): asked so often that it is kept */
 } path_vertex;
 
@@ -118,6 +118,11 @@ int chunk_add_splat(chunk *c, int pixel, vec3 value);
 typedef int light_path_tracer(const bidir_state *st, const scene *s, int pass, int path, chunk *out);
 int light_pass(bidir_state *st, const scene *s, int pass, light_path_tracer *trace, char *err, size_t err_size);
 
+/* The path of the strategy (s, t) in x, as the chapter's join: s = 0, the
+ * eye vertices z_{t-1} .. z_0; s > 0, from what x holds: (s - 1, t)'s path,
+ * its eye vertices moved one place on and y_{s-1} put before them (t + 1
+ * vertices copied, not s + t).  Returns k = s + t - 1. */
+int bidir_join_step(path_vertex *x, const path_vertex *y, int s, const path_vertex *z, int t);
 /* The chapter's .prepare: the bounce window and the subpaths' caps, which
  * strategies the options leave, the camera, one light subpath per pixel,
  * each light's probability to be picked (by power: as chapter 4's lights),
