@@ -123,12 +123,12 @@ enum verdict { NO_LINK, LINK, SPLIT_RECEIVER, SPLIT_SOURCE };
 static const double RECEIVER_SHADOW_F = 3e-4;
 
 /* A receiver split already (for other sources) follows a shadow across it
- * to its children on every link of F_pq >= eps / this: it costs links, not
- * elements.  The parent's linear shape put half the light of the walls
- * behind a box on the floor leaves beside its corners, in the box's shadow
- * (row sums 0.97-1.04 at the defaults, now within 1.1 %); with no bound on
- * F the Cornell box had 3 times the links at --eps 1.1e-1. */
-static const double FOLLOW_SHADOW_DIV = 64.0;
+ * to its children on links of F_pq >= eps / this: links, not elements.  The
+ * parent's linear shape put half the light of the walls behind a box on the
+ * floor leaves beside its corners, in its shadow (row sums 0.97-1.04 at the
+ * defaults, now within 1.1 %); with no bound on F the Cornell box had 3 times
+ * the links at --eps 1.1e-1, at 16 a leaf there stays 2.1 % off at 2e-2. */
+static const double FOLLOW_SHADOW_DIV = 32.0;
 
 /* The refinement oracle (Hanrahan et al.'s Refine): p receives from q.
  * Link here when both form-factor estimates are below eps (times q's
@@ -151,8 +151,8 @@ static enum verdict judge(const refiner *r, int p, int q)
     double fpq = largest_form_factor(r, ep, eq), fqp = largest_form_factor(r, eq, ep);
     double bright = source_brightness(r, q);
     bool small = fpq * bright < r->eps && fqp * bright < r->eps && spread_bound(r, p, q, ep, fpq) <= r->eps_spread;
-    bool split_already = r->m->cells[p].first_child >= 0 && r->h->covered[p] != COVERED_ALL &&
-                         fpq >= r->eps / FOLLOW_SHADOW_DIV;
+    bool split_already =
+        r->m->cells[p].first_child >= 0 && r->h->covered[p] != COVERED_ALL && fpq >= r->eps / FOLLOW_SHADOW_DIV;
     enum shadow_side shadow = NO_SHADOW_EDGE;
     if (small && (split_already || shadow_test_worthwhile(r, p, q, eq, fmax(fpq, fqp))))
         shadow = shadow_edge(r, p, q);
