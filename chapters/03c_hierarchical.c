@@ -136,10 +136,9 @@ static const double FOLLOW_SHADOW_DIV = 32.0;
  * --eps-spread, and no shadow edge crosses the pair where a test is worth
  * it (always where p is split already); otherwise split p when the shadow
  * edge crosses p, else the element that looks larger from the other (q when
- * F_pq > F_qp).  An element partly
- * covered (a box resting on part of it) is split first, so that its parts
- * get their own links: the light steps there, and no link's shape follows a
- * step. [exercise 3c.2] */
+ * F_pq > F_qp).  An element partly covered (a box resting on part of it) is
+ * split first, so that its parts get their own links: the light steps there,
+ * and no link's shape follows a step. [exercise 3c.2] */
 static enum verdict judge(const refiner *r, int p, int q)
 {
     const patch *ep = &r->h->element[p], *eq = &r->h->element[q];

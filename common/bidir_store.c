@@ -68,17 +68,25 @@ const option BIDIR_OPTIONS[] = {
 };
 #undef STATE
 
+/* Room for `needed` items of `size` bytes in *items, reallocated to `grown` items when short: 0, or 2 when out of
+ * memory (the array and its capacity then unchanged). */
+static int reserve(void **items, size_t *capacity, size_t size, size_t needed, size_t grown)
+{
+    if (needed <= *capacity)
+        return 0;
+    void *p = realloc(*items, grown * size);
+    if (!p)
+        return 2;
+    *items = p;
+    *capacity = grown;
+    return 0;
+}
+
 /* Append n items of `size` bytes to a growing array: 0, or 2 when out of memory. */
 static int append(void **items, size_t *count, size_t *capacity, size_t size, const void *item, size_t n)
 {
-    if (*count + n > *capacity) {
-        size_t grown = 2 * (*count + n) + 64;
-        void *p = realloc(*items, grown * size);
-        if (!p)
-            return 2;
-        *items = p;
-        *capacity = grown;
-    }
+    if (reserve(items, capacity, size, *count + n, 2 * (*count + n) + 64))
+        return 2;
     memcpy((char *)*items + *count * size, item, n * size);
     *count += n;
     return 0;
@@ -88,14 +96,9 @@ int chunk_add_vertices(chunk *c, const path_vertex *v, int n)
 {
     bool in_slice = c->vertices != c->spill;
     if (in_slice && c->vertex_count + (size_t)n > c->vertex_capacity) { /* out of its slice: on in the spill */
-        size_t needed = 2 * (c->vertex_count + (size_t)n) + 64;
-        if (needed > c->spill_capacity) {
-            path_vertex *grown = realloc(c->spill, needed * sizeof *grown);
-            if (!grown)
-                return 2;
-            c->spill = grown;
-            c->spill_capacity = needed;
-        }
+        size_t needed = c->vertex_count + (size_t)n;
+        if (reserve((void **)&c->spill, &c->spill_capacity, sizeof *v, needed, 2 * needed + 64))
+            return 2;
         memcpy(c->spill, c->vertices, c->vertex_count * sizeof *v);
         c->vertices = c->spill;
         c->vertex_capacity = c->spill_capacity;
@@ -122,13 +125,8 @@ static int index_mergeable(bidir_state *st, const chunk *chunks, int n)
     size_t total = 0, found = 0;
     for (int c = 0; c < n; c++)
         total += chunks[c].vertex_count;
-    if (total > st->mergeable_capacity) {
-        uint32_t *grown = realloc(st->mergeable, 2 * total * sizeof *grown);
-        if (!grown)
-            return 2;
-        st->mergeable = grown;
-        st->mergeable_capacity = 2 * total;
-    }
+    if (reserve((void **)&st->mergeable, &st->mergeable_capacity, sizeof *st->mergeable, total, 2 * total))
+        return 2;
     for (int c = 0; c < n; c++)
         for (size_t i = (size_t)c * st->slice; i < (size_t)c * st->slice + chunks[c].vertex_count; i++)
             if (st->light_vertices[i].index > 0 && !st->light_vertices[i].specular)
@@ -141,13 +139,8 @@ static int index_mergeable(bidir_state *st, const chunk *chunks, int n)
 static int reserve_slices(bidir_state *st, int n, size_t slice)
 {
     size_t needed = (size_t)n * slice;
-    if (needed > st->light_vertex_capacity) {
-        path_vertex *all = realloc(st->light_vertices, needed * sizeof *all);
-        if (!all)
-            return 2;
-        st->light_vertices = all;
-        st->light_vertex_capacity = needed;
-    }
+    if (reserve((void **)&st->light_vertices, &st->light_vertex_capacity, sizeof *st->light_vertices, needed, needed))
+        return 2;
     st->slice = slice;
     return 0;
 }
