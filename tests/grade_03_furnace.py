@@ -133,7 +133,8 @@ def test_furnace_with_a_box_hierarchical(ctx):
     """The hierarchical solve (HIERARCHICAL_FURNACE_ARGS), with the box 1 mm above the floor in
     metres and resting on it in millimetres: within 2 % of L at every probe and pixel (flat
     shading: a pixel is its leaf's L) and at every leaf of its PLY mesh not inside the box, the
-    cavity 1 mm high under the floating box included (9.93-10.06 there, 9.90-10.10 elsewhere).
+    cavity 1 mm high under the floating box included (9.93-10.06 there, 9.90-10.10 elsewhere;
+    9.90-10.11 in millimetres).
     Before links' visibility was weighted by the kernel cos cos / r^2 (visible_fraction): the
     cavity's leaves up to 10.23 at these settings (10.27 at the defaults), since the
     rays from the cavity that pass the slit are those to the bottom of the walls, grazing the
