@@ -489,10 +489,7 @@ int main(int argc, char **argv)
         .options = {{HIERARCHICAL_OPTIONS, &state.opt}},
         .default_spp = 1,
         .prepare = prepare,
-        .radiance = radiosity_view_radiance, /* the patches seen (radiosity_setup.h) */
-        .probe = radiosity_view_probe,
-        .write_stats = radiosity_view_write_stats,
-        .write_output = radiosity_view_write_output,
+        RADIOSITY_VIEW_FUNCTIONS, /* the patches seen, probed, their stats and mesh (radiosity_setup.h) */
         .finish = finish,
     };
     return render_main(argc, argv, &hierarchical, &state);

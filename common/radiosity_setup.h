@@ -152,4 +152,10 @@ int radiosity_view_write_output(const void *view, const scene *s, const char *pa
 /* The radiosity members of the --stats JSON (write_radiosity_stats). */
 void radiosity_view_write_stats(const void *view, FILE *json);
 
+/* A radiosity chapter's view, in its struct chapter: the four functions above,
+ * the same for chapters 3 and 03c (a solved mesh is shown the same way). */
+#define RADIOSITY_VIEW_FUNCTIONS                                                                                       \
+    .radiance = radiosity_view_radiance, .probe = radiosity_view_probe, .write_stats = radiosity_view_write_stats,     \
+    .write_output = radiosity_view_write_output
+
 #endif
