@@ -97,10 +97,11 @@ double point_to_polygon(vec3 x, vec3 n, const vec3 *polygon, int count)
 static const double NEAR_FACTOR = 6.0;
 
 /* F_ij (R10): the outer integral over patch i by its quadrature points x_k,
- * the inner one by point_to_polygon, and visibility V by one ray from each
- * x_k to a quadrature point of j (the pairing shifted by a hash of (i, j) so
- * that neighbouring pairs do not all test the same line).  Deterministic:
- * the matrix, the per-shot columns and the probes all agree. [exercise 3.2] */
+ * the inner one by point_to_polygon, times the visible part: one ray from
+ * each x_k to a quadrature point of j (pairing shifted by a hash of (i, j)),
+ * weighted by the kernel it carries (form_factor_kernel): the rays that pass
+ * a 1 mm slit under a box run to the walls' feet, grazing the floor (16 %
+ * of the rays, 3.5 % of F).  Deterministic. [exercise 3.2] */
 static double form_factor_estimate(const radiosity_state *st, const scene *s, int i, int j, uint64_t *rays)
 {
     if (i == j)
@@ -119,7 +120,7 @@ static double form_factor_estimate(const radiosity_state *st, const scene *s, in
         return scene_occluded(s, pi->centroid, pj->centroid) ? 0.0 : f;
     }
     uint64_t shift = hash64(((uint64_t)i << 32) ^ (uint64_t)j);
-    double total = 0.0;
+    double unoccluded = 0.0, carried = 0.0, visible = 0.0;
     for (int k = 0; k < pi->point_count; k++) {
         vec3 x = m->points[pi->first_point + k];
         /* x must be in front of j too (one-sided j); its own clip handles j's part behind x. */
@@ -129,11 +130,13 @@ static double form_factor_estimate(const radiosity_state *st, const scene *s, in
         if (f <= 0.0)
             continue;
         vec3 y = m->points[pj->first_point + (int)((shift + (uint64_t)k) % (uint64_t)pj->point_count)];
+        double weight = m->weights[pi->first_point + k], g = weight * form_factor_kernel(x, pi->normal, y, pj->normal);
         ++*rays;
-        if (!scene_occluded(s, x, y))
-            total += m->weights[pi->first_point + k] * f;
+        unoccluded += weight * f;
+        carried += g;
+        visible += scene_occluded(s, x, y) ? 0.0 : g;
     }
-    return total;
+    return carried > 0.0 ? unoccluded * visible / carried : unoccluded; /* no ray carries any: j's points behind x */
 }
 
 /* The F_ij the solvers use: the estimate (reciprocity checked in the stats),

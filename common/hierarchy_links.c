@@ -26,25 +26,16 @@ static const double BRIGHTNESS_CAP = 256.0;
  * from the pair alone, so the same at any --threads. */
 static uint64_t pair_salt(int p, int q) { return hash64((uint64_t)(unsigned)p << 32 | (unsigned)q); }
 
-/* The kernel cos cos / r^2 of the form factor (R10) between points x on a
- * and y on b, without its constant 1/pi: the weight of the ray x -> y. */
-static double ray_weight(vec3 x, vec3 nx, vec3 y, vec3 ny)
-{
-    vec3 d = v3_sub(y, x);
-    double r2 = v3_dot(d, d);
-    return r2 > 0.0 ? fmax(0.0, v3_dot(nx, d)) * fmax(0.0, -v3_dot(ny, d)) / (r2 * r2) : 0.0;
-}
-
 /* The visible part of F_pq from up to four rays between the two elements,
- * each weighted by the kernel (ray_weight): the plain fraction of rays not
- * blocked would ignore that the rays that pass are not typical ones.
- * Through the 1 mm slit under a floating box only rays to the bottom of the
- * far walls pass, grazing the floor with a small cosine: the plain fraction
- * put 4.6 times the light of the walls into the cavity (16 % of the rays
- * pass, 3.5 % of the form factor).  Only pairs of sample points in front of
- * each other's element count: a ray to a point behind the receiver's plane
- * would run into the receiver's own solid, which Lambert's clipped formula
- * has already left out.  No such pair: 1 (the pair hardly exchanges light). */
+ * each weighted by the kernel cos cos / r^2 it carries (form_factor_kernel):
+ * the plain fraction of rays not blocked would take the rays that pass for
+ * typical ones.  Through the 1 mm slit under a floating box only the rays to
+ * the walls' feet pass, grazing the floor: the plain fraction put 4.6 times
+ * the walls' light into the cavity (16 % of the rays pass, 3.5 % of F).
+ * Only pairs of sample points in front of each other's element count: a ray
+ * to a point behind the receiver's plane would run into the receiver's own
+ * solid, which Lambert's clipped formula has already left out.  No such
+ * pair: 1 (the pair hardly exchanges light). */
 static double visible_fraction(const patch_mesh *m, const scene *s, const patch *ep, const patch *eq, uint64_t salt,
                                uint64_t *rays)
 {
@@ -58,7 +49,7 @@ static double visible_fraction(const patch_mesh *m, const scene *s, const patch 
             v3_dot(eq->normal, v3_sub(x, eq->centroid)) <= s->epsilon)
             continue;
         tested++;
-        double weight = ray_weight(x, ep->normal, y, eq->normal);
+        double weight = form_factor_kernel(x, ep->normal, y, eq->normal);
         all += weight;
         if (!scene_occluded(s, x, y))
             visible += weight;
@@ -216,7 +207,7 @@ static double quadrature_form_factor(const hierarchy *h, const patch_mesh *m, co
                     while (k < nb && v3_dot(ep->normal, v3_sub(b[(point + k) % nb], ep->centroid)) <= s->epsilon)
                         k++;
                     vec3 y = k < nb ? b[(point++ + k) % nb] : in_front;
-                    double g = weight * ray_weight(x, ep->normal, y, eq->normal);
+                    double g = weight * form_factor_kernel(x, ep->normal, y, eq->normal);
                     bool seen = !scene_occluded(s, x, y);
                     unoccluded += weight * f;
                     all += g;
@@ -267,7 +258,7 @@ static double visible_from(const patch_mesh *m, const scene *s, vec3 x, const pa
     double visible = 0.0, all = 0.0;
     for (int k = 0; k < nb; k++)
         if (v3_dot(ep->normal, v3_sub(b[k], ep->centroid)) > s->epsilon) {
-            double weight = ray_weight(x, ep->normal, b[k], eq->normal);
+            double weight = form_factor_kernel(x, ep->normal, b[k], eq->normal);
             all += weight;
             if (!scene_occluded(s, x, b[k]))
                 visible += weight;

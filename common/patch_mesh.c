@@ -443,6 +443,13 @@ bool patches_facing(const patch *a, const patch *b, double epsilon)
     return patch_in_front(b, a->centroid, a->normal, epsilon) && patch_in_front(a, b->centroid, b->normal, epsilon);
 }
 
+double form_factor_kernel(vec3 x, vec3 nx, vec3 y, vec3 ny)
+{
+    vec3 d = v3_sub(y, x);
+    double r2 = v3_dot(d, d);
+    return r2 > 0.0 ? fmax(0.0, v3_dot(nx, d)) * fmax(0.0, -v3_dot(ny, d)) / (r2 * r2) : 0.0;
+}
+
 void patch_mesh_cell_geometry(const patch_mesh *m, int c, patch *p)
 {
     const mesh_cell *cell = &m->cells[c];

@@ -109,6 +109,11 @@ bool patch_in_front(const patch *p, vec3 origin, vec3 n, double epsilon);
  * other's centroid plane (patch_in_front both ways)? */
 bool patches_facing(const patch *a, const patch *b, double epsilon);
 
+/* The form factor's kernel (R10) between x (normal nx) and y (normal ny)
+ * without its 1/pi: cos cos / r^2, 0 where either faces away.  How much
+ * light a visibility ray x -> y carries, to weigh it by. */
+double form_factor_kernel(vec3 x, vec3 nx, vec3 y, vec3 ny);
+
 /* A cell's geometry as a patch (corners, normal, area, centroid, radius;
  * no quadrature points): on a sphere the centroid is lifted onto it. */
 void patch_mesh_cell_geometry(const patch_mesh *m, int cell, patch *p);

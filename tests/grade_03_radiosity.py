@@ -112,12 +112,16 @@ def closed_box_with_block():
 
 def test_formfactor_rows_sum_to_one_in_a_closed_box(ctx):
     """Closed box with an occluding cube: each surface's form factors sum to 1,
-    within a discretisation error that shrinks when the patches do.  (Per
-    patch the error is visibility sampled by one ray per point: a patch half
-    hidden behind the cube counts as seen or not from each point.)"""
+    within a discretisation error that shrinks when the patches do.  Per patch
+    the error is visibility sampled by few rays: a patch half hidden behind the
+    cube counts as seen or not from a far patch's centroid.  At --patch-size 0.5
+    every pair is near (quadrature at 32 points, visibility weighted by the
+    kernel): rows 0.992-1.005; at 0.125 the far pairs' single rays dominate
+    (0.982-1.013), so the patch-level error is compared at 0.125 and 0.0625."""
     scene = ctx.write("closed.scene", closed_box_with_block())
+    sizes = (0.5, 0.125) if lib.sanitizer_build(ctx) else (0.5, 0.125, 0.0625)  # 0.0625: 6 s, slower under ASan
     surface_error, patch_error, commands = [], [], []
-    for size in (0.5, 0.125):
+    for size in sizes:
         table, stats = formfactors(ctx, scene, "--patch-size", size, name=f"rows{size}")
         commands.append(record_command.last)
         names = {a for a, _ in table}
@@ -127,9 +131,11 @@ def test_formfactor_rows_sum_to_one_in_a_closed_box(ctx):
         expect_at_most("largest |sum of a surface's form factors - 1|", error, allowed,
                        where=f"in the closed box with a cube, --patch-size {size}",
                        by="a closed box: every row sums to 1", command=command, words=("too large", "too small"))
-    expect(surface_error[1] < surface_error[0] and patch_error[1] < patch_error[0],
-           f"row-sum errors at --patch-size 0.5 and 0.125: surfaces {surface_error[0]:.3g} and {surface_error[1]:.3g}, "
-           f"patches {patch_error[0]:.3g} and {patch_error[1]:.3g}; expected both to shrink with the patches")
+    expect(surface_error[1] < surface_error[0], f"surface row-sum errors at --patch-size 0.5 and 0.125: "
+                                                f"{surface_error[0]:.3g} and {surface_error[1]:.3g}; expected to shrink")
+    expect(len(sizes) < 3 or patch_error[2] < patch_error[1],
+           f"patch row-sum errors at --patch-size 0.125 and 0.0625: {patch_error[1]:.3g} and {patch_error[-1]:.3g}; "
+           f"expected to shrink with the patches")
 
 
 def test_reciprocity_in_a_closed_box(ctx):
