@@ -263,8 +263,8 @@ int hierarchy_measure_unburied(hierarchy *h, const patch_mesh *m, const scene *s
 
 double hierarchy_link_shape(const hierarchy *h, int e, long k, int j)
 {
-    if (h->link_shape)
-        return h->link_shape[4 * k + j];
+    if (h->link_shape && h->shape_start[e] >= 0)
+        return h->link_shape[4 * (h->shape_start[e] + k - h->link_start[e]) + j];
     return h->unburied[e] > 0.0; /* F is the mean over the exposed part already (link_form_factor) */
 }
 
@@ -299,12 +299,15 @@ void hierarchy_report(const hierarchy *h, const patch_mesh *m, radiosity_stats *
     stats->have_matrix_checks = true, stats->row_sum_min = INFINITY, stats->row_sum_max = 0.0;
     for (int root = 0; root < h->root_count; root++)
         hierarchy_row_sums(h, m, root, (vec3[4]){{0}}, stats);
-    for (int e = 0; e < h->element_count; e++)
+    long shaped = 0; /* links with a shape: a split receiver's (hierarchy_shape_links) */
+    for (int e = 0; e < h->element_count; e++) {
         stats->levels = stats->levels > h->level[e] ? stats->levels : h->level[e];
-    stats->hierarchy_bytes =
-        (double)h->element_count *
-            (sizeof(patch) + sizeof(mesh_cell) + 2 * sizeof(vec3) + 1 + sizeof(long) + sizeof(int) + sizeof(float)) +
-        (double)m->vertex_count * sizeof(vec3) + (double)h->link_count * (sizeof(int) + sizeof(float));
+        shaped += h->shape_start && h->shape_start[e] >= 0 ? h->link_start[e + 1] - h->link_start[e] : 0;
+    }
+    stats->hierarchy_bytes = (double)h->element_count * (sizeof(patch) + sizeof(mesh_cell) + 2 * sizeof(vec3) + 1 +
+                                                         2 * sizeof(long) + sizeof(int) + sizeof(float)) +
+                             (double)m->vertex_count * sizeof(vec3) +
+                             (double)h->link_count * (sizeof(int) + sizeof(float)) + (double)shaped * 4 * sizeof(float);
 }
 
 void hierarchy_free(hierarchy *h)
@@ -319,5 +322,6 @@ void hierarchy_free(hierarchy *h)
     free(h->link_source);
     free(h->link_F);
     free(h->link_shape);
+    free(h->shape_start);
     *h = (hierarchy){0};
 }

@@ -29,6 +29,7 @@ typedef struct {
     int *link_source;
     float *link_F;
     float *link_shape; /* per link, at the receiver's 4 (or 3) corners: F there over F (hierarchy_shape_links) */
+    long *shape_start; /* receiver e's first link in link_shape; -1 for a leaf (its links' shapes are constant) */
 } hierarchy;
 
 /* Elements: at most 4 M (as the uniform mesh), and --levels is refused when

@@ -296,23 +296,34 @@ static void shape_link(const hierarchy *h, const patch_mesh *m, const scene *s, 
     }
     double exposure = h->unburied[e];
     bool linear = shaped > 0.0 && exposure >= 1.0; /* partly inside a solid: a step, not a ramp */
+    float *shape = &h->link_shape[4 * (h->shape_start[e] + k - h->link_start[e])];
     for (int j = 0; j < 4; j++)
-        h->link_shape[4 * k + j] = (float)(linear ? g[j] / shaped : exposure > 0.0);
+        shape[j] = (float)(linear ? g[j] / shaped : exposure > 0.0);
 }
 
+/* Shapes only for the links of receivers with children: a leaf keeps the
+ * mean over its corners (push_pull), whatever the shape (on the Cornell box
+ * at the defaults most links are a leaf's: 16 bytes each saved). */
 int hierarchy_shape_links(hierarchy *h, const patch_mesh *m, const scene *s, point_to_polygon_fn F)
 {
     free(h->link_shape);
-    if (!(h->link_shape = malloc(4 * (size_t)h->link_count * sizeof *h->link_shape + 1)))
+    free(h->shape_start);
+    h->link_shape = NULL;
+    if (!(h->shape_start = malloc((size_t)h->element_count * sizeof *h->shape_start + 1)))
+        return -1;
+    long shaped = 0;
+    for (int e = 0; e < h->element_count; e++) {
+        bool split = m->cells[e].first_child >= 0;
+        h->shape_start[e] = split ? shaped : -1;
+        shaped += split ? h->link_start[e + 1] - h->link_start[e] : 0;
+    }
+    if (!(h->link_shape = malloc(4 * (size_t)shaped * sizeof *h->link_shape + 1)))
         return -1;
 #pragma omp parallel for schedule(dynamic, 64)
     for (int e = 0; e < h->element_count; e++)
-        for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
-            if (m->cells[e].first_child >= 0)
+        if (h->shape_start[e] >= 0)
+            for (long k = h->link_start[e]; k < h->link_start[e + 1]; k++)
                 shape_link(h, m, s, F, e, k);
-            else /* a leaf keeps the mean over its corners (push_pull), whatever the shape: none needed */
-                for (int j = 0; j < 4; j++)
-                    h->link_shape[4 * k + j] = (float)(h->unburied[e] > 0.0);
     return 0;
 }
 
@@ -379,9 +390,13 @@ pair *hierarchy_links_as_pairs(hierarchy *h, long *count)
     free(h->link_start);
     free(h->link_source);
     free(h->link_F);
+    free(h->link_shape);
+    free(h->shape_start);
     h->link_start = NULL;
     h->link_source = NULL;
     h->link_F = NULL;
+    h->link_shape = NULL;
+    h->shape_start = NULL;
     return todo;
 }
 
