@@ -6,16 +6,14 @@
  *   (R13)  I_j = sum_k Int L_e(x_0) G(x_0,x_1) f(x_1) G(x_1,x_2) ... f(x_(k-1)) G(x_(k-1),x_k) W_e(x_k) dA_0 .. dA_k
  *
  * One path can be drawn in k + 2 ways (strategies): s vertices from a light, t = k + 1 - s from the eye, joined by
- * a shadow ray.  Each has its own density over paths (R14); the power heuristic (R15) weights them, adding up to one
- * for every path.  The ladder of --method:
+ * a shadow ray.  Each has its density (R14); their power heuristic weights (R15) add to 1 on every path.  --method:
  *   1. light  light tracing: every vertex of a light subpath joined to the camera (t = 1), in the pixel it is seen;
  *   2. bdpt   every (s, t), weighted by (R15) computed plainly from the path's densities (R14);
  *   3. vcm    (the default) also chapter 5's density estimate (R11) at every eye vertex, as one more strategy
  *             (R16), with the radius of (R12).  --merge off is bdpt; --connect off progressive photon mapping.
  * --strategy S,T: one strategy, unweighted.  --check N: weights and densities tested on random paths.  Probes and
  * surface means (walk_stats.h) put a sensor in the camera's place: sensor_sample.  Each pass traces one light subpath
- * per pixel (begin_pass: light tracing, the photon grid); pixel p's camera ray makes one eye subpath, joined to light
- * subpath p.  Materials and scattering: chapter 4's (pathtrace_model.h); flux: chapter 5's (photonmap_model.h). */
+ * per pixel (begin_pass: light tracing, the photon grid); pixel p's camera ray makes one eye subpath, joined to p's. */
 #include <string.h>
 
 #include "render.h"
@@ -88,9 +86,8 @@ static int extend(const scene *s, path_vertex *p, int count, int cap, vec3 alpha
 /* x_0's density per unit area: the light's pick by power over its area (a point light: the pick; x_0 is given). */
 static double light_point_pdf(const bidir_state *st, const scene *s, const path_vertex *x0)
 {
-    if (x0->kind == AT_POINT_LIGHT)
-        return st->light_probability[s->surface_count + x0->surface];
-    return st->light_probability[x0->surface] / s->surfaces[x0->surface].area;
+    return x0->kind == AT_POINT_LIGHT ? st->light_probability[s->surface_count + x0->surface]
+                                      : st->light_probability[x0->surface] / s->surfaces[x0->surface].area;
 }
 
 /* A light subpath: a light picked by power, a point on it, a direction drawn like the emitted power (cosine; a
@@ -164,21 +161,22 @@ static int join(const path_vertex *y, int s_count, const path_vertex *z, int t_c
 }
 
 /* The density per steradian of direction x_j -> x_{j+dir} as a walk from x_{j-dir} draws it (dir 1: light, -1: eye). */
-static double direction_pdf(const path_vertex *x, int j, int dir, const pinhole *c)
+static double direction_pdf(const path_vertex *x, const path_edges *e, int j, int dir, const pinhole *c)
 {
-    vec3 w = unit(x[j].x, x[j + dir].x);
+    vec3 w = path_toward(e, j, dir);
     if (x[j].kind == AT_CAMERA)
         return camera_importance(c, v3_dot(w, c->forward)); /* W_e is the eye ray's density */
     if (j == 0)
         return x[0].kind == AT_POINT_LIGHT ? uniform_sphere_pdf() : cosine_hemisphere_pdf(v3_dot(x[0].n, w));
-    vertex v = vertex_at(x[j].x, x[j].n, unit(x[j].x, x[j - dir].x), x[j].m);
+    vertex v = vertex_at(x[j].x, x[j].n, path_toward(e, j, -dir), x[j].m);
     return bsdf_pdf(&v, w);
 }
 
 /* (R14) The density per unit area of x_i as the walk in direction dir drew it: p(w) at the last non-specular vertex
  * x_j before it, times cos theta_i over the squared length D of the way from x_j (through mirrors and glass,
  * unfolded) to x_i (R7).  A light's own point: light_point_pdf; the eye: 1 (a delta in all). [exercise 6.3] */
-static double area_pdf(const bidir_state *st, const scene *s, const path_vertex *x, int k, int i, int dir)
+static double area_pdf(const bidir_state *st, const scene *s, const path_vertex *x, const path_edges *e, int k, int i,
+                       int dir)
 {
     if (dir == 1 && i == 0)
         return light_point_pdf(st, s, &x[0]);
@@ -187,10 +185,10 @@ static double area_pdf(const bidir_state *st, const scene *s, const path_vertex 
     double D = 0.0;
     int j = i;
     do {
-        D += v3_length(v3_sub(x[j].x, x[j - dir].x));
+        D += e->d[dir == 1 ? j - 1 : j]; /* |x_j - x_{j-dir}| */
         j -= dir;
     } while (at_specular(&x[j]));
-    return direction_pdf(x, j, dir, &st->camera) * cos_at(&x[i], unit(x[i].x, x[i - dir].x)) / (D * D);
+    return direction_pdf(x, e, j, dir, &st->camera) * cos_at(&x[i], path_toward(e, i, -dir)) / (D * D);
 }
 
 typedef enum { CONNECT, MERGE } technique;
@@ -240,9 +238,11 @@ static double strategy_density(const bidir_state *st, const path_vertex *x, int 
 static void path_pdfs(const bidir_state *st, const scene *s, const path_vertex *x, int k, double *pdf_light,
                       double *pdf_eye, double *merge_chance)
 {
+    path_edges e; /* the directions and lengths of x's edges */
+    path_edges_of(x, k, &e);
     for (int i = 0; i <= k; i++) {
-        pdf_light[i] = area_pdf(st, s, x, k, i, 1);
-        pdf_eye[i] = area_pdf(st, s, x, k, i, -1);
+        pdf_light[i] = area_pdf(st, s, x, &e, k, i, 1);
+        pdf_eye[i] = area_pdf(st, s, x, &e, k, i, -1);
         merge_chance[i] = pdf_light[i] * M_PI * st->current_radius * st->current_radius;
     }
 }

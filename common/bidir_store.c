@@ -275,6 +275,14 @@ int bidir_join_step(path_vertex *x, const path_vertex *y, int s, const path_vert
     return s + t - 1;
 }
 
+void path_edges_of(const path_vertex *x, int k, path_edges *e)
+{
+    for (int i = 0; i < k; i++) {
+        e->w[i] = v3_normalize(v3_sub(x[i + 1].x, x[i].x)); /* the chapter's unit(x_i, x_{i+1}), bit for bit */
+        e->d[i] = v3_length(v3_sub(x[i + 1].x, x[i].x));
+    }
+}
+
 /* What the options cannot render, said once (a pinhole is never hit: t = 0). */
 static void warn_impossible(const bidir_state *st, const scene *s, specular_test *is_specular)
 {

@@ -36,6 +36,17 @@ typedef struct {
     bool specular;     /* on a mirror or glass (f a delta): asked so often that it is kept */
 } path_vertex;
 
+/* The edges x_i -> x_{i+1} of a path x_0 .. x_k: the unit direction w[i] and
+ * the length d[i], found once for all the densities (R14) of the path (the
+ * chapter's area_pdf asks for each edge eight times). */
+typedef struct {
+    vec3 w[MAX_PATH];
+    double d[MAX_PATH];
+} path_edges;
+void path_edges_of(const path_vertex *x, int k, path_edges *e);
+/* The unit direction from x_j to x_{j+dir} (dir 1 or -1) on those edges. */
+static inline vec3 path_toward(const path_edges *e, int j, int dir) { return dir == 1 ? e->w[j] : v3_neg(e->w[j - 1]); }
+
 typedef struct {
     vec3 eye, forward;
     camera_frame frame; /* the image plane at distance 1 (scene.h) */
