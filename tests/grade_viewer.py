@@ -59,8 +59,8 @@ def viewer_env():
     env["LSAN_OPTIONS"] = "suppressions=" + os.path.join(lib.ROOT, "viewer", "lsan.supp") + ":print_suppressions=0"
     # LeakSanitizer's tracer crashed ("Tracer caught signal 11") stopping the threads at exit with two
     # panels and a reference on llvmpipe: GCC 12's sanitizer runtime intercepts __tls_get_addr and
-    # walks Mesa's dynamic TLS with a stale size (fixed upstream, LLVM D147459).  Not intercepting it
-    # leaves the leak check on (a leak in the viewer is still found, test_leak_check_is_on).
+    # walks Mesa's dynamic TLS (an upstream runtime bug: google/sanitizers#1267, LLVM D147459).
+    # Not intercepting it leaves the leak check on (test_leak_check_is_on).
     env["ASAN_OPTIONS"] = os.environ.get("ASAN_OPTIONS", "") + ":intercept_tls_get_addr=0"
     return env
 
