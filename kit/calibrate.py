@@ -378,10 +378,10 @@ def target_names(chapters, units):
 def forget_objects_using(src, rel):
     """Make every object in src/build whose dependency file lists `rel` out of date (its time set to
     1970; deleting it would not do: the Makefile's .SECONDARY lets make skip a missing object).
-    Make knows most of this already, but an object compiled under another name and renamed (the
-    chapter models, build/chapters/NN_name_model.o, written as ...model.o.tmp.o) has its headers
-    recorded for the temporary name only: without this, chapter 5 would keep chapter 4's object
-    with the old common/optics.h."""
+    Make knows this already for a build of this Makefile (the chapter models' dependency files
+    name the object itself, -MT); a build tree from before 9ff467e compiled them as
+    ...model.o.tmp.o and renamed them, with their headers recorded for the temporary name only:
+    without this, chapter 5 would keep chapter 4's object with the old common/optics.h."""
     for top, _, files in os.walk(os.path.join(src, "build")):
         for name in files:
             if not name.endswith(".d"):
