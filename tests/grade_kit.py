@@ -200,14 +200,14 @@ def test_handout_of_chapter_5_stubs_run_and_say_so(ctx):
 
 
 def test_handout_stubs_run_every_method_under_the_sanitizers(ctx):
-    """make handout for chapters 2-4 and 03c (1 and 5 have their own tests above), built with
+    """make handout for chapters 2-4, 03c and 6 (1 and 5 have their own tests above), built with
     AddressSanitizer and UndefinedBehaviorSanitizer (SANITIZE=1): every method of each chapter
     runs on the spheres or the Cornell box with its stubs (exit 0, finite pixels, no sanitizer
     report), and each stub it reaches says TODO once.  A stub returns zero: this checks that the
     chapters survive the zeros (a stub does not write its pointer outputs)."""
     if "asan" in ctx.build:
         return
-    out = make_handout(ctx, "handout234", "02_whitted 03_radiosity 03c_hierarchical 04_pathtrace")
+    out = make_handout(ctx, "handout234", "02_whitted 03_radiosity 03c_hierarchical 04_pathtrace 06_bidirectional")
     r = subprocess.run(["make", "-j2", "--no-print-directory", "all", "BUILD=build/asan", "SANITIZE=1"], cwd=out,
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0 and "warning" not in r.stderr, r.stderr[-3000:]
@@ -217,6 +217,7 @@ def test_handout_stubs_run_every_method_under_the_sanitizers(ctx):
              for s in ("jacobi", "gauss-seidel", "shooting", "direct")]
     runs += [("03c_hierarchical", box, [])]
     runs += [("04_pathtrace", spheres, ["--spp", 4, "--estimator", e]) for e in ("hemisphere", "cosine", "light", "mis")]
+    runs += [("06_bidirectional", spheres, ["--spp", 2, "--method", m]) for m in ("light", "bdpt", "vcm")]
     for chapter, scene, args in runs:
         pfm = ctx.path("stub.pfm")
         r = subprocess.run([os.path.join(out, "build", "asan", chapter), scene, "--quiet", "--size", "12x12",
