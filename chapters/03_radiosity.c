@@ -96,12 +96,14 @@ double point_to_polygon(vec3 x, vec3 n, const vec3 *polygon, int count)
 /* Pairs closer than this many radii get every quadrature point, others the centroid. */
 static const double NEAR_FACTOR = 6.0;
 
-/* F_ij (R10): the outer integral over patch i by its quadrature points x_k,
- * the inner one by point_to_polygon, times the visible part: one ray from
- * each x_k to a quadrature point of j (pairing shifted by a hash of (i, j)),
- * weighted by the kernel it carries (form_factor_kernel): the rays that pass
- * a 1 mm slit under a box run to the walls' feet, grazing the floor (16 %
- * of the rays, 3.5 % of F).  Deterministic. [exercise 3.2] */
+/* F_ij (R10): unoccluded F times its visible part.  Unoccluded: the outer
+ * integral over patch i by its quadrature points x_k (weights w_k), the inner
+ * one by point_to_polygon.  Visible part: one ray from each x_k to a point
+ * y_k of j (pairing shifted by a hash of (i, j)), weighted by the light it
+ * carries, G_k = cos cos / r^2 (form_factor_kernel): sum w G V / sum w G.
+ * Unweighted, the rays through a 1 mm slit under a box would pass for typical
+ * ones; they run to the walls' feet, grazing the floor (16 % of the rays,
+ * 3.5 % of F).  Deterministic. [exercise 3.2] */
 static double form_factor_estimate(const radiosity_state *st, const scene *s, int i, int j, uint64_t *rays)
 {
     if (i == j)
