@@ -125,9 +125,11 @@ demo: deps-demo
 	$(MAKE) --no-print-directory all
 	viewer/demo.sh $(BUILD)
 
+# Both trees build, and the tests run, as many at a time as there are CPUs (tests/run.py -j).
+CPUS := $(shell nproc 2>/dev/null || echo 2)
 test: deps
-	$(MAKE) --no-print-directory all tests
-	$(MAKE) --no-print-directory all tests BUILD=build/asan SANITIZE=1
+	$(MAKE) --no-print-directory -j$(CPUS) all tests
+	$(MAKE) --no-print-directory -j$(CPUS) all tests BUILD=build/asan SANITIZE=1
 	$(PYTHON) tests/run.py build build/asan
 
 test-plain: all tests

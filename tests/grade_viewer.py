@@ -30,6 +30,7 @@ Standard library only.  PNGs are decoded by kit/png.py.
 
 import math
 import os
+import select
 import shutil
 import signal
 import struct
@@ -278,20 +279,28 @@ def test_split_and_heat_map(ctx):
 # ---- GLFW under Xvfb ---------------------------------------------------------------------------
 
 def start_xvfb():
+    """A private Xvfb: the server picks a free display itself and writes its number to a pipe
+    (-displayfd), so tests run side by side (tests/run.py -j) never race for one."""
     xvfb = shutil.which("Xvfb")
     assert xvfb, "Xvfb is not installed (apt-get install xvfb; make deps)"
-    for number in range(91, 140):
-        if os.path.exists(f"/tmp/.X{number}-lock") or os.path.exists(f"/tmp/.X11-unix/X{number}"):
-            continue
-        proc = subprocess.Popen([xvfb, f":{number}", "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
-        deadline = time.time() + 10
-        while time.time() < deadline and proc.poll() is None:
-            if os.path.exists(f"/tmp/.X11-unix/X{number}"):
-                return proc, f":{number}"
-            time.sleep(0.05)
-        proc.kill()
-        proc.wait()
+    read_end, write_end = os.pipe()
+    proc = subprocess.Popen([xvfb, "-displayfd", str(write_end), "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL,
+                            pass_fds=(write_end,))
+    os.close(write_end)
+    number = b""
+    deadline = time.time() + 20
+    while not number.endswith(b"\n") and time.time() < deadline:
+        if select.select([read_end], [], [], 0.1)[0]:
+            chunk = os.read(read_end, 16)
+            if not chunk:
+                break
+            number += chunk
+    os.close(read_end)
+    if number.strip().isdigit():
+        return proc, f":{int(number)}"
+    proc.kill()
+    proc.wait()
     raise AssertionError("could not start Xvfb")
 
 

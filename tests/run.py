@@ -1,19 +1,27 @@
 #!/usr/bin/python3
 """The test runner behind `make test`.
 
-usage: tests/run.py [-k TEXT] BUILD_DIR [BUILD_DIR ...]   (e.g. build build/asan)
+usage: tests/run.py [-k TEXT] [-j N] BUILD_DIR [BUILD_DIR ...]   (e.g. build build/asan)
 
   -k TEXT     run only the grading tests whose full name contains TEXT
               (BUILD:grade_MODULE:test_NAME); the C unit tests are skipped
+  -j N        run N tests at a time (default: the number of CPUs this process may use, at most 4)
   -h, --help  this text
 
 For every build directory it runs
   1. the C unit tests build/tests/test_*  (lines "ok   name" / "FAIL name: ...")
   2. the grading tests tests/grade_*.py    (functions test_*(ctx))
 and ends with the line "N passed, N failed".  Exit status 1 if anything failed.
+
+Tests run side by side (-j): most of them wait on one-threaded work (a Python check, a compiler, a
+sandbox, a short render) part of the time, so two at a time fill a 2-core machine.  Every test has
+its own scratch directory.  A module whose tests share files outside it (the decks in out/slides
+that the sanitizer pass reuses, the viewer's X displays) says RUN_IN_SEQUENCE = True: its tests,
+over all build directories, then run one after another in one worker, in the order given.
 """
 import glob
 import importlib.util
+import multiprocessing
 import os
 import shutil
 import subprocess
@@ -28,69 +36,160 @@ SANITIZER_ENV = {
     "ASAN_OPTIONS": "detect_leaks=1:abort_on_error=0:exitcode=99",
     "UBSAN_OPTIONS": "halt_on_error=1:print_stacktrace=1:exitcode=99",
 }
+PLAIN_ENV = {key: os.environ.get(key) for key in SANITIZER_ENV}
 
 
-def run_unit_tests(build, report):
-    for exe in sorted(glob.glob(os.path.join(lib.ROOT, build, "tests", "test_*"))):
-        if exe.endswith(".d") or not os.access(exe, os.X_OK):
-            continue
-        name = os.path.basename(exe)
-        start = time.time()
-        try:
-            result = subprocess.run([exe], cwd=lib.ROOT, capture_output=True, text=True, timeout=900,
-                                    stdin=subprocess.DEVNULL)
-        except subprocess.TimeoutExpired:
-            report(f"{build}:{name}", False, "timed out")
-            continue
-        seen = 0
-        for line in result.stdout.splitlines():
-            if line.startswith("ok   "):
-                report(f"{build}:{name}:{line[5:]}", True, "")
-                seen += 1
-            elif line.startswith("FAIL "):
-                report(f"{build}:{name}:{line[5:].split(':', 1)[0]}", False, line[5:])
-                seen += 1
-        if result.returncode != 0 or seen == 0:
-            report(f"{build}:{name}", False,
-                   f"exit status {result.returncode} after {time.time() - start:.1f} s\n{result.stderr[-3000:]}")
+def use_environment_of(build):
+    """The sanitizer options for a build/asan test, the caller's environment for any other."""
+    for key, value in (SANITIZER_ENV if "asan" in build else PLAIN_ENV).items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
 
 
-def run_grading_tests(build, report, only):
+def run_unit_test(build, exe):
+    """One C unit-test executable: [(name, ok, detail)] for its ok/FAIL lines."""
+    name = os.path.basename(exe)
+    start = time.time()
+    try:
+        result = subprocess.run([exe], cwd=lib.ROOT, capture_output=True, text=True, timeout=900,
+                                stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired:
+        return [(f"{build}:{name}", False, "timed out")]
+    results = []
+    for line in result.stdout.splitlines():
+        if line.startswith("ok   "):
+            results.append((f"{build}:{name}:{line[5:]}", True, ""))
+        elif line.startswith("FAIL "):
+            results.append((f"{build}:{name}:{line[5:].split(':', 1)[0]}", False, line[5:]))
+    if result.returncode != 0 or not results:
+        results.append((f"{build}:{name}", False,
+                        f"exit status {result.returncode} after {time.time() - start:.1f} s\n{result.stderr[-3000:]}"))
+    return results
+
+
+def run_grading_test(build, module, name):
+    """One test function: [(name, ok, detail)]."""
+    full = f"{build}:{module.__name__}:{name}"
+    ctx = lib.Context(build)
+    start = time.time()
+    try:
+        getattr(module, name)(ctx)
+        shutil.rmtree(ctx.scratch, ignore_errors=True)  # a failed test's files are kept to look at
+        return [(full, True, f"{time.time() - start:.1f} s")]
+    except Exception as e:  # an AssertionError is a failed grade; anything else too
+        detail = str(e) if isinstance(e, AssertionError) else traceback.format_exc()
+        return [(full, False, f"{detail}\n     (its files: {ctx.scratch})")]
+
+
+def load_modules():
+    modules = []
     for path in sorted(glob.glob(os.path.join(lib.ROOT, "tests", "grade_*.py"))):
         module_name = os.path.splitext(os.path.basename(path))[0]
         spec = importlib.util.spec_from_file_location(module_name, path)
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
-        for name in sorted(n for n in dir(module) if n.startswith("test_")):
-            full = f"{build}:{module_name}:{name}"
-            if only and only not in full:
-                continue
-            ctx = lib.Context(build)
-            start = time.time()
-            try:
-                getattr(module, name)(ctx)
-                report(full, True, f"{time.time() - start:.1f} s")
-                shutil.rmtree(ctx.scratch, ignore_errors=True)  # a failed test's files are kept to look at
-            except Exception as e:  # an AssertionError is a failed grade; anything else too
-                detail = str(e) if isinstance(e, AssertionError) else traceback.format_exc()
-                report(full, False, f"{detail}\n     (its files: {ctx.scratch})")
+        modules.append(module)
+    return modules
+
+
+def plan(builds, only):
+    """The work as a list of sequences, each a list of (function, build, *arguments) run in order."""
+    modules = load_modules()
+    in_sequence = {m.__name__: [] for m in modules if getattr(m, "RUN_IN_SEQUENCE", False)}
+    alone = []
+    for build in builds:
+        if not only:
+            for exe in sorted(glob.glob(os.path.join(lib.ROOT, build, "tests", "test_*"))):
+                if not exe.endswith(".d") and os.access(exe, os.X_OK):
+                    alone.append([(run_unit_test, build, exe)])
+        for module in modules:
+            for name in sorted(n for n in dir(module) if n.startswith("test_")):
+                if only and only not in f"{build}:{module.__name__}:{name}":
+                    continue
+                task = (run_grading_test, build, module, name)
+                if module.__name__ in in_sequence:
+                    in_sequence[module.__name__].append(task)
+                else:
+                    alone.append([task])
+    # the long sequences first, so that no worker is left with one at the end
+    return [s for s in in_sequence.values() if s] + alone
+
+
+def run_sequence(sequence):
+    results = []
+    for function, build, *arguments in sequence:
+        use_environment_of(build)
+        results += function(build, *arguments)
+    return results
+
+
+def worker(work, results):
+    while True:
+        index = work.get()
+        if index is None:
+            return
+        try:
+            results.put(run_sequence(SEQUENCES[index]))
+        except BaseException:  # never leave the runner waiting for a sequence that died
+            results.put([(f"sequence {index}", False, traceback.format_exc())])
+
+
+SEQUENCES = []
+
+
+def run_all(sequences, jobs, report):
+    SEQUENCES[:] = sequences
+    if jobs == 1:
+        for sequence in sequences:
+            for result in run_sequence(sequence):
+                report(*result)
+        return
+    fork = multiprocessing.get_context("fork")  # the workers inherit the loaded test modules
+    work, results = fork.Queue(), fork.Queue()
+    workers = [fork.Process(target=worker, args=(work, results), daemon=True) for _ in range(jobs)]
+    for p in workers:
+        p.start()
+    for index in range(len(sequences)):
+        work.put(index)
+    for _ in workers:
+        work.put(None)
+    for _ in range(len(sequences)):
+        for result in results.get():
+            report(*result)
+    for p in workers:
+        p.join()
+
+
+def parse_arguments(args):
+    if "-h" in args or "--help" in args:
+        print(__doc__.strip())
+        sys.exit(0)
+    options = {"-k": None, "-j": str(min(4, len(os.sched_getaffinity(0))))}
+    rest = []
+    while args:
+        word = args.pop(0)
+        if word in options:
+            if not args:
+                bad(f"{word} without a value")
+            options[word] = args.pop(0)
+        elif word.startswith("-"):
+            bad(word)
+        else:
+            rest.append(word)
+    if not options["-j"].isdigit() or not 1 <= int(options["-j"]) <= 64:
+        bad(f"-j {options['-j']} (a number of tests at a time, 1 to 64)")
+    return options["-k"], int(options["-j"]), rest or ["build"]
+
+
+def bad(what):
+    print(f"tests/run.py: bad arguments: {what} (see --help)", file=sys.stderr)
+    sys.exit(2)
 
 
 def main():
-    args = sys.argv[1:]
-    if "-h" in args or "--help" in args:
-        print(__doc__.strip())
-        return
-    unknown = [a for a in args if a.startswith("-") and a != "-k"]
-    if unknown or args[-1:] == ["-k"]:
-        print(f"tests/run.py: bad arguments {' '.join(unknown) or '-k without TEXT'} (see --help)", file=sys.stderr)
-        sys.exit(2)
-    only = None
-    if "-k" in args:
-        i = args.index("-k")
-        only = args[i + 1]
-        del args[i:i + 2]
-    builds = args or ["build"]
+    only, jobs, builds = parse_arguments(sys.argv[1:])
     counts = {"passed": 0, "failed": 0}
 
     def report(name, ok, detail):
@@ -103,12 +202,7 @@ def main():
     # OpenMP threads that spin while they wait for work take the CPU from the other tests' programs
     # on a loaded 2-core machine (chapter 5: 1.3 s of CPU at 64 passes spinning, 0.05 s passive).
     os.environ.setdefault("OMP_WAIT_POLICY", "passive")
-    for build in builds:
-        if "asan" in build:
-            os.environ.update(SANITIZER_ENV)
-        if not only:
-            run_unit_tests(build, report)
-        run_grading_tests(build, report, only)
+    run_all(plan(builds, only), jobs, report)
     print(f"{counts['passed']} passed, {counts['failed']} failed")
     sys.exit(1 if counts["failed"] else 0)
 
