@@ -45,6 +45,11 @@ def instructor_checksums():
     return digest
 
 
+# The hostile tests check that a grading leaves no temporary directory, cgroup or process and changes
+# nothing in the instructor's tree, so no other test may run beside them (tests/run.py -j).
+RUN_ALONE = True
+
+
 def leftovers():
     """Temporary directories and cgroups a grading makes (and must remove)."""
     tmp = {n for n in os.listdir(tempfile.gettempdir()) if n.startswith(("gi-grade-", "gi-kit-out-", "gi-kit-t"))}

@@ -15,9 +15,13 @@ and ends with the line "N passed, N failed".  Exit status 1 if anything failed.
 
 Tests run side by side (-j): most of them wait on one-threaded work (a Python check, a compiler, a
 sandbox, a short render) part of the time, so two at a time fill a 2-core machine.  Every test has
-its own scratch directory.  A module whose tests share files outside it (the decks in out/slides
-that the sanitizer pass reuses, the viewer's X displays) says RUN_IN_SEQUENCE = True: its tests,
-over all build directories, then run one after another in one worker, in the order given.
+its own scratch directory.  A module says what else it needs:
+  RUN_IN_SEQUENCE = True  its tests share files outside their scratch (the decks in out/slides that
+                          the sanitizer pass reuses): over all build directories they run one after
+                          another in one worker, in the order given;
+  RUN_ALONE = True        its tests check what the whole machine holds afterwards (no temporary
+                          directory, cgroup or process left by a grading, the instructor's tree
+                          unchanged): they run last, one at a time, with nothing beside them.
 """
 import glob
 import importlib.util
@@ -95,9 +99,11 @@ def load_modules():
 
 
 def plan(builds, only):
-    """The work as a list of sequences, each a list of (function, build, *arguments) run in order."""
+    """The work as (side by side, alone): lists of sequences, each a list of (function, build,
+    *arguments) run in order."""
     modules = load_modules()
-    in_sequence = {m.__name__: [] for m in modules if getattr(m, "RUN_IN_SEQUENCE", False)}
+    in_sequence = {m.__name__: [] for m in modules
+                   if getattr(m, "RUN_IN_SEQUENCE", False) or getattr(m, "RUN_ALONE", False)}
     alone = []
     for build in builds:
         if not only:
@@ -113,8 +119,10 @@ def plan(builds, only):
                     in_sequence[module.__name__].append(task)
                 else:
                     alone.append([task])
+    by_itself = {m.__name__ for m in modules if getattr(m, "RUN_ALONE", False)}
     # the long sequences first, so that no worker is left with one at the end
-    return [s for s in in_sequence.values() if s] + alone
+    side_by_side = [s for name, s in in_sequence.items() if s and name not in by_itself] + alone
+    return side_by_side, [s for name, s in in_sequence.items() if s and name in by_itself]
 
 
 def run_sequence(sequence):
@@ -202,7 +210,9 @@ def main():
     # OpenMP threads that spin while they wait for work take the CPU from the other tests' programs
     # on a loaded 2-core machine (chapter 5: 1.3 s of CPU at 64 passes spinning, 0.05 s passive).
     os.environ.setdefault("OMP_WAIT_POLICY", "passive")
-    run_all(plan(builds, only), jobs, report)
+    side_by_side, by_itself = plan(builds, only)
+    run_all(side_by_side, jobs, report)
+    run_all(by_itself, 1, report)
     print(f"{counts['passed']} passed, {counts['failed']} failed")
     sys.exit(1 if counts["failed"] else 0)
 
