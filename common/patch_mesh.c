@@ -752,17 +752,25 @@ vec3 patch_mesh_irradiance(const patch_mesh *m, const scene *s, const vec3 *radi
             continue;
         /* Visibility by rays to the points of j in front of x, the part f counts
          * (a ray to the part clipped away, behind the probe, meets the probe's own
-         * solid: a probe on a box's side 1 mm above the floor read 15 % low). */
-        int visible = 0, in_front = 0;
+         * solid: a probe on a box's side 1 mm above the floor read 15 % low).
+         * Each ray counts with the kernel it carries, sum w G V / sum w G, as the
+         * form factors do: through a slit the rays that pass graze, and a plain
+         * fraction of rays would count them as if they carried their share. */
+        double carried = 0.0, visible = 0.0;
+        int in_front = 0, passed = 0;
         for (int k = 0; k < p->point_count; k++) {
             vec3 y = m->points[p->first_point + k];
             if (v3_dot(n, v3_sub(y, x)) <= s->epsilon)
                 continue;
+            double g = m->weights[p->first_point + k] * form_factor_kernel(x, n, y, p->normal);
+            bool open = !scene_occluded(s, x, y);
             in_front++;
-            visible += !scene_occluded(s, x, y);
+            passed += open;
+            carried += g;
+            visible += open ? g : 0.0;
         }
-        if (in_front > 0)
-            total = v3_madd(total, radiance[j], M_PI * f * visible / in_front);
+        if (in_front > 0) /* the plain fraction only where no ray carries any kernel */
+            total = v3_madd(total, radiance[j], M_PI * f * (carried > 0.0 ? visible / carried : (double)passed / in_front));
     }
     return total;
 }

@@ -60,6 +60,8 @@ def room_with_box(scale, gap, materials, lamp=False):
     probes = {"floor_by_box": ((0.5, 0, 0.29), (0, 1, 0)), "box_side_low": ((0.3, gap + 0.001, 0.5), (-1, 0, 0)),
               "floor_far": ((0.1, 0, 0.1), (0, 1, 0)), "on_box_top": ((0.5, y1, 0.5), (0, 1, 0)),
               "corner": ((0.001, 0.001, 0.5), (1, 0, 0))}
+    if gap > 0:  # in the cavity under a floating box: 1 cm and 1 mm inside its edge (lit through the slit)
+        probes.update({"under_box_1cm": ((0.31, 0, 0.5), (0, 1, 0)), "under_box_1mm": ((0.301, 0, 0.5), (0, 1, 0))})
     for name, (p, n) in probes.items():
         text += f"probe {name} " + " ".join(f"{c * s:g}" for c in p) + "  " + " ".join(map(str, n)) + "\n"
     return text, list(probes)
