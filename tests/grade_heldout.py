@@ -164,3 +164,24 @@ def test_heldout_files_are_the_instructors_only(ctx):
         raise AssertionError("a held-out file made for other options was used")
     except ValueError as e:
         assert "--make-heldout" in str(e), e
+
+
+def test_the_solution_passes_every_surfaces_criterion_against_both_references(ctx):
+    """Radiosity's per-surface numbers are exact up to the solver's tolerance (no Monte Carlo): the
+    solution in this build must match kit/reference/ (the handout's self-check) and kit/heldout/ (the
+    instructor's grading) within the rubric's surface tolerance.  A change to chapter 3's output that
+    is not followed by `kit/grade.py --make-reference` fails here, not in a class's grading (the
+    kernel-weighted form factors moved short_side2 by 2.3 % and the references stayed a day behind).
+    Six radiosity solves, about 13 s; the compare criteria's Monte Carlo images cost too much to
+    re-render here.  The kit grades plain builds: under the sanitizer build it passes without running."""
+    if "asan" in ctx.build:
+        return
+    with open(os.path.join(ROOT, "kit", "rubric.json")) as f:
+        rub = json.load(f)
+    rows = [c for c in rub["criteria"] if c["kind"] == "surfaces"]
+    assert rows, "kit/rubric.json has no surfaces criterion"
+    for c in rows:
+        for variant in (c, compare.graded_variant(c)):
+            passed, _, message, _ = compare.run_surfaces(ROOT, ctx.build, variant, rub)
+            which = "kit/heldout/ (the instructor's)" if variant.get("heldout") else "kit/reference/ (the handout's)"
+            assert passed, f"{c['name']} against {which}: {message}  Refresh: kit/grade.py --make-reference"
