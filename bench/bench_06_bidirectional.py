@@ -27,8 +27,12 @@ within 1.1x of the better of BDPT and photon mapping (the whole image's RMSE, th
 figure; the ratio off the light's edges beside it); on sds also over the mirror ball without the
 light's images in it (caustic_region.sds_mirror_regions: the whole image and "off the edges" there
 are a few fireflies of the light seen through mirror and glass).  BENCH6_SCENES=a,b picks scenes.
+BENCH6_VCM_ARGS="--alpha A ..." adds options to VCM's runs (not to the references), to try a setting;
+BENCH6_VCM_RADIUS_SCALE=F runs VCM with F times its default first radius at this size (2 at 128x128:
+chapter 5's default radius, which does not shrink with the image).
 A benchmark, not a test: it prints what it measures, met or not.
 """
+import json
 import math
 import os
 import resource
@@ -57,9 +61,11 @@ REFERENCES = {"cornell": ("04_pathtrace", ["--spp", "4096", "--probe-samples", "
 # Probes (cornell, cornell-spheres) at their fewest samples in every chapter: their cost is the run's, not a pass's
 # (chapter 6's default 16384 a probe added 5 ms to BDPT's and VCM's pass on cornell at 128x128, 32 passes).
 FEW_PROBES = ["--probe-samples", "32"]
+VCM_ARGS = os.environ.get("BENCH6_VCM_ARGS", "").split()
+VCM_RADIUS_SCALE = float(os.environ.get("BENCH6_VCM_RADIUS_SCALE", "1"))
 METHODS = [("pt", "04_pathtrace", FEW_PROBES), ("pm", "05_photonmap", ["--probe-photons", "32"]),
            ("light", "06_bidirectional", ["--method", "light", *FEW_PROBES]),
-           ("bdpt", "06_bidirectional", ["--method", "bdpt", *FEW_PROBES]), ("vcm", "06_bidirectional", FEW_PROBES),
+           ("bdpt", "06_bidirectional", ["--method", "bdpt", *FEW_PROBES]), ("vcm", "06_bidirectional", [*FEW_PROBES, *VCM_ARGS]),
            ("ppm", "06_bidirectional", ["--connect", "off", *FEW_PROBES])]
 
 
@@ -74,6 +80,17 @@ def render(chapter, scene, args, out, threads=1):
     shown = f"{os.path.relpath(BUILD, ROOT)}/{chapter} scenes/{scene}.scene --size {size} --threads {threads} " + \
         " ".join(args)
     return after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime, shown
+
+
+def vcm_radius_args(scene):
+    """--radius for VCM's runs on scene: VCM_RADIUS_SCALE times the first radius chapter 6 picks at this size
+    (its stats' last_radius after one pass); none when the scale is 1."""
+    if VCM_RADIUS_SCALE == 1.0:
+        return []
+    stats = os.path.join(OUT, "radius.json")
+    render("06_bidirectional", scene, ["--spp", "1", "--stats", stats, *FEW_PROBES], os.path.join(OUT, "radius.pfm"))
+    with open(stats) as f:
+        return ["--radius", repr(VCM_RADIUS_SCALE * json.load(f)["last_radius"])]
 
 
 def pixels(path):
@@ -184,7 +201,8 @@ def main():
         keep = off_edges(ref)
         region = mirror_region() if scene == "sds" else None
         found = {b: {} for b in BUDGETS}
-        methods = [m for m in METHODS if not picked or m[0] in picked]
+        methods = [(label, chapter, args + (vcm_radius_args(scene) if label == "vcm" else []))
+                   for label, chapter, args in METHODS if not picked or label in picked]
         cost = pass_costs(scene, methods) if COST_ROUNDS > 0 else {}
         if cost:
             print(f"  {scene:16s} CPU ms per pass (least of {COST_ROUNDS} rounds of {COST_PASSES}): " +
