@@ -769,8 +769,11 @@ vec3 patch_mesh_irradiance(const patch_mesh *m, const scene *s, const vec3 *radi
             carried += g;
             visible += open ? g : 0.0;
         }
-        if (in_front > 0) /* the plain fraction only where no ray carries any kernel */
-            total = v3_madd(total, radiance[j], M_PI * f * (carried > 0.0 ? visible / carried : (double)passed / in_front));
+        if (in_front == 0)
+            continue;
+        /* the plain fraction only where no ray carries any kernel */
+        double visible_part = carried > 0.0 ? visible / carried : (double)passed / in_front;
+        total = v3_madd(total, radiance[j], M_PI * f * visible_part);
     }
     return total;
 }
