@@ -9,8 +9,8 @@
  * a shadow ray.  Each has its density (R14); their power heuristic weights (R15) add to 1 on every path.  --method:
  *   1. light  light tracing: every vertex of a light subpath joined to the camera (t = 1), in the pixel it is seen;
  *   2. bdpt   every (s, t), weighted by (R15) computed plainly from the path's densities (R14);
- *   3. vcm    (the default) also chapter 5's density estimate (R11) at every eye vertex, as one more strategy
- *             (R16), with the radius of (R12).  --merge off is bdpt; --connect off progressive photon mapping.
+ *   3. vcm    (the default) also chapter 5's estimate (R11) as one more strategy (R16) at eye vertices seen in a
+ *             mirror or glass, radius (R12).  --merge off is bdpt; --connect off progressive photon mapping.
  * --strategy S,T: one strategy, unweighted.  --check N: weights and densities tested on random paths.  Probes and
  * surface means (walk_stats.h) put a sensor in the camera's place: sensor_sample.  Each pass traces one light subpath
  * per pixel (begin_pass: light tracing, the photon grid); pixel p's camera ray makes one eye subpath, joined to p's. */
@@ -202,8 +202,8 @@ static int first_from_eye(const path_vertex *x, int k)
     return j;
 }
 
-/* Can the method make x_0 .. x_k by joining s light vertices to the eye subpath's t = k + 1 - s (or merging at
- * x_s)?  Not through a delta: a mirror, glass, the pinhole (t = 0), a point light (s = 0). */
+/* Can the method make x_0 .. x_k by joining s light to t = k + 1 - s eye vertices (or merging at x_s)?  Not through a
+ * delta (mirror, glass, pinhole t = 0, point light s = 0); merging only at x_s seen in a mirror or glass (R16). */
 static bool strategy_allowed(const bidir_state *st, const path_vertex *x, int k, technique how, int s)
 {
     int t = k + 1 - s;
@@ -213,7 +213,8 @@ static bool strategy_allowed(const bidir_state *st, const path_vertex *x, int k,
     if (st->single_strategy)
         return how == CONNECT && s == st->strategy_s && t == st->strategy_t;
     if (how == MERGE)
-        return st->merge && s >= 1 && t >= 2 && !at_specular(&x[s]) && (st->connect || first_from_eye(x, k) == s);
+        return st->merge && s >= 1 && t >= 2 && !at_specular(&x[s]) &&
+               (st->connect ? at_specular(&x[s + 1]) : first_from_eye(x, k) == s);
     if (t == 0 || (s == 0 && x[0].kind == AT_POINT_LIGHT) || (s >= 1 && (at_specular(&x[s - 1]) || at_specular(&x[s]))))
         return false;
     if (!st->connect && !sensor)
@@ -303,8 +304,7 @@ static vec3 strategy_value(const bidir_state *st, const scene *s, const path_ver
     return connect(s, y, s_count, z, t, rays);
 }
 
-/* Every strategy that ends at eye vertex z_{t-1} (t >= 2): the light it finds by itself (s = 0) and its joins to
- * the pixel's light subpath y, each weighted by (R15). */
+/* Every strategy ending at eye vertex z_{t-1} (t >= 2): the light it finds (s = 0), its joins to y; weights (R15). */
 static vec3 connections(const bidir_state *st, const scene *s, const path_vertex *y, int light_count,
                         const path_vertex *z, int t, uint64_t *rays)
 {
@@ -398,7 +398,7 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
     const path_vertex *y = &st->light_vertices[st->path_first[pixel]];
     for (int t = 2; t <= t_count; t++) {
         L = v3_add(L, connections(st, s, y, st->path_count[pixel], z, t, &counters->value[COUNT_SHADOW_RAYS]));
-        if (st->merge && !at_specular(&z[t - 1]))
+        if (st->merge && !at_specular(&z[t - 1]) && (!st->connect || at_specular(&z[t - 2])))
             L = v3_add(L, merges(st, s, z, t, counters));
     }
     return L;

@@ -54,8 +54,7 @@ const option BIDIR_OPTIONS[] = {
     {"--strategy", "S,T", OPTION_CUSTOM, 0, .parse = parse_strategy,
      .help = "only strategy (S, T): S light and T eye vertices, unweighted (a path of S + T - 1 edges)"},
     {"--radius", "R", OPTION_DOUBLE, STATE(radius), .min = 0.0, .min_exclusive = true, .max = 1e300,
-     .help = "first pass's merging radius (default: 1/200 of the scene's bounding-box diagonal, times "
-             "64 / sqrt(W H) above 64x64 pixels)"},
+     .help = "first pass's merging radius (default: 1/200 of the scene's bounding-box diagonal, as chapter 5's)"},
     {"--alpha", "A", OPTION_DOUBLE, STATE(alpha), .min = 0.0, .min_exclusive = true, .max = 1.0,
      .default_text = "0.666667", .help = "radius shrink per pass (R12)"},
     {"--check", "N", OPTION_INT, STATE(check_paths), .min = 0, .max = 1 << 24, .default_text = "0",
@@ -316,11 +315,11 @@ int bidir_prepare(void *state, const scene *s, const render_options *o, char *er
     st->connect = !(st->method == METHOD_VCM && st->connect_off);
     if (allocate(st, s, o->width, o->height, st->total_light_power(s), err, err_size))
         return 2;
-    /* The default radius: 1/200 of the scene's diagonal up to 64x64 pixels, above that shrinking with the pixel's
-     * footprint (64 / sqrt(w h)), so that merging blurs the same fraction of a pixel and its weight against the
-     * joins (R16), which grows as pi r^2 N with N = w h light subpaths, does not depend on the image's size. */
+    /* The default radius is chapter 5's, 1/200 of the scene's diagonal at any image size: merging is only
+     * allowed where no join can make the path (strategy_allowed), so a radius that shrank with the pixels (as
+     * before, to keep merging's weight against the joins on diffuse walls constant) only added noise there. */
     double diagonal = v3_length(v3_sub(s->bounds.hi, s->bounds.lo));
-    double r = st->radius > 0.0 ? st->radius : 0.005 * diagonal * fmin(1.0, 64.0 / sqrt((double)st->light_paths));
+    double r = st->radius > 0.0 ? st->radius : 0.005 * diagonal;
     st->current_radius = r > 0.0 ? r : 1.0;
     warn_impossible(st, s, st->is_specular);
     for (int n = 0; n < st->check_paths && s->emitter_count + s->light_count > 0; n++) {
