@@ -193,17 +193,15 @@ static double area_pdf(const bidir_state *st, const scene *s, const path_vertex 
 
 typedef enum { CONNECT, MERGE } technique;
 
-/* The eye's first non-specular vertex on x_0 .. x_k (0: it sees the light through mirrors only). */
-static int first_from_eye(const path_vertex *x, int k)
+/* Merging (R16) at vertex v, whose neighbour toward the eye is n: VCM merges only where the eye sees v in a mirror
+ * or glass (L .. D S .. E): elsewhere a join makes the path as well, and a merge adds a photon search and blur. */
+static bool may_merge_at(const bidir_state *st, const path_vertex *v, const path_vertex *n)
 {
-    int j = k - 1;
-    while (j > 0 && at_specular(&x[j]))
-        j--;
-    return j;
+    return st->merge && !at_specular(v) && (!st->connect || at_specular(n));
 }
 
 /* Can the method make x_0 .. x_k by joining s light to t = k + 1 - s eye vertices (or merging at x_s)?  Not through a
- * delta (mirror, glass, pinhole t = 0, point light s = 0); merging only at x_s seen in a mirror or glass (R16). */
+ * delta: a mirror, glass, the pinhole (t = 0), a point light (s = 0). */
 static bool strategy_allowed(const bidir_state *st, const path_vertex *x, int k, technique how, int s)
 {
     int t = k + 1 - s;
@@ -213,8 +211,7 @@ static bool strategy_allowed(const bidir_state *st, const path_vertex *x, int k,
     if (st->single_strategy)
         return how == CONNECT && s == st->strategy_s && t == st->strategy_t;
     if (how == MERGE)
-        return st->merge && s >= 1 && t >= 2 && !at_specular(&x[s]) &&
-               (st->connect ? at_specular(&x[s + 1]) : first_from_eye(x, k) == s);
+        return s >= 1 && t >= 2 && may_merge_at(st, &x[s], &x[s + 1]) && (st->connect || first_from_eye(x, k) == s);
     if (t == 0 || (s == 0 && x[0].kind == AT_POINT_LIGHT) || (s >= 1 && (at_specular(&x[s - 1]) || at_specular(&x[s]))))
         return false;
     if (!st->connect && !sensor)
@@ -398,7 +395,7 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
     const path_vertex *y = &st->light_vertices[st->path_first[pixel]];
     for (int t = 2; t <= t_count; t++) {
         L = v3_add(L, connections(st, s, y, st->path_count[pixel], z, t, &counters->value[COUNT_SHADOW_RAYS]));
-        if (st->merge && !at_specular(&z[t - 1]) && (!st->connect || at_specular(&z[t - 2])))
+        if (may_merge_at(st, &z[t - 1], &z[t - 2]))
             L = v3_add(L, merges(st, s, z, t, counters));
     }
     return L;

@@ -274,6 +274,14 @@ int bidir_join_step(path_vertex *x, const path_vertex *y, int s, const path_vert
     return s + t - 1;
 }
 
+int first_from_eye(const path_vertex *x, int k)
+{
+    int j = k - 1;
+    while (j > 0 && x[j].specular)
+        j--;
+    return j;
+}
+
 void path_edges_of(const path_vertex *x, int k, path_edges *e)
 {
     for (int i = 0; i < k; i++) {

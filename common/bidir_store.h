@@ -44,6 +44,8 @@ typedef struct {
     double d[MAX_PATH];
 } path_edges;
 void path_edges_of(const path_vertex *x, int k, path_edges *e);
+/* The eye's first non-specular vertex on x_0 .. x_k (0: it sees the light through mirrors only). */
+int first_from_eye(const path_vertex *x, int k);
 /* The unit direction from x_j to x_{j+dir} (dir 1 or -1) on those edges. */
 static inline vec3 path_toward(const path_edges *e, int j, int dir) { return dir == 1 ? e->w[j] : v3_neg(e->w[j - 1]); }
 
