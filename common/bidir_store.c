@@ -323,8 +323,8 @@ int bidir_prepare(void *state, const scene *s, const render_options *o, char *er
     st->connect = !(st->method == METHOD_VCM && st->connect_off);
     if (allocate(st, s, o->width, o->height, st->total_light_power(s), err, err_size))
         return 2;
-    /* The default radius is chapter 5's, 1/200 of the scene's diagonal at any image size: merging is only
-     * allowed where no join can make the path (strategy_allowed), so a radius that shrank with the pixels (as
+    /* The default radius is chapter 5's, 1/200 of the scene's diagonal at any image size: VCM merges only where
+     * the eye sees a mirror or glass (the chapter's may_merge_at), so a radius that shrank with the pixels (as
      * before, to keep merging's weight against the joins on diffuse walls constant) only added noise there. */
     double diagonal = v3_length(v3_sub(s->bounds.hi, s->bounds.lo));
     double r = st->radius > 0.0 ? st->radius : 0.005 * diagonal;

@@ -144,7 +144,7 @@ def test_furnace_every_method(ctx):
     first eye vertex only, exact in the furnace, where the light is uniform, on the central half of
     the image, more than the radius from the walls' edges).  Image means over RENDERS seeds (the
     central half), within t_bound(RENDERS - 1, 5) standard errors of the closed form, each below
-    1 %.  Not VCM with a large radius: it merges at every eye vertex, also near the cube's edges,
+    1 %.  Not VCM with a large radius: before facdd27 it merged at every eye vertex, near the cube's edges too,
     where a disc of radius 0.4 reaches past the wall (merging there carries half of the light, and
     the image read 2.5 % dark, 5.3 standard errors, for grading seed 608)."""
     scene = furnace_scene(ctx, 0.5)
