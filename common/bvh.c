@@ -1,8 +1,9 @@
-/* bvh.c — the BVH (binned surface area heuristic) and the ray queries.
+/* bvh.c — the BVH and the ray queries (bvh.h says how it works).
  *
- * Reading order: boxes, the build, the copy that traversal reads, the
- * primitive tests, the traversal, and the public queries (scene_intersect,
- * scene_intersect_brute_force, scene_occluded).
+ * Reading order: boxes, the build (binned SAH over primitive references),
+ * the collapse to a 4-wide tree, the primitive tests, the traversal, and the
+ * public queries (scene_intersect, scene_intersect_brute_force,
+ * scene_occluded).
  */
 #include "bvh.h"
 
@@ -10,22 +11,22 @@
 #include <stdlib.h>
 #include <string.h>
 
-#ifdef __SSE2__
-#include <emmintrin.h> /* two-wide double SIMD for the BVH box tests */
+#ifdef __SSE__
+#include <xmmintrin.h> /* four-wide float SIMD for the box tests */
 #endif
 
-/* BVH: at most this many primitives in a leaf, this many SAH bins (with 16
- * the Cornell box's tree costs incoherent rays 3% more node visits). */
-enum { BVH_LEAF_SIZE = 4, BVH_BINS = 64 };
-/* Past this depth the build splits in the middle of the list, so the tree
- * depth (and the traversal stack) stays bounded whatever the input. */
-enum { BVH_SAH_MAX_DEPTH = 48, BVH_STACK_SIZE = 128 };
+/* SAH bins per axis (Wald 2007 uses 16 to 32), and the depth past which the
+ * build splits in the middle of the list, so the tree depth (and the
+ * traversal stack) stays bounded whatever the input.  The stack holds at
+ * most three entries per level. */
+enum { BVH_BINS = 32, BVH_SAH_MAX_DEPTH = 48, BVH_STACK_SIZE = 3 * (BVH_SAH_MAX_DEPTH + 32) };
+/* Subtrees of at least this many primitives are built as OpenMP tasks. */
+enum { BVH_TASK_MIN = 4096 };
 
 /* Triangles intersect with a margin of this fraction of scene.epsilon
  * around their edges (see triangle_transform): 1e-11 of the scene, five
  * orders of magnitude above the rounding it covers, and small enough that
- * ray origins moved off a surface by epsilon stay outside the BVH boxes,
- * which grow by the margin too (see bvh_primitive_bounds). */
+ * ray origins moved off a surface by epsilon stay outside the triangle. */
 static const double EDGE_MARGIN = 1e-2;
 
 /* ------------------------------------------------------------------------ */
@@ -34,11 +35,6 @@ static const double EDGE_MARGIN = 1e-2;
 static aabb aabb_empty(void) { return (aabb){v3_splat(INFINITY), v3_splat(-INFINITY)}; }
 static aabb aabb_add_point(aabb b, vec3 p) { return (aabb){v3_min(b.lo, p), v3_max(b.hi, p)}; }
 static aabb aabb_union(aabb a, aabb b) { return (aabb){v3_min(a.lo, b.lo), v3_max(a.hi, b.hi)}; }
-static double aabb_half_area(aabb b)
-{
-    vec3 d = v3_sub(b.hi, b.lo);
-    return d.x * d.y + d.y * d.z + d.z * d.x;
-}
 
 static aabb triangle_bounds(const triangle *t)
 {
@@ -60,117 +56,6 @@ static aabb primitive_bounds(const scene *s, int primitive)
     return sphere_bounds(&s->surfaces[s->sphere_surfaces[primitive - s->triangle_count]]);
 }
 
-
-/* ------------------------------------------------------------------------ */
-/* BVH: binned surface area heuristic                                        */
-
-typedef struct {
-    scene *s;
-    aabb *bounds;    /* per primitive */
-    vec3 *centroids; /* per primitive */
-} bvh_builder;
-
-/* Which of BVH_BINS bins along `axis` a centroid falls into. */
-static int bin_of(vec3 centroid, int axis, double lo, double scale)
-{
-    int bin = (int)((v3_get(centroid, axis) - lo) * scale);
-    return bin < 0 ? 0 : bin >= BVH_BINS ? BVH_BINS - 1 : bin;
-}
-
-/* The surface area heuristic prices a subtree for a random ray: a node's box
- * is hit with probability area(box) / area(parent).  Splitting costs one
- * traversal step (a node visit: two box tests) plus the expected primitive
- * tests of both children; a leaf costs a test of every primitive in it.  In
- * traverse() a node visit and a triangle test cost about the same (some 40
- * instructions each); measured on the Cornell box, 1 : 1 beats making
- * leaves bigger (2 : 1 tests more triangles than it saves boxes). */
-static const double SAH_TRAVERSAL_COST = 1.0, SAH_PRIMITIVE_COST = 1.0;
-
-/* Choose where to split primitives [first, first+count): returns the number
- * that go left (0 < result < count) after reordering them, or 0 when a leaf
- * is cheaper than any split (only offered if count <= BVH_LEAF_SIZE).  All
- * three axes are tried: the longest one is not always the best (a room's
- * walls are as long in every direction). */
-static int bvh_partition(bvh_builder *b, int first, int count, int depth, int *axis_out)
-{
-    int *order = b->s->bvh.primitive_order;
-    aabb centroid_box = aabb_empty(), node_box = aabb_empty();
-    for (int i = first; i < first + count; i++) {
-        centroid_box = aabb_add_point(centroid_box, b->centroids[order[i]]);
-        node_box = aabb_union(node_box, b->bounds[order[i]]);
-    }
-    vec3 extent = v3_sub(centroid_box.hi, centroid_box.lo);
-    *axis_out = extent.x >= extent.y && extent.x >= extent.z ? 0 : extent.y >= extent.z ? 1 : 2;
-    /* A pathological tree: split the list in half. */
-    if (depth >= BVH_SAH_MAX_DEPTH)
-        return count <= BVH_LEAF_SIZE ? 0 : count / 2;
-
-    double best_cost = INFINITY, best_lo = 0.0, best_scale = 0.0;
-    int best_split = -1, best_axis = -1;
-    for (int axis = 0; axis < 3; axis++) {
-        double lo = v3_get(centroid_box.lo, axis), width = v3_get(extent, axis);
-        if (!(width > 0.0))
-            continue; /* all centroids in one plane across this axis */
-        double scale = BVH_BINS / width * (1.0 - 1e-9);
-        int bin_count[BVH_BINS] = {0};
-        aabb bin_box[BVH_BINS];
-        for (int k = 0; k < BVH_BINS; k++)
-            bin_box[k] = aabb_empty();
-        for (int i = first; i < first + count; i++) {
-            int k = bin_of(b->centroids[order[i]], axis, lo, scale);
-            bin_count[k]++;
-            bin_box[k] = aabb_union(bin_box[k], b->bounds[order[i]]);
-        }
-        /* Cost of splitting after bin k: area(left) * n(left) + area(right) * n(right). */
-        double left_cost[BVH_BINS];
-        aabb box = aabb_empty();
-        int n = 0;
-        for (int k = 0; k < BVH_BINS - 1; k++) {
-            box = aabb_union(box, bin_box[k]);
-            n += bin_count[k];
-            left_cost[k] = n ? aabb_half_area(box) * n : 0.0;
-        }
-        box = aabb_empty();
-        n = 0;
-        for (int k = BVH_BINS - 1; k > 0; k--) {
-            box = aabb_union(box, bin_box[k]);
-            n += bin_count[k];
-            if (n == 0 || n == count)
-                continue;
-            double cost = left_cost[k - 1] + aabb_half_area(box) * n;
-            if (cost < best_cost) {
-                best_cost = cost;
-                best_split = k;
-                best_axis = axis;
-                best_lo = lo;
-                best_scale = scale;
-            }
-        }
-    }
-    if (best_split < 0)
-        return count <= BVH_LEAF_SIZE ? 0 : count / 2;
-    /* Leaf or split?  Both in units of one primitive test per unit area. */
-    double area = aabb_half_area(node_box);
-    double split_cost = SAH_TRAVERSAL_COST + SAH_PRIMITIVE_COST * best_cost / area;
-    if (count <= BVH_LEAF_SIZE && !(split_cost < SAH_PRIMITIVE_COST * count))
-        return 0;
-    *axis_out = best_axis;
-
-    /* Move the primitives of bins < best_split to the front. */
-    int i = first, j = first + count - 1;
-    while (i <= j) {
-        if (bin_of(b->centroids[order[i]], best_axis, best_lo, best_scale) < best_split) {
-            i++;
-        } else {
-            int tmp = order[i];
-            order[i] = order[j];
-            order[j--] = tmp;
-        }
-    }
-    int left = i - first;
-    return left > 0 && left < count ? left : count / 2;
-}
-
 /* Bounds of all primitives (triangles and spheres). */
 aabb bvh_geometry_bounds(const scene *s)
 {
@@ -181,7 +66,286 @@ aabb bvh_geometry_bounds(const scene *s)
 }
 
 /* ------------------------------------------------------------------------ */
-/* The copy traversal reads (trace_node, leaf_primitive: see bvh.h)         */
+/* The build: binned SAH over primitive references                          */
+
+/* A box in single precision.  The tree's boxes are only a filter in front of
+ * the double-precision primitive tests, so float is enough as long as no box
+ * is ever smaller than what it bounds: every coordinate is rounded outward. */
+typedef struct {
+    float lo[3], hi[3];
+} box3f;
+
+static box3f box3f_empty(void) { return (box3f){{INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY}}; }
+static void box3f_grow(box3f *b, const float lo[3], const float hi[3])
+{
+    for (int a = 0; a < 3; a++) {
+        b->lo[a] = lo[a] < b->lo[a] ? lo[a] : b->lo[a];
+        b->hi[a] = hi[a] > b->hi[a] ? hi[a] : b->hi[a];
+    }
+}
+static double box3f_half_area(const box3f *b)
+{
+    double dx = b->hi[0] - b->lo[0], dy = b->hi[1] - b->lo[1], dz = b->hi[2] - b->lo[2];
+    return dx * dy + dy * dz + dz * dx;
+}
+static float round_down(double x)
+{
+    float f = (float)x;
+    return (double)f > x ? nextafterf(f, -INFINITY) : f;
+}
+static float round_up(double x)
+{
+    float f = (float)x;
+    return (double)f < x ? nextafterf(f, INFINITY) : f;
+}
+
+/* What the build moves around: 32 bytes a primitive, so partitioning a
+ * range reads and swaps contiguous memory (Wald 2007's "primitive
+ * references"; Embree's PrimRef). */
+typedef struct {
+    float lo[3];
+    int primitive;
+    float hi[3];
+    int unused;
+} prim_ref;
+
+/* A primitive's box for the BVH, rounded outward to float.  Triangles
+ * intersect with a margin around their edges (see triangle_transform), far
+ * below a float's rounding, which therefore covers it. */
+static prim_ref make_prim_ref(const scene *s, int primitive)
+{
+    aabb b = primitive_bounds(s, primitive);
+    double margin = primitive < s->triangle_count ? EDGE_MARGIN * s->epsilon : 0.0;
+    prim_ref r = {.primitive = primitive};
+    for (int a = 0; a < 3; a++) {
+        r.lo[a] = round_down(v3_get(b.lo, a) - margin);
+        r.hi[a] = round_up(v3_get(b.hi, a) + margin);
+    }
+    return r;
+}
+
+/* The binary tree as built.  Node `index` over references [first, first +
+ * count) owns node indices [index, index + 2 count - 1): its left child
+ * (of `left_count` references) is index + 1, its right child index + 2
+ * left_count.  Known before the children are built, these indices let the
+ * two subtrees be built at once, and make the tree the same for any number
+ * of threads (unused indices are never read). */
+typedef struct {
+    box3f box;
+    int first, count;
+    int left, right; /* child node indices, -1 for a leaf */
+} build_node;
+
+typedef struct {
+    prim_ref *refs;
+    build_node *nodes;
+} builder;
+
+/* The box of references [first, first + count), and the box of their
+ * centroids (times two: lo + hi, the same in bin_of and the partition). */
+static void bounds_of_refs(const prim_ref *refs, int first, int count, box3f *box, box3f *centroids)
+{
+    *box = *centroids = box3f_empty();
+    for (int i = first; i < first + count; i++) {
+        float c[3] = {refs[i].lo[0] + refs[i].hi[0], refs[i].lo[1] + refs[i].hi[1], refs[i].lo[2] + refs[i].hi[2]};
+        box3f_grow(box, refs[i].lo, refs[i].hi);
+        box3f_grow(centroids, c, c);
+    }
+}
+
+/* Which of BVH_BINS bins along an axis a reference falls into. */
+static int bin_of(const prim_ref *r, int axis, float lo, float scale)
+{
+    int bin = (int)((r->lo[axis] + r->hi[axis] - lo) * scale);
+    return bin < 0 ? 0 : bin >= BVH_BINS ? BVH_BINS - 1 : bin;
+}
+
+typedef struct {
+    box3f box;
+    int count;
+} sah_bin;
+
+typedef struct {
+    int axis, bin; /* bins < bin go left; axis -1: no split */
+    double cost;   /* area(left) n(left) + area(right) n(right) */
+    float lo, scale;
+} sah_split;
+
+/* The surface area heuristic prices a subtree for a random ray: a node's box
+ * is hit with probability area(box) / area(parent).  Splitting costs one
+ * traversal step plus the expected primitive tests of both children; a leaf
+ * costs a test of every primitive in it (MacDonald and Booth 1990). */
+static const double SAH_TRAVERSAL_COST = 1.0, SAH_PRIMITIVE_COST = 1.0;
+
+/* Along one axis whose bins are filled: the cheapest split, if cheaper than `best`. */
+static void sweep_bins(const sah_bin bins[BVH_BINS], int axis, float lo, float scale, sah_split *best)
+{
+    double left_cost[BVH_BINS];
+    int left_count[BVH_BINS];
+    box3f box = box3f_empty();
+    int n = 0;
+    for (int k = 0; k < BVH_BINS - 1; k++) {
+        box3f_grow(&box, bins[k].box.lo, bins[k].box.hi);
+        n += bins[k].count;
+        left_count[k] = n;
+        left_cost[k] = n ? box3f_half_area(&box) * n : 0.0;
+    }
+    box = box3f_empty();
+    n = 0;
+    for (int k = BVH_BINS - 1; k > 0; k--) {
+        box3f_grow(&box, bins[k].box.lo, bins[k].box.hi);
+        n += bins[k].count;
+        double cost = left_cost[k - 1] + box3f_half_area(&box) * n;
+        if (n > 0 && left_count[k - 1] > 0 && cost < best->cost)
+            *best = (sah_split){.axis = axis, .bin = k, .cost = cost, .lo = lo, .scale = scale};
+    }
+}
+
+/* Bins references [first, first + count) along all three axes in one pass
+ * (the references are read once) and returns the cheapest split.  All three
+ * axes are tried: the longest one is not always the best (a room's walls are
+ * as long in every direction). */
+static sah_split best_binned_split(const prim_ref *refs, int first, int count, const box3f *centroids)
+{
+    sah_bin bins[3][BVH_BINS];
+    float lo[3], scale[3];
+    for (int a = 0; a < 3; a++) {
+        float width = centroids->hi[a] - centroids->lo[a];
+        lo[a] = centroids->lo[a];
+        scale[a] = width > 0.0f ? (float)BVH_BINS * (1.0f - 1e-6f) / width : 0.0f;
+        for (int k = 0; k < BVH_BINS; k++)
+            bins[a][k] = (sah_bin){box3f_empty(), 0};
+    }
+    for (int i = first; i < first + count; i++)
+        for (int a = 0; a < 3; a++) {
+            sah_bin *bin = &bins[a][bin_of(&refs[i], a, lo[a], scale[a])];
+            bin->count++;
+            box3f_grow(&bin->box, refs[i].lo, refs[i].hi);
+        }
+    sah_split best = {.axis = -1, .cost = INFINITY};
+    for (int a = 0; a < 3; a++)
+        if (scale[a] > 0.0f) /* else all centroids lie in one plane across this axis */
+            sweep_bins(bins[a], a, lo[a], scale[a], &best);
+    return best;
+}
+
+/* Moves the references of bins < split.bin to the front; returns how many. */
+static int partition_refs(prim_ref *refs, int first, int count, sah_split split)
+{
+    int i = first, j = first + count - 1;
+    while (i <= j) {
+        if (bin_of(&refs[i], split.axis, split.lo, split.scale) < split.bin) {
+            i++;
+        } else {
+            prim_ref tmp = refs[i];
+            refs[i] = refs[j];
+            refs[j--] = tmp;
+        }
+    }
+    return i - first;
+}
+
+/* Where to split references [first, first + count): the number that go
+ * left (0 < result < count) after reordering them, or 0 when a leaf is
+ * cheaper than any split (offered only if count <= BVH_LEAF_SIZE). */
+static int choose_split(prim_ref *refs, int first, int count, const box3f *box, const box3f *centroids, int depth)
+{
+    int middle = count <= BVH_LEAF_SIZE ? 0 : count / 2; /* a pathological list: halve it */
+    if (depth >= BVH_SAH_MAX_DEPTH)
+        return middle;
+    sah_split best = best_binned_split(refs, first, count, centroids);
+    if (best.axis < 0)
+        return middle;
+    /* Leaf or split?  Both in units of one primitive test per unit area. */
+    double split_cost = SAH_TRAVERSAL_COST + SAH_PRIMITIVE_COST * best.cost / box3f_half_area(box);
+    if (count <= BVH_LEAF_SIZE && !(split_cost < SAH_PRIMITIVE_COST * count))
+        return 0;
+    int left = partition_refs(refs, first, count, best);
+    return left > 0 && left < count ? left : count / 2;
+}
+
+/* Builds node `index` over references [first, first + count) and its subtree. */
+static void build_subtree(builder *b, int index, int first, int count, int depth)
+{
+    build_node *node = &b->nodes[index];
+    box3f centroids;
+    bounds_of_refs(b->refs, first, count, &node->box, &centroids);
+    node->first = first;
+    node->count = count;
+    node->left = node->right = -1;
+    int left = count > 1 ? choose_split(b->refs, first, count, &node->box, &centroids, depth) : 0;
+    if (left == 0)
+        return;
+    node->left = index + 1;
+    node->right = index + 2 * left;
+    if (left >= BVH_TASK_MIN) {
+#pragma omp task default(none) firstprivate(b, index, first, left, depth)
+        build_subtree(b, index + 1, first, left, depth + 1);
+    } else {
+        build_subtree(b, index + 1, first, left, depth + 1);
+    }
+    build_subtree(b, index + 2 * left, first + left, count - left, depth + 1);
+}
+
+/* ------------------------------------------------------------------------ */
+/* The 4-wide tree traversal reads                                           */
+
+/* Child slot k of wide node `out` gets the box of build node `index`. */
+static void set_child_box(wide_node *out, int k, const box3f *box)
+{
+    for (int a = 0; a < 3; a++) {
+        out->bounds[a][k] = box->lo[a];
+        out->bounds[3 + a][k] = box->hi[a];
+    }
+}
+
+/* Makes wide node *count from binary node `index` (an inner node) and,
+ * recursively, its subtree; returns its index.  The node takes the two
+ * children, then opens the inner child of largest surface area (the one a
+ * ray most likely enters) in its place, until it has BVH_WIDTH children or
+ * all are leaves (Wald et al. 2008). */
+static int collapse(const build_node *nodes, int index, wide_node *wide, int *wide_count)
+{
+    int out = (*wide_count)++;
+    int kids[BVH_WIDTH] = {nodes[index].left, nodes[index].right}, n = 2;
+    while (n < BVH_WIDTH) {
+        int open = -1;
+        double largest = -1.0;
+        for (int k = 0; k < n; k++)
+            if (nodes[kids[k]].left >= 0 && box3f_half_area(&nodes[kids[k]].box) > largest) {
+                largest = box3f_half_area(&nodes[kids[k]].box);
+                open = k;
+            }
+        if (open < 0)
+            break;
+        int inner = kids[open];
+        kids[open] = nodes[inner].left;
+        kids[n++] = nodes[inner].right;
+    }
+    box3f empty = box3f_empty();
+    for (int k = 0; k < BVH_WIDTH; k++) {
+        set_child_box(&wide[out], k, k < n ? &nodes[kids[k]].box : &empty);
+        wide[out].child[k] = 0;
+        wide[out].unused[k] = 0;
+    }
+    for (int k = 0; k < n; k++) {
+        const build_node *kid = &nodes[kids[k]];
+        int child = kid->left < 0 ? ~(kid->first << 2 | (kid->count - 1)) : collapse(nodes, kids[k], wide, wide_count);
+        wide[out].child[k] = child;
+    }
+    return out;
+}
+
+/* A root that is a leaf becomes child 0 of a wide node of its own. */
+static void root_leaf(const build_node *root, wide_node *wide)
+{
+    box3f empty = box3f_empty();
+    for (int k = 0; k < BVH_WIDTH; k++) {
+        set_child_box(wide, k, k == 0 ? &root->box : &empty);
+        wide->child[k] = k == 0 ? ~(root->first << 2 | (root->count - 1)) : 0;
+        wide->unused[k] = 0;
+    }
+}
 
 /* Baldwin & Weber, "Fast Ray-Triangle Intersections by Coordinate
  * Transformation" (JCGT 2016).  Every point is x = p0 + u e1 + v e2 + w n
@@ -221,69 +385,6 @@ static leaf_primitive make_leaf_primitive(const scene *s, int primitive)
         .row = {sphere->center}, .offset = {sphere->radius}, .primitive = primitive, .is_sphere = 1};
 }
 
-/* Child k of trace node `out` becomes BVH node `index` (recursively). */
-static void trace_set_child(const bvh_node *build_nodes, trace_node *nodes, int *trace_count, int out, int k, int index)
-{
-    const bvh_node *node = &build_nodes[index];
-    const double faces[6] = {node->bounds.lo.x, node->bounds.lo.y, node->bounds.lo.z,
-                             node->bounds.hi.x, node->bounds.hi.y, node->bounds.hi.z};
-    for (int f = 0; f < 6; f++)
-        nodes[out].bounds[2 * f + k] = faces[f];
-    nodes[out].count[k] = node->count;
-    if (node->count > 0) {
-        nodes[out].child[k] = node->first;
-        return;
-    }
-    int inner = (*trace_count)++;
-    nodes[out].child[k] = inner;
-    trace_set_child(build_nodes, nodes, trace_count, inner, 0, index + 1);
-    trace_set_child(build_nodes, nodes, trace_count, inner, 1, node->second_child);
-}
-
-/* Fills bvh->trace_nodes (trace_node_count of them, allocated) and
- * bvh->leaf_primitives from the built tree. */
-static void build_trace_copy(const scene *s, scene_bvh *bvh)
-{
-    const bvh_node *build = bvh->build_nodes;
-    trace_node *nodes = bvh->trace_nodes;
-    int trace_count = 1;
-    if (build[0].count > 0) {
-        /* A root leaf becomes child 0 of trace node 0; child 1 is an empty
-         * box (lo = +inf, hi = -inf), which every ray misses. */
-        for (int f = 0; f < 6; f++)
-            nodes[0].bounds[2 * f + 1] = f < 3 ? INFINITY : -INFINITY;
-        nodes[0].child[1] = nodes[0].count[1] = 0;
-        trace_set_child(build, nodes, &trace_count, 0, 0, 0);
-    } else {
-        /* The root's own box is never tested: its children's are. */
-        trace_set_child(build, nodes, &trace_count, 0, 0, 1);
-        trace_set_child(build, nodes, &trace_count, 0, 1, build[0].second_child);
-    }
-    for (int i = 0; i < s->triangle_count + s->sphere_count; i++)
-        bvh->leaf_primitives[i] = make_leaf_primitive(s, bvh->primitive_order[i]);
-}
-
-/* Builds node `index = node_count` over primitives [first, first+count) and
- * its subtree.  Node indices are handed out before recursing, so the first
- * child of a node is the next index (depth-first layout). */
-static void bvh_build_node(bvh_builder *b, int first, int count, int depth);
-
-/* A primitive's box for the BVH.  Triangles intersect with a margin around
- * their edges (see triangle_transform), so their boxes grow by it too, but
- * only within the triangle's plane: along axis i that is
- * margin * sqrt(1 - n_i^2), zero across an axis-aligned wall, whose box
- * then stays flat. */
-static aabb bvh_primitive_bounds(const scene *s, int primitive)
-{
-    aabb b = primitive_bounds(s, primitive);
-    if (primitive >= s->triangle_count)
-        return b;
-    vec3 n = s->triangles[primitive].normal;
-    vec3 pad = v3(sqrt(fmax(1.0 - n.x * n.x, 0.0)), sqrt(fmax(1.0 - n.y * n.y, 0.0)), sqrt(fmax(1.0 - n.z * n.z, 0.0)));
-    pad = v3_scale(pad, EDGE_MARGIN * s->epsilon);
-    return (aabb){v3_sub(b.lo, pad), v3_add(b.hi, pad)};
-}
-
 /* count records of `size` bytes on a BVH_ALIGNMENT boundary (aligned_alloc
  * wants a multiple of the alignment). */
 static void *aligned_array(size_t count, size_t size)
@@ -292,74 +393,81 @@ static void *aligned_array(size_t count, size_t size)
     return aligned_alloc(BVH_ALIGNMENT, bytes);
 }
 
+/* The binary tree over n primitives: b->nodes (2 n - 1 of them, indexed as
+ * build_node says) and b->refs in leaf order. */
+static void build_binary_tree(const scene *s, builder *b, int n)
+{
+#pragma omp parallel for schedule(static)
+    for (int i = 0; i < n; i++)
+        b->refs[i] = make_prim_ref(s, i);
+#pragma omp parallel
+#pragma omp single
+    build_subtree(b, 0, 0, n, 0);
+}
+
+/* The arrays traversal reads, from the binary tree. */
+static int build_wide_tree(scene *s, const builder *b, int n)
+{
+    scene_bvh *bvh = &s->bvh;
+    /* A binary tree with n leaves has n - 1 inner nodes; a wide node takes
+     * at least one of them. */
+    wide_node *wide = aligned_array((size_t)(n > 1 ? n - 1 : 1), sizeof *wide);
+    bvh->leaf_primitives = aligned_array((size_t)n, sizeof *bvh->leaf_primitives);
+    bvh->primitive_order = malloc((size_t)n * sizeof *bvh->primitive_order);
+    bvh->nodes = wide;
+    if (wide == NULL || bvh->leaf_primitives == NULL || bvh->primitive_order == NULL)
+        return -1;
+    bvh->node_count = 0;
+    if (b->nodes[0].left < 0) {
+        root_leaf(&b->nodes[0], wide);
+        bvh->node_count = 1;
+    } else {
+        collapse(b->nodes, 0, wide, &bvh->node_count);
+    }
+    const box3f *root = &b->nodes[0].box;
+    for (int a = 0; a < 3; a++)
+        bvh->largest_coordinate = fmax(bvh->largest_coordinate, fmax(fabs(root->lo[a]), fabs(root->hi[a])));
+#pragma omp parallel for schedule(static)
+    for (int i = 0; i < n; i++) {
+        bvh->primitive_order[i] = b->refs[i].primitive;
+        bvh->leaf_primitives[i] = make_leaf_primitive(s, b->refs[i].primitive);
+    }
+    return 0;
+}
+
 int bvh_build(scene *s)
 {
     scene_bvh *bvh = &s->bvh;
     int n = s->triangle_count + s->sphere_count;
-    bvh->node_count = 0;
+    memset(bvh, 0, sizeof *bvh);
     if (n == 0)
         return 0; /* nothing to intersect: traverse() sees node_count == 0 */
-    bvh->primitive_order = malloc((size_t)n * sizeof *bvh->primitive_order);
-    /* A binary tree with at most n leaves has fewer than 2 n nodes. */
-    bvh->build_nodes = malloc((size_t)2 * (size_t)n * sizeof *bvh->build_nodes);
-    bvh_builder b = {.s = s, .bounds = malloc((size_t)n * sizeof(aabb)), .centroids = malloc((size_t)n * sizeof(vec3))};
-    int ok = bvh->primitive_order && bvh->build_nodes && b.bounds && b.centroids;
-    if (ok) {
-        for (int i = 0; i < n; i++) {
-            bvh->primitive_order[i] = i;
-            b.bounds[i] = bvh_primitive_bounds(s, i);
-            b.centroids[i] = v3_scale(v3_add(b.bounds[i].lo, b.bounds[i].hi), 0.5);
-        }
-        bvh_build_node(&b, 0, n, 0);
+    builder b = {.refs = malloc((size_t)n * sizeof(prim_ref)), .nodes = malloc((size_t)(2 * n - 1) * sizeof(build_node))};
+    int status = -1;
+    if (b.refs && b.nodes) {
+        build_binary_tree(s, &b, n);
+        status = build_wide_tree(s, &b, n);
     }
-    free(b.bounds);
-    free(b.centroids);
-    if (!ok)
-        return -1;
-    /* One trace node per inner node (a root leaf gets one of its own). */
-    int inner = 0;
-    for (int i = 0; i < bvh->node_count; i++)
-        inner += bvh->build_nodes[i].count == 0;
-    bvh->trace_node_count = inner > 0 ? inner : 1;
-    bvh->trace_nodes = aligned_array((size_t)bvh->trace_node_count, sizeof *bvh->trace_nodes);
-    bvh->leaf_primitives = aligned_array((size_t)n, sizeof *bvh->leaf_primitives);
-    if (bvh->trace_nodes == NULL || bvh->leaf_primitives == NULL)
-        return -1;
-    build_trace_copy(s, bvh);
-    return 0;
+    free(b.refs);
+    free(b.nodes);
+    bvh->primitive_count = status == 0 ? n : 0;
+    if (status != 0)
+        bvh->node_count = 0;
+    return status;
 }
 
 void bvh_free(scene_bvh *bvh)
 {
     free(bvh->primitive_order);
-    free(bvh->build_nodes);
-    free(bvh->trace_nodes);
+    free(bvh->nodes);
     free(bvh->leaf_primitives);
     memset(bvh, 0, sizeof *bvh);
 }
 
-static void bvh_build_node(bvh_builder *b, int first, int count, int depth)
+size_t bvh_memory_bytes(const scene_bvh *bvh)
 {
-    scene_bvh *bvh = &b->s->bvh;
-    int index = bvh->node_count++;
-    bvh_node *node = &bvh->build_nodes[index];
-    node->bounds = aabb_empty();
-    for (int i = first; i < first + count; i++)
-        node->bounds = aabb_union(node->bounds, b->bounds[bvh->primitive_order[i]]);
-    node->first = first;
-    node->axis = 0;
-    node->second_child = -1;
-    int axis = 0;
-    int left = count > 1 ? bvh_partition(b, first, count, depth, &axis) : 0;
-    if (left == 0) {
-        node->count = count;
-        return;
-    }
-    node->count = 0;
-    node->axis = axis;
-    bvh_build_node(b, first, left, depth + 1); /* becomes index + 1 */
-    bvh->build_nodes[index].second_child = bvh->node_count;
-    bvh_build_node(b, first + left, count - left, depth + 1);
+    return (size_t)bvh->node_count * sizeof(wide_node) +
+           (size_t)bvh->primitive_count * (sizeof(leaf_primitive) + sizeof *bvh->primitive_order);
 }
 
 /* ------------------------------------------------------------------------ */
@@ -455,101 +563,31 @@ static void fill_hit(const scene *s, ray r, double t, int primitive, hit *out)
     }
 }
 
-/* What the slab test needs of a ray, computed once per ray: the division
- * is done here, and for each axis where in trace_node.bounds (counted in
- * doubles) the face lies that the ray meets first (lo if the direction is
- * positive, hi if not) and the face it leaves by.  (ptrdiff_t and a count
- * of doubles, so that each load is one instruction: base + 8 * offset.) */
+/* What the box test needs of a ray, worked out once per ray.
+ *
+ * The boxes are tested in single precision, which rounds: the ray's origin
+ * and direction, b - o and (b - o) / d are each off by up to half a float
+ * ulp, about 6e-8 of the coordinates involved.  A box whose primitive the
+ * double-precision test would hit must never be culled by that rounding.
+ * So every box is tested as if it were larger by a margin m far above it:
+ * m = 2^-18 (largest |origin coordinate| + largest |scene coordinate|),
+ * 64 float ulps of anything the ray can reach inside the scene (Ize 2013
+ * bounds the same errors).  Growing the box's near face by m moves it to
+ * where the origin would be m further along the axis, so the margin costs
+ * nothing per node: the near faces are measured from origin + m sign(d),
+ * the far faces from origin - m sign(d) (near_origin, far_origin).  A box
+ * is then entered a little too early or left a little too late, which only
+ * costs a primitive test now and then.
+ *
+ * near_face[a] and far_face[a] are the rows of wide_node.bounds the ray
+ * meets first and leaves by along axis a (lo if d_a > 0, hi if not). */
 typedef struct {
-    vec3 origin, inv_dir;
-    ptrdiff_t near_x, near_y, near_z, far_x, far_y, far_z;
-#ifdef __SSE2__
-    __m128d origin_x2, origin_y2, origin_z2, inv_dir_x2, inv_dir_y2, inv_dir_z2; /* in both lanes, for box_entries */
+    float near_origin[3], far_origin[3], inv_dir[3];
+    int near_face[3], far_face[3];
+#ifdef __SSE__
+    __m128 near_origin4[3], far_origin4[3], inv_dir4[3]; /* the same in all four lanes, for box_hits */
 #endif
-} ray_setup;
-
-static inline ray_setup setup_ray(vec3 origin, vec3 direction)
-{
-    /* 1/0 = inf is what the slab test wants for an axis-parallel ray. */
-    vec3 inv_dir = v3(1.0 / direction.x, 1.0 / direction.y, 1.0 / direction.z);
-    ptrdiff_t neg_x = inv_dir.x < 0.0, neg_y = inv_dir.y < 0.0, neg_z = inv_dir.z < 0.0;
-    /* face f (lo x, y, z = 0, 1, 2; hi x, y, z = 3, 4, 5) starts at double 2 f */
-    ray_setup r = {.origin = origin,
-                   .inv_dir = inv_dir,
-                   .near_x = 2 * (3 * neg_x),
-                   .near_y = 2 * (1 + 3 * neg_y),
-                   .near_z = 2 * (2 + 3 * neg_z),
-                   .far_x = 2 * (3 - 3 * neg_x),
-                   .far_y = 2 * (4 - 3 * neg_y),
-                   .far_z = 2 * (5 - 3 * neg_z)};
-#ifdef __SSE2__
-    r.origin_x2 = _mm_set1_pd(origin.x);
-    r.origin_y2 = _mm_set1_pd(origin.y);
-    r.origin_z2 = _mm_set1_pd(origin.z);
-    r.inv_dir_x2 = _mm_set1_pd(inv_dir.x);
-    r.inv_dir_y2 = _mm_set1_pd(inv_dir.y);
-    r.inv_dir_z2 = _mm_set1_pd(inv_dir.z);
-#endif
-    return r;
-}
-
-/* Slab test (Kay & Kajiya) against both child boxes of a node: entry[k] is
- * the distance where the ray enters box k, or INFINITY if it misses it or
- * enters beyond t_max.  No branch per axis (they would be mispredicted for
- * incoherent rays); the comparisons are written so that a NaN (0 * inf, a
- * ray lying in a slab plane) never shrinks the interval: `a > b ? a : b`
- * keeps b when a is NaN.  t_far is enlarged by a few ulps (Ize 2013,
- * "Robust BVH Ray Traversal") so rounding never culls a box whose primitive
- * the exact test would hit. */
-#ifdef __SSE2__
-/* Both boxes at once with SSE2 (every x86-64 processor has it): each
- * instruction below works on a pair of doubles, one per child, and
- * _mm_max_pd(a, b) / _mm_min_pd(a, b) are exactly `a > b ? a : b` /
- * `a < b ? a : b`, NaN behaviour included, so this computes what the plain C
- * version after #else computes, in about a third of the instructions. */
-static inline void box_entries(const trace_node *node, const ray_setup *r, double t_max, double entry[2])
-{
-    const double *b = node->bounds;
-    __m128d ox = r->origin_x2, oy = r->origin_y2, oz = r->origin_z2;
-    __m128d ix = r->inv_dir_x2, iy = r->inv_dir_y2, iz = r->inv_dir_z2;
-    __m128d near_x = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->near_x), ox), ix);
-    __m128d far_x = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->far_x), ox), ix);
-    __m128d near_y = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->near_y), oy), iy);
-    __m128d far_y = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->far_y), oy), iy);
-    __m128d near_z = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->near_z), oz), iz);
-    __m128d far_z = _mm_mul_pd(_mm_sub_pd(_mm_loadu_pd(b + r->far_z), oz), iz);
-    __m128d t_near = _mm_max_pd(near_x, _mm_setzero_pd());
-    t_near = _mm_max_pd(near_y, t_near);
-    t_near = _mm_max_pd(near_z, t_near);
-    __m128d t_far = _mm_min_pd(far_x, _mm_set1_pd(t_max));
-    t_far = _mm_min_pd(far_y, t_far);
-    t_far = _mm_min_pd(far_z, t_far);
-    __m128d hit = _mm_cmple_pd(t_near, _mm_mul_pd(t_far, _mm_set1_pd(1.0 + 4.0 * DBL_EPSILON)));
-    __m128d e = _mm_or_pd(_mm_and_pd(hit, t_near), _mm_andnot_pd(hit, _mm_set1_pd(INFINITY)));
-    entry[0] = _mm_cvtsd_f64(e);
-    entry[1] = _mm_cvtsd_f64(_mm_unpackhi_pd(e, e));
-}
-#else
-static inline void box_entries(const trace_node *node, const ray_setup *r, double t_max, double entry[2])
-{
-    const double *b = node->bounds;
-    for (int k = 0; k < 2; k++) {
-        double near_x = (b[r->near_x + k] - r->origin.x) * r->inv_dir.x;
-        double far_x = (b[r->far_x + k] - r->origin.x) * r->inv_dir.x;
-        double near_y = (b[r->near_y + k] - r->origin.y) * r->inv_dir.y;
-        double far_y = (b[r->far_y + k] - r->origin.y) * r->inv_dir.y;
-        double near_z = (b[r->near_z + k] - r->origin.z) * r->inv_dir.z;
-        double far_z = (b[r->far_z + k] - r->origin.z) * r->inv_dir.z;
-        double t_near = near_x > 0.0 ? near_x : 0.0;
-        t_near = near_y > t_near ? near_y : t_near;
-        t_near = near_z > t_near ? near_z : t_near;
-        double t_far = far_x < t_max ? far_x : t_max;
-        t_far = far_y < t_far ? far_y : t_far;
-        t_far = far_z < t_far ? far_z : t_far;
-        entry[k] = t_near <= t_far * (1.0 + 4.0 * DBL_EPSILON) ? t_near : INFINITY;
-    }
-}
-#endif
+} wide_ray;
 
 /* traverse() is copied into each of its two callers, with any_hit a
  * constant there: without the copy GCC calls one shared function, passes
@@ -560,76 +598,161 @@ static inline void box_entries(const trace_node *node, const ray_setup *r, doubl
 #define ALWAYS_INLINE inline
 #endif
 
+static ALWAYS_INLINE wide_ray setup_wide_ray(const scene *s, vec3 origin, vec3 direction)
+{
+    double o[3] = {origin.x, origin.y, origin.z}, d[3] = {direction.x, direction.y, direction.z};
+    double largest = s->bvh.largest_coordinate;
+    for (int a = 0; a < 3; a++)
+        largest = fmax(largest, fabs(o[a]));
+    double margin = 0x1p-18 * largest;
+    wide_ray r;
+    for (int a = 0; a < 3; a++) {
+        double inv = 1.0 / d[a]; /* 1/0 = inf is what the slab test wants for an axis-parallel ray */
+        double sign = inv < 0.0 ? -1.0 : 1.0;
+        r.inv_dir[a] = (float)inv;
+        r.near_origin[a] = (float)(o[a] + margin * sign);
+        r.far_origin[a] = (float)(o[a] - margin * sign);
+        r.near_face[a] = inv < 0.0 ? 3 + a : a;
+        r.far_face[a] = inv < 0.0 ? a : 3 + a;
+#ifdef __SSE__
+        r.near_origin4[a] = _mm_set1_ps(r.near_origin[a]);
+        r.far_origin4[a] = _mm_set1_ps(r.far_origin[a]);
+        r.inv_dir4[a] = _mm_set1_ps(r.inv_dir[a]);
+#endif
+    }
+    return r;
+}
+
+/* Slab test (Kay & Kajiya) against the four child boxes of a node: bit k of
+ * the result is set when the ray enters box k before t_max (and leaves it
+ * after 0), entry[k] is where it enters.  The comparisons are written so
+ * that a NaN (0 * inf: a ray lying in a slab plane) never shrinks the
+ * interval: max(x, acc) and min(x, acc) keep acc when x is NaN, which is
+ * what SSE's maxps and minps do with the NaN first. */
+#ifdef __SSE__
+static inline int box_hits(const wide_node *node, const wide_ray *r, float t_max, float entry[BVH_WIDTH])
+{
+    __m128 t_near = _mm_setzero_ps(), t_far = _mm_set1_ps(t_max);
+    for (int a = 0; a < 3; a++) {
+        __m128 near = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(node->bounds[r->near_face[a]]), r->near_origin4[a]), r->inv_dir4[a]);
+        __m128 far = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(node->bounds[r->far_face[a]]), r->far_origin4[a]), r->inv_dir4[a]);
+        t_near = _mm_max_ps(near, t_near);
+        t_far = _mm_min_ps(far, t_far);
+    }
+    _mm_storeu_ps(entry, t_near);
+    return _mm_movemask_ps(_mm_cmple_ps(t_near, t_far));
+}
+#else
+static inline int box_hits(const wide_node *node, const wide_ray *r, float t_max, float entry[BVH_WIDTH])
+{
+    int mask = 0;
+    for (int k = 0; k < BVH_WIDTH; k++) {
+        float t_near = 0.0f, t_far = t_max;
+        for (int a = 0; a < 3; a++) {
+            float near = (node->bounds[r->near_face[a]][k] - r->near_origin[a]) * r->inv_dir[a];
+            float far = (node->bounds[r->far_face[a]][k] - r->far_origin[a]) * r->inv_dir[a];
+            t_near = near > t_near ? near : t_near;
+            t_far = far < t_far ? far : t_far;
+        }
+        entry[k] = t_near;
+        mask |= (t_near <= t_far) << k;
+    }
+    return mask;
+}
+#endif
+
+/* The traversal stack: wide-tree children waiting, and where the ray
+ * enters each (to skip those that start beyond a hit found since). */
+typedef struct {
+    int child[BVH_STACK_SIZE];
+    float entry[BVH_STACK_SIZE];
+    int top;
+} wide_stack;
+
+/* The children of a node that the ray enters (mask), in the order to
+ * visit them: returns the one to visit now and pushes the others, the
+ * nearest last so that it is popped first.  Shadow rays (any_hit) need
+ * no order: any hit ends them. */
+static ALWAYS_INLINE int visit_children(const wide_node *node, int mask, const float entry[BVH_WIDTH], int any_hit,
+                                        wide_stack *stack)
+{
+    int nearest = __builtin_ctz((unsigned)mask);
+    mask &= mask - 1;
+    if (mask == 0) /* one child: the common case deep in the tree */
+        return node->child[nearest];
+    int other = __builtin_ctz((unsigned)mask);
+    mask &= mask - 1;
+    if (mask == 0) { /* two: no sort, one comparison */
+        if (!any_hit && entry[other] < entry[nearest]) {
+            int tmp = other;
+            other = nearest;
+            nearest = tmp;
+        }
+        stack->child[stack->top] = node->child[other];
+        stack->entry[stack->top++] = entry[other];
+        return node->child[nearest];
+    }
+    int hit[BVH_WIDTH] = {nearest, other}, n = 2;
+    for (; mask; mask &= mask - 1)
+        hit[n++] = __builtin_ctz((unsigned)mask);
+    if (!any_hit) /* insertion sort of three or four, farthest first */
+        for (int i = 1; i < n; i++)
+            for (int j = i; j > 0 && entry[hit[j]] > entry[hit[j - 1]]; j--) {
+                int tmp = hit[j];
+                hit[j] = hit[j - 1];
+                hit[j - 1] = tmp;
+            }
+    for (int i = 0; i < n - 1; i++) {
+        stack->child[stack->top] = node->child[hit[i]];
+        stack->entry[stack->top++] = entry[hit[i]];
+    }
+    return node->child[hit[n - 1]];
+}
+
 /* The one BVH traversal, iterative with an explicit stack.  any_hit: stop
- * at the first hit found (shadow rays need no nearest).  What is visited
- * next is a trace node (count == 0, index = trace node) or a leaf (count
- * primitives from leaf_primitive index). */
+ * at the first hit found (shadow rays need no nearest).  `child` is what is
+ * visited next: a wide node (>= 0) or a leaf (< 0).  The boxes are compared
+ * with nearest_bound, the nearest hit's t rounded up to a float. */
 static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, double t_max, int any_hit, double *t_out,
                                   int *primitive_out)
 {
     if (s->bvh.node_count == 0)
         return 0;
-    const trace_node *nodes = s->bvh.trace_nodes;
+    const wide_node *nodes = s->bvh.nodes;
     const leaf_primitive *prims = s->bvh.leaf_primitives;
-    ray_setup r = setup_ray(origin, direction);
-    int stack_index[BVH_STACK_SIZE], stack_count[BVH_STACK_SIZE];
-    double stack_entry[BVH_STACK_SIZE]; /* where the ray enters that box */
-    int top = 0;
-    int found = -1;
+    wide_ray r = setup_wide_ray(s, origin, direction);
+    wide_stack stack;
+    stack.top = 0;
+    int found = -1, child = 0;
     double nearest = t_max;
-    int index = 0, count = 0;
+    float nearest_bound = round_up(t_max);
     for (;;) {
-        if (count > 0) {
-            for (const leaf_primitive *p = prims + index, *end = p + count; p < end; p++) {
+        if (child >= 0) {
+            float entry[BVH_WIDTH];
+            int mask = box_hits(&nodes[child], &r, nearest_bound, entry);
+            if (mask) {
+                child = visit_children(&nodes[child], mask, entry, any_hit, &stack);
+                continue;
+            }
+        } else {
+            for (const leaf_primitive *p = prims + bvh_leaf_first(child), *end = p + bvh_leaf_count(child); p < end; p++) {
                 double t = primitive_hit(p, origin, direction, nearest);
                 if (t < nearest) {
                     nearest = t;
+                    nearest_bound = round_up(t);
                     found = p->primitive;
                     if (any_hit)
                         goto done;
                 }
             }
-        } else {
-            const trace_node *node = &nodes[index];
-            double entry[2];
-            box_entries(node, &r, nearest, entry);
-            /* Visit the nearer child first; the farther one waits on the
-             * stack.  A branch, not a select: the processor predicts it and
-             * starts on the predicted child's boxes while this node's test
-             * is still finishing; a select would make every node wait for
-             * its parent's test (a chain through the whole traversal). */
-            if (entry[1] < entry[0]) {
-                /* entry[1] is finite here, and child 1 is nearer. */
-                if (entry[0] != INFINITY) {
-                    stack_index[top] = node->child[0];
-                    stack_count[top] = node->count[0];
-                    stack_entry[top++] = entry[0];
-                }
-                index = node->child[1];
-                count = node->count[1];
-                continue;
-            }
-            if (entry[0] != INFINITY) {
-                if (entry[1] != INFINITY) {
-                    stack_index[top] = node->child[1];
-                    stack_count[top] = node->count[1];
-                    stack_entry[top++] = entry[1];
-                }
-                index = node->child[0];
-                count = node->count[0];
-                continue;
-            }
         }
         /* Pop, skipping boxes that start beyond the nearest hit found since. */
-        for (;;) {
-            if (top == 0)
+        do {
+            if (stack.top == 0)
                 goto done;
-            top--;
-            if (stack_entry[top] < nearest)
-                break;
-        }
-        index = stack_index[top];
-        count = stack_count[top];
+            stack.top--;
+        } while (stack.entry[stack.top] > nearest_bound);
+        child = stack.child[stack.top];
     }
 done:
     if (found < 0)

@@ -2,29 +2,44 @@
  *
  * The chapters use scene.h only; scene.c calls bvh_build() at load and
  * bvh_free() at scene_free(), and takes the bounds of the geometry from here.
- */
+ *
+ * How it works (bvh.c has the details and the references):
+ *   - Build: a binary tree by the binned surface area heuristic (Wald 2007,
+ *     "On fast construction of SAH-based bounding volume hierarchies"), over
+ *     compact 32-byte primitive references with single-precision boxes
+ *     rounded outward, so a box never shrinks below its primitive.  Large
+ *     subtrees are built as OpenMP tasks, each on its own range of the
+ *     references; the tree does not depend on the number of threads.
+ *   - Collapse: the binary tree becomes a 4-wide tree (wide_node), each node
+ *     holding the boxes of up to four children side by side, so that one
+ *     SSE instruction does one step of the slab test for all four (Wald et
+ *     al. 2008, "Getting rid of packets"; Dammertz et al. 2008, "Shallow
+ *     bounding volume hierarchies").
+ *   - Traversal: the boxes are tested in single precision, made
+ *     conservative by a per-ray margin (Ize 2013, "Robust BVH ray
+ *     traversal"): a box can be entered by mistake, never missed.  The
+ *     primitives are then tested in double precision, exactly as before, so
+ *     every hit (t, primitive) is the one the double-precision test gives.
+ *   - Leaves: the primitives copied in leaf order (leaf_primitive), each a
+ *     precomputed double-precision triangle transform or a sphere. */
 #ifndef COMMON_BVH_H
 #define COMMON_BVH_H
 
 #include "scene.h"
 
-/* What traversal reads.  scene.bvh.build_nodes and primitive_order are the
- * BVH as built; traversal reads a copy laid out for speed:
- *   - trace_node: an inner node holding the boxes of both its children, so
- *     one visit tests two boxes that lie side by side in memory.  Each box
- *     is stored by face (lo x, y, z, hi x, y, z) and, within a face, by
- *     child: the same arithmetic for the two children on adjacent doubles,
- *     done by two-wide SIMD instructions (see box_entries).  A ray picks
- *     the near and far face of each slab by an index computed once per ray
- *     instead of a branch per box.
- *   - leaf_primitive: the primitives copied in leaf order, so a leaf is one
- *     contiguous run of memory with no primitive_order indirection.  Each
- *     keeps its original index for hit.primitive. */
-struct trace_node {
-    double bounds[12]; /* face f (lo x, y, z, hi x, y, z = 0 .. 5) of child k at [2 f + k] */
-    int child[2];      /* trace_node index of an inner child, first leaf_primitive of a leaf */
-    int count[2];      /* primitives of a leaf child, 0 for an inner child */
-    int unused[4];     /* pads the node to 128 bytes: nodes[index] is then a shift, not a multiply */
+/* At most this many primitives in a leaf (two bits of wide_node.child). */
+enum { BVH_LEAF_SIZE = 4, BVH_WIDTH = 4 };
+
+/* An inner node of the 4-wide tree.  bounds[f][k] is face f (lo x, y, z =
+ * 0, 1, 2; hi x, y, z = 3, 4, 5) of child k: four floats per face, one SSE
+ * register.  child[k] >= 0 is a wide_node index; child[k] < 0 is a leaf,
+ * ~child[k] = first << 2 | (count - 1), its primitives leaf_primitives[first
+ * .. first + count - 1].  An unused slot has an empty box (lo = +inf, hi =
+ * -inf), which no ray enters. */
+struct wide_node {
+    float bounds[6][BVH_WIDTH];
+    int child[BVH_WIDTH];
+    int unused[4]; /* pads the node to 128 bytes, two cache lines */
 };
 
 struct leaf_primitive {
@@ -41,8 +56,12 @@ struct leaf_primitive {
 /* Both are allocated on cache-line boundaries, so a 128-byte record spans
  * exactly two lines. */
 enum { BVH_ALIGNMENT = 64 };
-_Static_assert(sizeof(trace_node) == 128, "trace_node is 128 bytes");
+_Static_assert(sizeof(wide_node) == 128, "wide_node is 128 bytes");
 _Static_assert(sizeof(leaf_primitive) == 128, "leaf_primitive is 128 bytes");
+
+/* The leaf a negative wide_node.child names. */
+static inline int bvh_leaf_first(int child) { return ~child >> 2; }
+static inline int bvh_leaf_count(int child) { return (~child & 3) + 1; }
 
 /* The box of all primitives (triangles and spheres, without the edge margin). */
 aabb bvh_geometry_bounds(const scene *s);
@@ -53,5 +72,8 @@ int bvh_build(scene *s);
 
 /* Frees what bvh_build allocated and clears the fields. */
 void bvh_free(scene_bvh *bvh);
+
+/* Bytes the built BVH keeps (nodes, leaf primitives, leaf order). */
+size_t bvh_memory_bytes(const scene_bvh *bvh);
 
 #endif

@@ -83,29 +83,20 @@ typedef struct {
     vec3 lo, hi;
 } aabb;
 
-/* BVH node: a leaf when count > 0 (primitives first .. first+count-1 of
- * scene.bvh.primitive_order), otherwise an inner node whose children are
- * node index + 1 and `second_child`. */
-typedef struct {
-    aabb bounds;
-    int first, count, second_child, axis;
-} bvh_node;
-
 /* What traversal reads (defined in bvh.h, private to the BVH code). */
-typedef struct trace_node trace_node;
+typedef struct wide_node wide_node;
 typedef struct leaf_primitive leaf_primitive;
 
-/* The BVH over the primitives (common/bvh.c).  build_nodes and
- * primitive_order are the tree as built (the tests and tools look at them);
- * traversal reads trace_nodes and leaf_primitives, a copy laid out for speed.
- * Each array is its own allocation. */
+/* The BVH over the primitives (common/bvh.c): a 4-wide tree whose leaves
+ * hold at most 4 primitives, copied in leaf order.  Each array is its own
+ * allocation. */
 typedef struct {
-    int *primitive_order;            /* leaf order: primitive indices */
-    bvh_node *build_nodes;           /* node_count of them, depth-first */
+    int *primitive_order;            /* leaf order: primitive indices (the tests look at it) */
+    wide_node *nodes;                /* node_count of them, depth-first, 64-byte aligned; root 0 */
     int node_count;                  /* 0 when the scene has no primitives */
-    trace_node *trace_nodes;         /* trace_node_count of them, 64-byte aligned */
-    int trace_node_count;            /* inner nodes (1 if the root is a leaf) */
     leaf_primitive *leaf_primitives; /* the primitives in leaf order, 64-byte aligned */
+    int primitive_count;             /* triangles + spheres */
+    double largest_coordinate;       /* largest |coordinate| of the root box: sets the box tests' margin */
 } scene_bvh;
 
 typedef struct scene {

@@ -8,6 +8,7 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "bvh.h"
 #include "check.h"
 #include "rng.h"
 #include "sampling.h"
@@ -217,23 +218,40 @@ static void test_parse_cornell(void)
     CHECK_NEAR(s.bounds.hi.z, 559.2, 0, "bounds");
     CHECK_NEAR(s.epsilon, 1e-9 * 559.2, 1e-20, "epsilon");
 
-    /* Structure of the BVH: every primitive once, leaves of at most 4. */
-    int seen[64] = {0};
+    /* Structure of the BVH: every primitive once, leaves of at most 4 that
+     * together cover the leaf order once, every inner node reached once. */
+    int seen[64] = {0}, covered[64] = {0}, node_seen[64] = {0};
     int leaf_total = 0;
-    for (int i = 0; i < s.bvh.node_count; i++) {
-        const bvh_node *n = &s.bvh.build_nodes[i];
-        if (n->count > 0) {
-            CHECK(n->count <= 4, "leaf of %d", n->count);
-            leaf_total += n->count;
+    CHECK(s.bvh.primitive_count == s.triangle_count && s.bvh.node_count <= 64, "%d nodes", s.bvh.node_count);
+    for (int i = 0; i < s.bvh.node_count; i++)
+        for (int k = 0; k < BVH_WIDTH; k++) {
+            const wide_node *n = &s.bvh.nodes[i];
+            bool empty = n->bounds[0][k] > n->bounds[3][k];
+            if (empty)
+                continue;
+            if (n->child[k] >= 0) {
+                CHECK(n->child[k] > i && n->child[k] < s.bvh.node_count, "child %d of node %d", n->child[k], i);
+                node_seen[n->child[k]]++;
+                continue;
+            }
+            int first = bvh_leaf_first(n->child[k]), count = bvh_leaf_count(n->child[k]);
+            CHECK(count >= 1 && count <= 4 && first >= 0 && first + count <= s.triangle_count, "leaf %d + %d", first,
+                  count);
+            for (int j = first; j < first + count; j++)
+                covered[j]++;
+            leaf_total += count;
         }
-    }
-    for (int i = 0; i < s.triangle_count; i++)
+    for (int i = 1; i < s.bvh.node_count; i++)
+        CHECK(node_seen[i] == 1, "node %d is reached %d times", i, node_seen[i]);
+    for (int i = 0; i < s.triangle_count; i++) {
         seen[s.bvh.primitive_order[i]]++;
+        CHECK(covered[i] == 1, "leaf slot %d covered %d times", i, covered[i]);
+    }
     for (int i = 0; i < s.triangle_count; i++)
         CHECK(seen[i] == 1, "primitive %d appears %d times", i, seen[i]);
     CHECK(leaf_total == s.triangle_count, "leaves hold %d primitives", leaf_total);
     scene_free(&s);
-    CHECK(s.surfaces == NULL && s.bvh.build_nodes == NULL, "scene_free clears the scene");
+    CHECK(s.surfaces == NULL && s.bvh.nodes == NULL, "scene_free clears the scene");
 }
 
 static void test_parse_syntax_variants(void)
@@ -394,7 +412,7 @@ static void test_bad_corpus(void)
               expected);
         CHECK(strlen(err) > strlen(expected) + 5, "no message after the location: '%.200s'", err);
         CHECK(strchr(err, '\n') == NULL, "%.120s: error has more than one line", path);
-        CHECK(s.materials == NULL && s.surfaces == NULL && s.triangles == NULL && s.bvh.build_nodes == NULL,
+        CHECK(s.materials == NULL && s.surfaces == NULL && s.triangles == NULL && s.bvh.nodes == NULL,
               "%.120s: a failed load must free everything", path);
         if (status == 0)
             scene_free(&s);
