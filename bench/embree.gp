@@ -10,6 +10,7 @@ set logscale x
 set xlabel 'triangles'
 set ylabel 'million rays per second'
 set yrange [0:*]
+set xrange [700:1.5e6]
 set grid xtics ytics mxtics lc rgb '#dddddd'
 set key outside below center horizontal maxcols 3 Left reverse samplen 3 box
 set format x '%.0e'

