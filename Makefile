@@ -135,8 +135,21 @@ test: deps
 test-plain: all tests
 	$(PYTHON) tests/run.py build
 
+# The Embree comparison (bench/bench_embree.c, bench/bench_00b_embree.py) needs Debian's libembree-dev,
+# a dependency of the bench alone: without it `make bench` says so and benches the rest.  npm fetches the
+# scanned meshes (bench/meshes.py), gnuplot plots.  `make deps-bench` installs them (as root).
+BENCH_PACKAGES := libembree-dev npm gnuplot-nox
+EMBREE_HEADER := /usr/include/embree3/rtcore.h
+$(BUILD)/bench/bench_embree: LDLIBS += -lembree3
+.PHONY: deps-bench
+deps-bench:
+	$(call install_packages,$(BUILD_PACKAGES) $(VIEWER_PACKAGES) $(BENCH_PACKAGES))
+
 bench: deps-demo
 	$(MAKE) --no-print-directory all
+	@if [ -f $(EMBREE_HEADER) ]; then $(MAKE) --no-print-directory $(BUILD)/bench/bench_embree; \
+	else echo "bench: Embree is missing ($(EMBREE_HEADER); make deps-bench installs libembree-dev):" \
+	  "the comparison with Embree is skipped, the rest is benched"; rm -f $(BUILD)/bench/bench_embree; fi
 	$(PYTHON) bench/bench.py build
 
 # libFuzzer on the scene parser (clang), time-boxed; crashing inputs land in
