@@ -524,7 +524,7 @@ typedef struct {
     int repeats, configs, threads[2];
     agreement agree[SET_COUNT];
     double mrays[2][2][SET_COUNT][MAX_REPEATS]; /* [thread configuration][implementation][set][repeat] */
-    double build[3][MAX_REPEATS];               /* seconds: ours, Embree 1 thread, Embree all threads */
+    double build[4][MAX_REPEATS]; /* seconds: ours 1 thread, Embree 1 thread, Embree all threads, ours all threads */
     long ours_array_bytes, ours_heap_bytes, embree_bytes, embree_peak_bytes, primitives;
 } results;
 
@@ -548,8 +548,10 @@ static size_t heap_in_use(void)
     return m.uordblks + m.hblkhd;
 }
 
-static double time_our_build(scene *s, long *heap_bytes)
+static double time_our_build(scene *s, int threads, long *heap_bytes)
 {
+    int before_threads = omp_get_max_threads();
+    omp_set_num_threads(threads);
     bvh_free(&s->bvh);
     size_t before = heap_in_use();
     double start = now_seconds();
@@ -559,6 +561,7 @@ static double time_our_build(scene *s, long *heap_bytes)
     }
     double seconds = now_seconds() - start;
     *heap_bytes = (long)(heap_in_use() - before);
+    omp_set_num_threads(before_threads);
     return seconds;
 }
 
@@ -583,15 +586,15 @@ static void time_builds(scene *s, RTCDevice devices[2], embree_buffers eb, int r
     long bytes, peak;
     time_embree_build(devices[0], s, eb, robust, &bytes, &peak); /* warm-up: thread pools start */
     for (int r = 0; r < res->repeats; r++) {
-        res->build[0][r] = time_our_build(s, &res->ours_heap_bytes);
+        res->build[0][r] = time_our_build(s, 1, &res->ours_heap_bytes);
+        res->build[3][r] = time_our_build(s, omp_get_max_threads(), &bytes);
         res->build[1][r] = time_embree_build(devices[0], s, eb, robust, &res->embree_bytes, &res->embree_peak_bytes);
         res->build[2][r] = time_embree_build(devices[1], s, eb, robust, &bytes, &peak);
     }
     long n = s->triangle_count + s->sphere_count;
     res->primitives = n;
     res->ours_array_bytes =
-        (long)((size_t)s->bvh.node_count * sizeof(bvh_node) + (size_t)n * sizeof(int) +
-               (size_t)s->bvh.trace_node_count * sizeof(trace_node) + (size_t)n * sizeof(leaf_primitive));
+        (long)bvh_memory_bytes(&s->bvh);
 }
 
 /* ------------------------------------------------------------------------ */
@@ -622,16 +625,18 @@ static void print_results(const bench *b, const results *res)
     double ours[3], one[3], all[3], r1[3], rall[3], q1[MAX_REPEATS], qall[MAX_REPEATS];
     for (int k = 0; k < res->repeats; k++) {
         q1[k] = res->build[0][k] / res->build[1][k];
-        qall[k] = res->build[0][k] / res->build[2][k];
+        qall[k] = res->build[3][k] / res->build[2][k];
     }
+    double ours_all[3];
     summary(res->build[0], res->repeats, ours);
+    summary(res->build[3], res->repeats, ours_all);
     summary(res->build[1], res->repeats, one);
     summary(res->build[2], res->repeats, all);
     summary(q1, res->repeats, r1);
     summary(qall, res->repeats, rall);
-    printf("build (medians): ours %.3f ms (serial), Embree %.3f ms 1 thread, %.3f ms all threads; ours/Embree %.2f "
-           "(min %.2f, max %.2f) against 1 thread, %.2f (min %.2f, max %.2f) against all\n",
-           1e3 * ours[1], 1e3 * one[1], 1e3 * all[1], r1[1], r1[0], r1[2], rall[1], rall[0], rall[2]);
+    printf("build (medians): ours %.3f ms 1 thread, %.3f ms all threads, Embree %.3f ms 1 thread, %.3f ms all threads; "
+           "ours/Embree %.2f (min %.2f, max %.2f) at 1 thread, %.2f (min %.2f, max %.2f) at all\n",
+           1e3 * ours[1], 1e3 * ours_all[1], 1e3 * one[1], 1e3 * all[1], r1[1], r1[0], r1[2], rall[1], rall[0], rall[2]);
     double n = (double)res->primitives;
     printf("memory per primitive: ours %.1f B (arrays; heap growth %.1f B), Embree %.1f B held after the commit "
            "(peak %.1f B)\n",
@@ -682,6 +687,7 @@ static int write_json(const char *path, const bench *b, const results *res, int 
     json_sets(f, res);
     fprintf(f, "  \"build\": {");
     json_list(f, "ours_s", res->build[0], res->repeats, ", ");
+    json_list(f, "ours_all_threads_s", res->build[3], res->repeats, ", ");
     json_list(f, "embree_1_thread_s", res->build[1], res->repeats, ", ");
     json_list(f, "embree_all_threads_s", res->build[2], res->repeats, "},\n");
     fprintf(f, "  \"threads_all\": %d,\n  \"primitives\": %ld,\n", res->threads[res->configs - 1], res->primitives);

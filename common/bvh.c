@@ -88,15 +88,18 @@ static double box3f_half_area(const box3f *b)
     double dx = b->hi[0] - b->lo[0], dy = b->hi[1] - b->lo[1], dz = b->hi[2] - b->lo[2];
     return dx * dy + dy * dz + dz * dx;
 }
+/* x rounded to a float not above (below) it: when the nearest float is on
+ * the wrong side, step at least one ulp (|f| 2^-23, plus FLT_MIN for the
+ * floats near zero) further. */
 static float round_down(double x)
 {
     float f = (float)x;
-    return (double)f > x ? nextafterf(f, -INFINITY) : f;
+    return (double)f > x ? f - (fabsf(f) * 0x1p-23f + FLT_MIN) : f;
 }
 static float round_up(double x)
 {
     float f = (float)x;
-    return (double)f < x ? nextafterf(f, INFINITY) : f;
+    return (double)f < x ? f + (fabsf(f) * 0x1p-23f + FLT_MIN) : f;
 }
 
 /* What the build moves around: 32 bytes a primitive, so partitioning a
@@ -141,32 +144,60 @@ typedef struct {
     build_node *nodes;
 } builder;
 
+/* Which of `bins` bins along an axis a reference falls into. */
+static int bin_of(const prim_ref *r, int axis, float lo, float scale, int bins)
+{
+    int bin = (int)((r->lo[axis] + r->hi[axis] - lo) * scale);
+    return bin < 0 ? 0 : bin >= bins ? bins - 1 : bin;
+}
+
+/* A bin: the box of the references in it (four floats a corner, the
+ * fourth unused, so SSE grows it in two instructions) and their number. */
+typedef struct {
+    float lo[4], hi[4];
+    int count;
+} sah_bin;
+
+static inline void bin_add(sah_bin *bin, const prim_ref *r)
+{
+    bin->count++;
+#ifdef __SSE__
+    /* Reads r->lo and r->hi four floats wide: the fourth lane is the
+     * primitive index or padding, and bin's fourth lane is never used. */
+    _mm_storeu_ps(bin->lo, _mm_min_ps(_mm_loadu_ps(r->lo), _mm_loadu_ps(bin->lo)));
+    _mm_storeu_ps(bin->hi, _mm_max_ps(_mm_loadu_ps(r->hi), _mm_loadu_ps(bin->hi)));
+#else
+    for (int a = 0; a < 3; a++) {
+        bin->lo[a] = r->lo[a] < bin->lo[a] ? r->lo[a] : bin->lo[a];
+        bin->hi[a] = r->hi[a] > bin->hi[a] ? r->hi[a] : bin->hi[a];
+    }
+#endif
+}
+
 /* The box of references [first, first + count), and the box of their
  * centroids (times two: lo + hi, the same in bin_of and the partition). */
 static void bounds_of_refs(const prim_ref *refs, int first, int count, box3f *box, box3f *centroids)
 {
-    *box = *centroids = box3f_empty();
+    sah_bin all = {{INFINITY, INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY, -INFINITY}, 0};
+    sah_bin centres = all;
     for (int i = first; i < first + count; i++) {
-        float c[3] = {refs[i].lo[0] + refs[i].hi[0], refs[i].lo[1] + refs[i].hi[1], refs[i].lo[2] + refs[i].hi[2]};
-        box3f_grow(box, refs[i].lo, refs[i].hi);
-        box3f_grow(centroids, c, c);
+        bin_add(&all, &refs[i]);
+        prim_ref c = refs[i];
+        for (int a = 0; a < 3; a++)
+            c.lo[a] = c.hi[a] = refs[i].lo[a] + refs[i].hi[a];
+        bin_add(&centres, &c);
+    }
+    for (int a = 0; a < 3; a++) {
+        box->lo[a] = all.lo[a];
+        box->hi[a] = all.hi[a];
+        centroids->lo[a] = centres.lo[a];
+        centroids->hi[a] = centres.hi[a];
     }
 }
 
-/* Which of BVH_BINS bins along an axis a reference falls into. */
-static int bin_of(const prim_ref *r, int axis, float lo, float scale)
-{
-    int bin = (int)((r->lo[axis] + r->hi[axis] - lo) * scale);
-    return bin < 0 ? 0 : bin >= BVH_BINS ? BVH_BINS - 1 : bin;
-}
-
-typedef struct {
-    box3f box;
-    int count;
-} sah_bin;
-
 typedef struct {
     int axis, bin; /* bins < bin go left; axis -1: no split */
+    int bins;      /* of the node (see best_binned_split) */
     double cost;   /* area(left) n(left) + area(right) n(right) */
     float lo, scale;
 } sah_split;
@@ -178,54 +209,54 @@ typedef struct {
 static const double SAH_TRAVERSAL_COST = 1.0, SAH_PRIMITIVE_COST = 1.0;
 
 /* Along one axis whose bins are filled: the cheapest split, if cheaper than `best`. */
-static void sweep_bins(const sah_bin bins[BVH_BINS], int axis, float lo, float scale, sah_split *best)
+static void sweep_bins(const sah_bin bins[BVH_BINS], int bin_count, int axis, float lo, float scale, sah_split *best)
 {
     double left_cost[BVH_BINS];
     int left_count[BVH_BINS];
     box3f box = box3f_empty();
     int n = 0;
-    for (int k = 0; k < BVH_BINS - 1; k++) {
-        box3f_grow(&box, bins[k].box.lo, bins[k].box.hi);
+    for (int k = 0; k < bin_count - 1; k++) {
+        box3f_grow(&box, bins[k].lo, bins[k].hi);
         n += bins[k].count;
         left_count[k] = n;
         left_cost[k] = n ? box3f_half_area(&box) * n : 0.0;
     }
     box = box3f_empty();
     n = 0;
-    for (int k = BVH_BINS - 1; k > 0; k--) {
-        box3f_grow(&box, bins[k].box.lo, bins[k].box.hi);
+    for (int k = bin_count - 1; k > 0; k--) {
+        box3f_grow(&box, bins[k].lo, bins[k].hi);
         n += bins[k].count;
         double cost = left_cost[k - 1] + box3f_half_area(&box) * n;
         if (n > 0 && left_count[k - 1] > 0 && cost < best->cost)
-            *best = (sah_split){.axis = axis, .bin = k, .cost = cost, .lo = lo, .scale = scale};
+            *best = (sah_split){.axis = axis, .bin = k, .bins = bin_count, .cost = cost, .lo = lo, .scale = scale};
     }
 }
 
 /* Bins references [first, first + count) along all three axes in one pass
  * (the references are read once) and returns the cheapest split.  All three
  * axes are tried: the longest one is not always the best (a room's walls are
- * as long in every direction). */
+ * as long in every direction).  A node of fewer references than BVH_BINS
+ * gets as many bins as references: the bins' fixed cost (clearing and
+ * sweeping them) would otherwise dominate the build's small nodes. */
 static sah_split best_binned_split(const prim_ref *refs, int first, int count, const box3f *centroids)
 {
     sah_bin bins[3][BVH_BINS];
+    int bin_count = count < BVH_BINS ? count : BVH_BINS;
     float lo[3], scale[3];
     for (int a = 0; a < 3; a++) {
         float width = centroids->hi[a] - centroids->lo[a];
         lo[a] = centroids->lo[a];
-        scale[a] = width > 0.0f ? (float)BVH_BINS * (1.0f - 1e-6f) / width : 0.0f;
-        for (int k = 0; k < BVH_BINS; k++)
-            bins[a][k] = (sah_bin){box3f_empty(), 0};
+        scale[a] = width > 0.0f ? (float)bin_count * (1.0f - 1e-6f) / width : 0.0f;
+        for (int k = 0; k < bin_count; k++)
+            bins[a][k] = (sah_bin){{INFINITY, INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY, -INFINITY}, 0};
     }
     for (int i = first; i < first + count; i++)
-        for (int a = 0; a < 3; a++) {
-            sah_bin *bin = &bins[a][bin_of(&refs[i], a, lo[a], scale[a])];
-            bin->count++;
-            box3f_grow(&bin->box, refs[i].lo, refs[i].hi);
-        }
+        for (int a = 0; a < 3; a++)
+            bin_add(&bins[a][bin_of(&refs[i], a, lo[a], scale[a], bin_count)], &refs[i]);
     sah_split best = {.axis = -1, .cost = INFINITY};
     for (int a = 0; a < 3; a++)
         if (scale[a] > 0.0f) /* else all centroids lie in one plane across this axis */
-            sweep_bins(bins[a], a, lo[a], scale[a], &best);
+            sweep_bins(bins[a], bin_count, a, lo[a], scale[a], &best);
     return best;
 }
 
@@ -234,7 +265,7 @@ static int partition_refs(prim_ref *refs, int first, int count, sah_split split)
 {
     int i = first, j = first + count - 1;
     while (i <= j) {
-        if (bin_of(&refs[i], split.axis, split.lo, split.scale) < split.bin) {
+        if (bin_of(&refs[i], split.axis, split.lo, split.scale, split.bins) < split.bin) {
             i++;
         } else {
             prim_ref tmp = refs[i];
@@ -397,10 +428,10 @@ static void *aligned_array(size_t count, size_t size)
  * build_node says) and b->refs in leaf order. */
 static void build_binary_tree(const scene *s, builder *b, int n)
 {
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (n >= BVH_TASK_MIN)
     for (int i = 0; i < n; i++)
         b->refs[i] = make_prim_ref(s, i);
-#pragma omp parallel
+#pragma omp parallel if (n >= BVH_TASK_MIN)
 #pragma omp single
     build_subtree(b, 0, 0, n, 0);
 }
@@ -427,7 +458,7 @@ static int build_wide_tree(scene *s, const builder *b, int n)
     const box3f *root = &b->nodes[0].box;
     for (int a = 0; a < 3; a++)
         bvh->largest_coordinate = fmax(bvh->largest_coordinate, fmax(fabs(root->lo[a]), fabs(root->hi[a])));
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (n >= BVH_TASK_MIN)
     for (int i = 0; i < n; i++) {
         bvh->primitive_order[i] = b->refs[i].primitive;
         bvh->leaf_primitives[i] = make_leaf_primitive(s, b->refs[i].primitive);
