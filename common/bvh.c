@@ -506,23 +506,22 @@ size_t bvh_memory_bytes(const scene_bvh *bvh)
 
 /* The ray in the triangle's coordinates (see triangle_transform): w along
  * the ray is w_o + t w_d, zero at t = -w_o / w_d; the hit point there gives
- * u and v.  About half the planes are behind the ray or beyond the nearest
- * hit, so t is checked first (u and v need the division's result anyway);
- * the u, v conditions are combined into one branch, as they are coin flips
- * for incoherent rays.  A ray parallel to the plane has w_d = 0 and
- * t = +-inf or NaN, which the t check rejects, so there is no NaN out. */
+ * u and v.  No branch: for incoherent rays each condition is a coin flip
+ * (about half the planes are behind the ray or beyond the nearest hit, and
+ * then u and v are), and a mispredicted branch costs more than computing
+ * u and v for every triangle of a leaf.  A ray parallel to the plane has
+ * w_d = 0 and t = +-inf or NaN, which fails the t conditions, so there is no
+ * NaN out. */
 static inline double triangle_hit(const leaf_primitive *p, vec3 origin, vec3 direction, double t_max)
 {
     double w_o = v3_dot(p->row[2], origin) + p->offset[2];
     double w_d = v3_dot(p->row[2], direction);
     double t = -w_o / w_d;
-    if (!(t > 0.0 && t < t_max))
-        return INFINITY;
     vec3 h = v3_madd(origin, direction, t);
     double u = v3_dot(p->row[0], h) + p->offset[0];
     double v = v3_dot(p->row[1], h) + p->offset[1];
-    int inside = (u >= p->u_min) & (v >= p->v_min) & (u + v <= p->uv_max);
-    return inside ? t : INFINITY;
+    int hit = (t > 0.0) & (t < t_max) & (u >= p->u_min) & (v >= p->v_min) & (u + v <= p->uv_max);
+    return hit ? t : INFINITY;
 }
 
 double intersect_triangle(const triangle *tri, ray r)
@@ -639,12 +638,12 @@ static ALWAYS_INLINE wide_ray setup_wide_ray(const scene *s, vec3 origin, vec3 d
     wide_ray r;
     for (int a = 0; a < 3; a++) {
         double inv = 1.0 / d[a]; /* 1/0 = inf is what the slab test wants for an axis-parallel ray */
-        double sign = inv < 0.0 ? -1.0 : 1.0;
+        int negative = signbit(inv) != 0; /* arithmetic, not branches: the signs are coin flips */
         r.inv_dir[a] = (float)inv;
-        r.near_origin[a] = (float)(o[a] + margin * sign);
-        r.far_origin[a] = (float)(o[a] - margin * sign);
-        r.near_face[a] = inv < 0.0 ? 3 + a : a;
-        r.far_face[a] = inv < 0.0 ? a : 3 + a;
+        r.near_origin[a] = (float)(o[a] + copysign(margin, inv));
+        r.far_origin[a] = (float)(o[a] - copysign(margin, inv));
+        r.near_face[a] = a + 3 * negative;
+        r.far_face[a] = a + 3 - 3 * negative;
 #ifdef __SSE__
         r.near_origin4[a] = _mm_set1_ps(r.near_origin[a]);
         r.far_origin4[a] = _mm_set1_ps(r.far_origin[a]);
