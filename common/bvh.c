@@ -1,7 +1,7 @@
 /* bvh.c — the BVH and the ray queries (bvh.h says how it works).
  *
  * Reading order: boxes, the build (binned SAH over primitive references),
- * the collapse to a 4-wide tree, the primitive tests, the traversal, and the
+ * the collapse to an 8-wide tree, the primitive tests, the traversal, and the
  * public queries (scene_intersect, scene_intersect_brute_force,
  * scene_occluded).
  */
@@ -18,8 +18,8 @@
 /* SAH bins per axis (Wald 2007 uses 16 to 32), and the depth past which the
  * build splits in the middle of the list, so the tree depth (and the
  * traversal stack) stays bounded whatever the input.  The stack holds at
- * most three entries per level. */
-enum { BVH_BINS = 32, BVH_SAH_MAX_DEPTH = 48, BVH_STACK_SIZE = 3 * (BVH_SAH_MAX_DEPTH + 32) };
+ * most BVH_WIDTH - 1 entries per level. */
+enum { BVH_BINS = 32, BVH_SAH_MAX_DEPTH = 48, BVH_STACK_SIZE = (BVH_WIDTH - 1) * (BVH_SAH_MAX_DEPTH + 32) };
 /* Subtrees of at least this many primitives are built as OpenMP tasks. */
 enum { BVH_TASK_MIN = 4096 };
 
@@ -319,7 +319,7 @@ static void build_subtree(builder *b, int index, int first, int count, int depth
 }
 
 /* ------------------------------------------------------------------------ */
-/* The 4-wide tree traversal reads                                           */
+/* The 8-wide tree traversal reads                                           */
 
 /* Child slot k of wide node `out` gets the box of build node `index`. */
 static void set_child_box(wide_node *out, int k, const box3f *box)
@@ -653,7 +653,7 @@ static ALWAYS_INLINE wide_ray setup_wide_ray(const scene *s, vec3 origin, vec3 d
     return r;
 }
 
-/* Slab test (Kay & Kajiya) against the four child boxes of a node: bit k of
+/* Slab test (Kay & Kajiya) against the eight child boxes of a node: bit k of
  * the result is set when the ray enters box k before t_max (and leaves it
  * after 0), entry[k] is where it enters.  The comparisons are written so
  * that a NaN (0 * inf: a ray lying in a slab plane) never shrinks the
@@ -662,15 +662,21 @@ static ALWAYS_INLINE wide_ray setup_wide_ray(const scene *s, vec3 origin, vec3 d
 #ifdef __SSE__
 static inline int box_hits(const wide_node *node, const wide_ray *r, float t_max, float entry[BVH_WIDTH])
 {
-    __m128 t_near = _mm_setzero_ps(), t_far = _mm_set1_ps(t_max);
-    for (int a = 0; a < 3; a++) {
-        __m128 near = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(node->bounds[r->near_face[a]]), r->near_origin4[a]), r->inv_dir4[a]);
-        __m128 far = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(node->bounds[r->far_face[a]]), r->far_origin4[a]), r->inv_dir4[a]);
-        t_near = _mm_max_ps(near, t_near);
-        t_far = _mm_min_ps(far, t_far);
+    int mask = 0;
+    for (int half = 0; half < BVH_WIDTH; half += 4) {
+        __m128 t_near = _mm_setzero_ps(), t_far = _mm_set1_ps(t_max);
+        for (int a = 0; a < 3; a++) {
+            __m128 near = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(node->bounds[r->near_face[a]] + half), r->near_origin4[a]),
+                                     r->inv_dir4[a]);
+            __m128 far = _mm_mul_ps(_mm_sub_ps(_mm_load_ps(node->bounds[r->far_face[a]] + half), r->far_origin4[a]),
+                                    r->inv_dir4[a]);
+            t_near = _mm_max_ps(near, t_near);
+            t_far = _mm_min_ps(far, t_far);
+        }
+        _mm_storeu_ps(entry + half, t_near);
+        mask |= _mm_movemask_ps(_mm_cmple_ps(t_near, t_far)) << half;
     }
-    _mm_storeu_ps(entry, t_near);
-    return _mm_movemask_ps(_mm_cmple_ps(t_near, t_far));
+    return mask;
 }
 #else
 static inline int box_hits(const wide_node *node, const wide_ray *r, float t_max, float entry[BVH_WIDTH])
@@ -725,7 +731,7 @@ static ALWAYS_INLINE int visit_children(const wide_node *node, int mask, const f
     int hit[BVH_WIDTH] = {nearest, other}, n = 2;
     for (; mask; mask &= mask - 1)
         hit[n++] = __builtin_ctz((unsigned)mask);
-    if (!any_hit) /* insertion sort of three or four, farthest first */
+    if (!any_hit) /* insertion sort of three or more, farthest first */
         for (int i = 1; i < n; i++)
             for (int j = i; j > 0 && entry[hit[j]] > entry[hit[j - 1]]; j--) {
                 int tmp = hit[j];

@@ -87,7 +87,7 @@ typedef struct {
 typedef struct wide_node wide_node;
 typedef struct leaf_primitive leaf_primitive;
 
-/* The BVH over the primitives (common/bvh.c): a 4-wide tree whose leaves
+/* The BVH over the primitives (common/bvh.c): an 8-wide tree whose leaves
  * hold at most 4 primitives, copied in leaf order.  Each array is its own
  * allocation. */
 typedef struct {
