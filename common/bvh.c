@@ -540,40 +540,39 @@ double intersect_triangle(const triangle *tri, ray r)
  * same quantity written as a (r^2 - |f - (b/a) d|^2) does not.  The roots
  * come from q = -(b + sign(b) sqrt(disc)) as q / a and c / q, which avoids
  * the other cancellation (-b + sqrt(...) with both nearly equal). */
-static inline double sphere_hit(vec3 center, double radius, vec3 origin, vec3 direction)
+static inline double sphere_hit(vec3 center, double radius, vec3 origin, vec3 direction, double a, double inv_a)
 {
     vec3 f = v3_sub(origin, center);
-    double a = v3_dot(direction, direction);
     double b = v3_dot(f, direction);
     double c = v3_dot(f, f) - radius * radius;
-    vec3 l = v3_madd(f, direction, -b / a); /* f minus its component along d */
+    vec3 l = v3_madd(f, direction, -b * inv_a); /* f minus its component along d */
     double disc = a * (radius * radius - v3_dot(l, l));
     if (!(disc >= 0.0))
         return INFINITY;
     double q = -(b + copysign(sqrt(disc), b));
     if (q == 0.0)
         return INFINITY; /* ray starts on the sphere and grazes it */
-    double t0 = c / q, t1 = q / a;
-    if (t0 > t1) {
-        double tmp = t0;
-        t0 = t1;
-        t1 = tmp;
-    }
-    if (t0 > 0.0)
-        return t0;
-    if (t1 > 0.0)
-        return t1;
-    return INFINITY;
+    /* The nearer root if it is ahead, else the farther one (selects, not
+     * branches: which root is ahead is a coin flip for rays inside). */
+    double t0 = c / q, t1 = q * inv_a;
+    double near = t0 < t1 ? t0 : t1, far = t0 < t1 ? t1 : t0;
+    return near > 0.0 ? near : far > 0.0 ? far : INFINITY;
 }
 
-double intersect_sphere(vec3 center, double radius, ray r) { return sphere_hit(center, radius, r.origin, r.direction); }
+double intersect_sphere(vec3 center, double radius, ray r)
+{
+    double a = v3_dot(r.direction, r.direction);
+    return sphere_hit(center, radius, r.origin, r.direction, a, 1.0 / a);
+}
 
-/* Hit distance of a leaf primitive if it is below t_max, else INFINITY. */
-static inline double primitive_hit(const leaf_primitive *p, vec3 origin, vec3 direction, double t_max)
+/* Hit distance of a leaf primitive if it is below t_max, else INFINITY.
+ * a = direction . direction and its inverse, once per ray for the spheres. */
+static inline double primitive_hit(const leaf_primitive *p, vec3 origin, vec3 direction, double a, double inv_a,
+                                   double t_max)
 {
     if (!p->is_sphere)
         return triangle_hit(p, origin, direction, t_max);
-    double t = sphere_hit(p->row[0], p->offset[0], origin, direction);
+    double t = sphere_hit(p->row[0], p->offset[0], origin, direction, a, inv_a);
     return t < t_max ? t : INFINITY;
 }
 
@@ -633,7 +632,7 @@ static ALWAYS_INLINE wide_ray setup_wide_ray(const scene *s, vec3 origin, vec3 d
     double o[3] = {origin.x, origin.y, origin.z}, d[3] = {direction.x, direction.y, direction.z};
     double largest = s->bvh.largest_coordinate;
     for (int a = 0; a < 3; a++)
-        largest = fmax(largest, fabs(o[a]));
+        largest = fabs(o[a]) > largest ? fabs(o[a]) : largest;
     double margin = 0x1p-18 * largest;
     wide_ray r;
     for (int a = 0; a < 3; a++) {
@@ -757,6 +756,7 @@ static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, d
     const wide_node *nodes = s->bvh.nodes;
     const leaf_primitive *prims = s->bvh.leaf_primitives;
     wide_ray r = setup_wide_ray(s, origin, direction);
+    double a = v3_dot(direction, direction), inv_a = 1.0 / a;
     wide_stack stack;
     stack.top = 0;
     int found = -1, child = 0;
@@ -772,7 +772,7 @@ static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, d
             }
         } else {
             for (const leaf_primitive *p = prims + bvh_leaf_first(child), *end = p + bvh_leaf_count(child); p < end; p++) {
-                double t = primitive_hit(p, origin, direction, nearest);
+                double t = primitive_hit(p, origin, direction, a, inv_a, nearest);
                 if (t < nearest) {
                     nearest = t;
                     nearest_bound = round_up(t);
@@ -816,10 +816,11 @@ int scene_intersect_brute_force(const scene *s, ray r, double t_max, hit *out)
     if (s->bvh.node_count == 0)
         return 0;
     const leaf_primitive *prims = s->bvh.leaf_primitives;
+    double a = v3_dot(r.direction, r.direction), inv_a = 1.0 / a;
     double nearest = t_max;
     int found = -1;
     for (int i = 0; i < s->triangle_count + s->sphere_count; i++) {
-        double t = primitive_hit(&prims[i], r.origin, r.direction, t_max);
+        double t = primitive_hit(&prims[i], r.origin, r.direction, a, inv_a, t_max);
         if (t < nearest || (t == nearest && found >= 0 && prims[i].primitive < found)) {
             nearest = t;
             found = prims[i].primitive;
