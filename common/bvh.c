@@ -8,6 +8,7 @@
 #include "bvh.h"
 
 #include <float.h>
+#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -112,17 +113,30 @@ typedef struct {
     int unused;
 } prim_ref;
 
-/* A primitive's box for the BVH, rounded outward to float.  Triangles
- * intersect with a margin around their edges (see triangle_transform), far
- * below a float's rounding, which therefore covers it. */
-static prim_ref make_prim_ref(const scene *s, int primitive)
+/* The largest power of two not above |x| (1 for 0, subnormals, inf and
+ * NaN): x's exponent bits alone.  Scaling by it is exact. */
+static inline double power_of_two_below(double x)
+{
+    uint64_t bits;
+    double power;
+    memcpy(&bits, &x, sizeof bits);
+    bits &= 0x7ff0000000000000u;
+    memcpy(&power, &bits, sizeof power);
+    return power >= DBL_MIN && power < INFINITY ? power : 1.0;
+}
+
+/* A primitive's box for the BVH in the tree's units (coordinates / unit,
+ * exact), rounded outward to float.  Triangles intersect with a margin
+ * around their edges (see triangle_transform), far below a float's
+ * rounding, which therefore covers it. */
+static prim_ref make_prim_ref(const scene *s, int primitive, double inv_unit)
 {
     aabb b = primitive_bounds(s, primitive);
     double margin = primitive < s->triangle_count ? EDGE_MARGIN * s->epsilon : 0.0;
     prim_ref r = {.primitive = primitive};
     for (int a = 0; a < 3; a++) {
-        r.lo[a] = round_down(v3_get(b.lo, a) - margin);
-        r.hi[a] = round_up(v3_get(b.hi, a) + margin);
+        r.lo[a] = round_down((v3_get(b.lo, a) - margin) * inv_unit);
+        r.hi[a] = round_up((v3_get(b.hi, a) + margin) * inv_unit);
     }
     return r;
 }
@@ -430,7 +444,7 @@ static void build_binary_tree(const scene *s, builder *b, int n)
 {
 #pragma omp parallel for schedule(static) if (n >= BVH_TASK_MIN)
     for (int i = 0; i < n; i++)
-        b->refs[i] = make_prim_ref(s, i);
+        b->refs[i] = make_prim_ref(s, i, 1.0 / s->bvh.unit);
 #pragma omp parallel if (n >= BVH_TASK_MIN)
 #pragma omp single
     build_subtree(b, 0, 0, n, 0);
@@ -473,6 +487,10 @@ int bvh_build(scene *s)
     memset(bvh, 0, sizeof *bvh);
     if (n == 0)
         return 0; /* nothing to intersect: traverse() sees node_count == 0 */
+    /* The tree's unit: the scene's largest coordinate is 1 to 2 units, so
+     * that a scene in light years or in nanometres fits a float's range. */
+    vec3 largest = v3_max(v3_max(s->bounds.lo, v3_neg(s->bounds.lo)), v3_max(s->bounds.hi, v3_neg(s->bounds.hi)));
+    bvh->unit = power_of_two_below(v3_max_component(largest));
     builder b = {.refs = malloc((size_t)n * sizeof(prim_ref)), .nodes = malloc((size_t)(2 * n - 1) * sizeof(build_node))};
     int status = -1;
     if (b.refs && b.nodes) {
@@ -613,6 +631,7 @@ static void fill_hit(const scene *s, ray r, double t, int primitive, hit *out)
 typedef struct {
     float near_origin[3], far_origin[3], inv_dir[3];
     int near_face[3], far_face[3];
+    double t_scale; /* t along the scaled ray = t_scale * t along the ray */
 #ifdef __SSE__
     __m128 near_origin4[3], far_origin4[3], inv_dir4[3]; /* the same in all four lanes, for box_hits */
 #endif
@@ -629,12 +648,18 @@ typedef struct {
 
 static ALWAYS_INLINE wide_ray setup_wide_ray(const scene *s, vec3 origin, vec3 direction)
 {
-    double o[3] = {origin.x, origin.y, origin.z}, d[3] = {direction.x, direction.y, direction.z};
+    /* In the tree's units, and the direction scaled by a power of two to
+     * about 1, so t (then also scaled: t_scale) stays in a float's range. */
+    double dx = fabs(direction.x), dy = fabs(direction.y), dz = fabs(direction.z);
+    double direction_unit = power_of_two_below(dx > dy ? (dx > dz ? dx : dz) : (dy > dz ? dy : dz));
+    double inv_unit = 1.0 / s->bvh.unit, inv_direction_unit = 1.0 / direction_unit;
+    double o[3] = {origin.x * inv_unit, origin.y * inv_unit, origin.z * inv_unit};
+    double d[3] = {direction.x * inv_direction_unit, direction.y * inv_direction_unit, direction.z * inv_direction_unit};
     double largest = s->bvh.largest_coordinate;
     for (int a = 0; a < 3; a++)
         largest = fabs(o[a]) > largest ? fabs(o[a]) : largest;
     double margin = 0x1p-18 * largest;
-    wide_ray r;
+    wide_ray r = {.t_scale = direction_unit * inv_unit};
     for (int a = 0; a < 3; a++) {
         double inv = 1.0 / d[a]; /* 1/0 = inf is what the slab test wants for an axis-parallel ray */
         int negative = signbit(inv) != 0; /* arithmetic, not branches: the signs are coin flips */
@@ -761,7 +786,7 @@ static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, d
     stack.top = 0;
     int found = -1, child = 0;
     double nearest = t_max;
-    float nearest_bound = round_up(t_max);
+    float nearest_bound = round_up(t_max * r.t_scale);
     for (;;) {
         if (child >= 0) {
             float entry[BVH_WIDTH];
@@ -775,7 +800,7 @@ static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, d
                 double t = primitive_hit(p, origin, direction, a, inv_a, nearest);
                 if (t < nearest) {
                     nearest = t;
-                    nearest_bound = round_up(t);
+                    nearest_bound = round_up(t * r.t_scale);
                     found = p->primitive;
                     if (any_hit)
                         goto done;

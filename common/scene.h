@@ -96,7 +96,8 @@ typedef struct {
     int node_count;                  /* 0 when the scene has no primitives */
     leaf_primitive *leaf_primitives; /* the primitives in leaf order, 64-byte aligned */
     int primitive_count;             /* triangles + spheres */
-    double largest_coordinate;       /* largest |coordinate| of the root box: sets the box tests' margin */
+    double unit;                     /* a power of two: the boxes hold coordinates / unit (any scene fits a float) */
+    double largest_coordinate;       /* largest |coordinate| of the root box, in units: sets the box tests' margin */
 } scene_bvh;
 
 typedef struct scene {
