@@ -161,9 +161,9 @@ void surface_sample_point(const scene *s, int surface_index, double u1, double u
 {
     const surface *surf = &s->surfaces[surface_index];
     if (surf->kind == SURFACE_SPHERE) { /* uniform on the sphere, or on its cap: cos uniform in [cap_cos, 1] */
-        vec3 direction = surface_is_whole_sphere(surf)
-                             ? uniform_sample_sphere(u1, u2)
-                             : onb_to_world(onb_from_normal(surf->cap_axis), uniform_sample_cone(u1, u2, surf->cap_cos));
+        vec3 direction = surface_is_whole_sphere(surf) ? uniform_sample_sphere(u1, u2)
+                                                       : onb_to_world(onb_from_normal(surf->cap_axis),
+                                                                      uniform_sample_cone(u1, u2, surf->cap_cos));
         *point = v3_madd(surf->center, direction, surf->radius);
         *normal = direction;
         return;
@@ -202,8 +202,9 @@ double scene_diagonal(const scene *s)
     enum { GRID = 32 }; /* camera rays through a 32 x 32 grid over the image */
     for (int i = 0; i < GRID * GRID; i++) {
         hit h;
-        if (scene_intersect(s, camera_frame_ray(&f, (i % GRID + 0.5) * s->width / GRID,
-                                                (i / GRID + 0.5) * s->height / GRID), INFINITY, &h)) {
+        if (scene_intersect(
+                s, camera_frame_ray(&f, (i % GRID + 0.5) * s->width / GRID, (i / GRID + 0.5) * s->height / GRID),
+                INFINITY, &h)) {
             seen.lo = v3_min(seen.lo, h.point);
             seen.hi = v3_max(seen.hi, h.point);
         }

@@ -216,7 +216,10 @@ void surface_sample_point(const scene *s, int surface_index, double u1, double u
                           vec3 *normal);
 
 /* A sphere sampled whole (not cut to a cap by emitter_caps). */
-static inline bool surface_is_whole_sphere(const surface *f) { return f->kind == SURFACE_SPHERE && !(f->cap_cos > -1.0); }
+static inline bool surface_is_whole_sphere(const surface *f)
+{
+    return f->kind == SURFACE_SPHERE && !(f->cap_cos > -1.0);
+}
 
 /* Works out every emitting sphere's cap and area, and the total emitter
  * area, for the camera's position (scene_load does; call it again after

@@ -274,8 +274,8 @@ static int parse_camera(parser *p, fields *f)
         expect_keyword(ctx, f->field[9], "up", usage) || parse_vec3(ctx, f->field + 10, "camera up", &c.up) ||
         expect_keyword(ctx, f->field[13], "fov", usage) ||
         parse_number(ctx, f->field[14], "camera fov", &c.fov_degrees) ||
-        (f->count == 17 && (expect_keyword(ctx, f->field[15], "near", usage) ||
-                            parse_number(ctx, f->field[16], "camera near", &c.near))))
+        (f->count == 17 &&
+         (expect_keyword(ctx, f->field[15], "near", usage) || parse_number(ctx, f->field[16], "camera near", &c.near))))
         return 2;
     vec3 view = v3_sub(c.look, c.eye);
     double view_length = v3_length(view), up_length = v3_length(c.up);
