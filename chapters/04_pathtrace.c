@@ -250,12 +250,13 @@ double total_light_power(const scene *s)
 
 /* The density per steradian of sample_light at x picking y (normal n_y) on
  * emitting surface i (also for MIS): the pick times that of y, uniform in the
- * cone a sphere subtends (sphere_light.h), else uniform by area, p_A = 1 / A. */
+ * cone a sphere subtends (sphere_light.h), else uniform by area, p_A = 1 / A
+ * (a sphere cut to the cap that shines into the room: by area on the cap). */
 static double light_pdf(const scene *s, double total_power, int i, vec3 x, vec3 y, vec3 n_y)
 {
     const surface *surf = &s->surfaces[i];
     double pick = emitter_power(s, i) / total_power;
-    if (surf->kind == SURFACE_SPHERE)
+    if (surface_is_whole_sphere(surf))
         return pick * sphere_light_pdf(surf->center, surf->radius, x, y, n_y);
     return pick * area_pdf_to_solid_angle(1.0 / surf->area, x, y, n_y);
 }
@@ -286,7 +287,7 @@ static bool sample_light(const scene *s, double total_power, vec3 x, rng *g, lig
     const surface *surf = &s->surfaces[e];
     double u1 = rng_uniform(g), u2 = rng_uniform(g), pdf_unused;
     vec3 y, n_y;
-    if (surf->kind != SURFACE_SPHERE)
+    if (!surface_is_whole_sphere(surf)) /* a sphere cut to its cap (scene.h) too */
         surface_sample_point(s, e, u1, u2, rng_uniform(g), &y, &n_y);
     else if (!sphere_light_sample(surf->center, surf->radius, x, u1, u2, &y, &n_y, &pdf_unused))
         return false;

@@ -436,7 +436,7 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
         fprintf(stderr, "warning: 05_photonmap: the scene has no light to shoot photons from: %s\n",
                 v3_max_component(s->background) > 0.0 ? "only the background lights it" : "the image is black");
     /* A radius relative to the scene, so the scene's unit does not matter. */
-    st->initial_radius = st->radius > 0.0 ? st->radius : 0.005 * v3_length(v3_sub(s->bounds.hi, s->bounds.lo));
+    st->initial_radius = st->radius > 0.0 ? st->radius : 0.005 * scene_diagonal(s);
     st->current_radius = st->initial_radius = st->initial_radius > 0.0 ? st->initial_radius : 1.0;
     return 0;
 }

@@ -142,7 +142,8 @@ static bool connect_to_camera(const bidir_state *st, const scene *s, const path_
     if (!pixel_seen(&st->camera, v3_neg(w), pixel, &cos_theta) || !(v3_max_component(f) > 0.0))
         return false;
     ++*rays;
-    if (scene_occluded(s, last->x, eye.x))
+    vec3 sensor; /* the eye, or camera.near from it (scene.h): where camera rays start */
+    if (!pinhole_sensor_point(&st->camera, last->x, &sensor) || scene_occluded(s, last->x, sensor))
         return false;
     double G = geometry(last, &eye); /* the cosine at a pinhole is in W_e */
     *value = v3_scale(v3_mul(last->alpha, f), G * camera_importance(&st->camera, cos_theta) / st->light_paths);
@@ -392,6 +393,7 @@ static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, r
     z[0] = (path_vertex){.x = r.origin, .alpha = v3_splat(1.0), .kind = AT_CAMERA};
     int t_count =
         extend(s, z, 1, st->eye_cap, v3_splat(1.0), r.direction, true, false, g, &counters->value[COUNT_EYE_RAYS]);
+    z[0].x = st->camera.eye; /* the pinhole: its ray began camera.near ahead of it (scene.h) */
     const path_vertex *y = &st->light_vertices[st->path_first[pixel]];
     for (int t = 2; t <= t_count; t++) {
         L = v3_add(L, connections(st, s, y, st->path_count[pixel], z, t, &counters->value[COUNT_SHADOW_RAYS]));

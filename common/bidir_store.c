@@ -262,6 +262,17 @@ bool pixel_seen(const pinhole *c, vec3 w, int *pixel, double *cos_theta)
     return true;
 }
 
+bool pinhole_sensor_point(const pinhole *c, vec3 x, vec3 *sensor)
+{
+    double distance = v3_length(v3_sub(x, c->eye)), near = c->frame.near;
+    if (near <= 0.0 || !(distance > near)) {
+        *sensor = c->eye;
+        return near <= 0.0;
+    }
+    *sensor = v3_add(c->eye, v3_scale(v3_sub(x, c->eye), near / distance));
+    return true;
+}
+
 int bidir_join_step(path_vertex *x, const path_vertex *y, int s, const path_vertex *z, int t)
 {
     if (s == 0) {
@@ -326,8 +337,7 @@ int bidir_prepare(void *state, const scene *s, const render_options *o, char *er
     /* The default radius is chapter 5's, 1/200 of the scene's diagonal at any image size: VCM merges only where
      * the eye sees a mirror or glass (the chapter's may_merge_at), so a radius that shrank with the pixels (as
      * before, to keep merging's weight against the joins on diffuse walls constant) only added noise there. */
-    double diagonal = v3_length(v3_sub(s->bounds.hi, s->bounds.lo));
-    double r = st->radius > 0.0 ? st->radius : 0.005 * diagonal;
+    double r = st->radius > 0.0 ? st->radius : 0.005 * scene_diagonal(s);
     st->current_radius = r > 0.0 ? r : 1.0;
     warn_impossible(st, s, st->is_specular);
     for (int n = 0; n < st->check_paths && s->emitter_count + s->light_count > 0; n++) {

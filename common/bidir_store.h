@@ -158,6 +158,10 @@ int pick_light(const bidir_state *st, const scene *s, double u);
 /* Where the unit direction w from the eye crosses the image: its pixel
  * (row-major) and cos theta to the view axis; false outside the image. */
 bool pixel_seen(const pinhole *c, vec3 w, int *pixel, double *cos_theta);
+/* Where the segment from x to the eye is camera.near from the eye (scene.h;
+ * the eye itself when near is 0): the end of the shadow ray that joins x to
+ * the camera.  False when x is nearer than that, where no camera ray sees it. */
+bool pinhole_sensor_point(const pinhole *c, vec3 x, vec3 *sensor);
 /* The pixel of a camera ray (pixel_seen; 0 if none). */
 int pixel_of_ray(const pinhole *c, vec3 w);
 void bidir_write_stats(const void *state, FILE *json);

@@ -553,6 +553,7 @@ static int override_camera(render_job *job, char *err, size_t err_size)
         return 2;
     }
     job->s.camera = c;
+    scene_settle_emitters(&job->s); /* which caps of spheres shine toward the camera */
     return 0;
 }
 

@@ -49,7 +49,13 @@ typedef struct {
     double radius;      /* sphere */
     int first_triangle; /* this surface's triangles in scene.triangles */
     int triangle_count; /* 0 for spheres */
-    double area;        /* total surface area */
+    double area;        /* total surface area; an emitting sphere's: that of its cap (below) */
+    /* An emitting sphere cut by an opaque sphere emits toward the camera only
+     * from the cap { centre + radius * n : n . cap_axis >= cap_cos } (scene.c:
+     * emitter_caps); the samplers and the emitter's power count that cap only.
+     * cap_cos = -1: the whole sphere. */
+    vec3 cap_axis;
+    double cap_cos;
     bool parallelogram; /* a quad with vertex[0] + vertex[2] = vertex[1] + vertex[3]: sampled directly */
     int line;           /* line of the statement in the scene file */
 } surface;
@@ -77,6 +83,12 @@ typedef struct {
 typedef struct {
     vec3 eye, look, up;
     double fov_degrees; /* vertical field of view */
+    /* Near distance: camera rays start this far from the eye (0: at the
+     * eye), so what lies closer is not seen.  smallpt's camera sits behind
+     * its front wall and starts its rays 140 units ahead (on a sphere, not a
+     * plane: compiled by GCC, its Ray(cam.o + d * 140, d.norm()) normalises d
+     * before it computes the origin). */
+    double near;
 } camera;
 
 typedef struct {
@@ -191,9 +203,26 @@ double intersect_sphere(vec3 center, double radius, ray r);
 
 /* Uniform point on an emitting or any triangulated surface, chosen in
  * proportion to area: returns point and unit normal; pdf = 1 / surface.area.
- * For spheres, uniform on the sphere. */
+ * For spheres, uniform on the sphere, or on its cap (cap_cos). */
 void surface_sample_point(const scene *s, int surface_index, double u1, double u2, double u3, vec3 *point,
                           vec3 *normal);
+
+/* A sphere sampled whole (not cut to a cap by emitter_caps). */
+static inline bool surface_is_whole_sphere(const surface *f)
+{
+    return f->kind == SURFACE_SPHERE && !(f->cap_cos > -1.0);
+}
+
+/* Works out every emitting sphere's cap and area, and the total emitter
+ * area, for the camera's position (scene_load does; call it again after
+ * moving the camera). */
+void scene_settle_emitters(scene *s);
+
+/* The scene's size for lengths chosen relative to it (the photon radius of
+ * chapters 5 and 6): the diagonal of the geometry's bounds, or of the points
+ * the camera sees when those are ten times smaller (walls made of spheres of
+ * radius 1e5, as in smallpt, put the bounds a thousand rooms away). */
+double scene_diagonal(const scene *s);
 
 /* Index of a named surface or material, -1 if none. */
 int scene_find_surface(const scene *s, const char *name);
@@ -207,6 +236,7 @@ ray camera_ray(const camera *c, int width, int height, double px, double py);
  * is top_left + px * step_x + py * step_y (no division per ray). */
 typedef struct {
     vec3 eye, top_left, step_x, step_y;
+    double near; /* camera.near: a ray's origin is eye + near * (its unit direction) */
 } camera_frame;
 camera_frame camera_frame_make(const camera *c, int width, int height);
 ray camera_frame_ray(const camera_frame *f, double px, double py);

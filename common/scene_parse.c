@@ -262,18 +262,20 @@ static int material_reference(parser *p, const char *name, int *index)
 
 static int parse_camera(parser *p, fields *f)
 {
-    static const char usage[] = "camera eye X Y Z look X Y Z up X Y Z fov DEGREES";
+    static const char usage[] = "camera eye X Y Z look X Y Z up X Y Z fov DEGREES [near DISTANCE]";
     const error_context *ctx = &p->ctx;
     if (p->has_camera)
         return fail(ctx, "second camera statement (a scene has one camera)");
-    if (expect_field_count(ctx, f, 15, usage))
+    if (f->count != 15 && expect_field_count(ctx, f, 17, usage))
         return 2;
-    camera c;
+    camera c = {.near = 0.0};
     if (expect_keyword(ctx, f->field[1], "eye", usage) || parse_vec3(ctx, f->field + 2, "camera eye", &c.eye) ||
         expect_keyword(ctx, f->field[5], "look", usage) || parse_vec3(ctx, f->field + 6, "camera look", &c.look) ||
         expect_keyword(ctx, f->field[9], "up", usage) || parse_vec3(ctx, f->field + 10, "camera up", &c.up) ||
         expect_keyword(ctx, f->field[13], "fov", usage) ||
-        parse_number(ctx, f->field[14], "camera fov", &c.fov_degrees))
+        parse_number(ctx, f->field[14], "camera fov", &c.fov_degrees) ||
+        (f->count == 17 &&
+         (expect_keyword(ctx, f->field[15], "near", usage) || parse_number(ctx, f->field[16], "camera near", &c.near))))
         return 2;
     vec3 view = v3_sub(c.look, c.eye);
     double view_length = v3_length(view), up_length = v3_length(c.up);
@@ -286,6 +288,8 @@ static int parse_camera(parser *p, fields *f)
         return fail(ctx, "camera up is parallel to the view direction");
     if (!(c.fov_degrees > 0.0 && c.fov_degrees < 180.0))
         return fail(ctx, "camera fov %g: must be between 0 and 180 degrees (exclusive)", c.fov_degrees);
+    if (!(c.near >= 0.0))
+        return fail(ctx, "camera near %g: must be at least 0", c.near);
     p->s->camera = c;
     p->has_camera = 1;
     return 0;
