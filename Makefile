@@ -121,8 +121,9 @@ deps-grade:
 # --- the two commands -------------------------------------------------------
 # Renders the Cornell box with every chapter into out/demo/, then opens the
 # viewer side by side (or, with no display, writes out/demo/cornell-side-by-side.png).
+# It builds only what it runs (the chapters and the viewer), as many jobs as CPUs.
 demo: deps-demo
-	$(MAKE) --no-print-directory all
+	$(MAKE) --no-print-directory -j$(CPUS) $(CHAPTER_PROGRAMS) $(BUILD)/viewer
 	viewer/demo.sh $(BUILD)
 
 # Both trees build, and the tests run, as many at a time as there are CPUs (tests/run.py -j).
