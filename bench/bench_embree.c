@@ -593,8 +593,7 @@ static void time_builds(scene *s, RTCDevice devices[2], embree_buffers eb, int r
     }
     long n = s->triangle_count + s->sphere_count;
     res->primitives = n;
-    res->ours_array_bytes =
-        (long)bvh_memory_bytes(&s->bvh);
+    res->ours_array_bytes = (long)bvh_memory_bytes(&s->bvh);
 }
 
 /* ------------------------------------------------------------------------ */
@@ -636,7 +635,8 @@ static void print_results(const bench *b, const results *res)
     summary(qall, res->repeats, rall);
     printf("build (medians): ours %.3f ms 1 thread, %.3f ms all threads, Embree %.3f ms 1 thread, %.3f ms all threads; "
            "ours/Embree %.2f (min %.2f, max %.2f) at 1 thread, %.2f (min %.2f, max %.2f) at all\n",
-           1e3 * ours[1], 1e3 * ours_all[1], 1e3 * one[1], 1e3 * all[1], r1[1], r1[0], r1[2], rall[1], rall[0], rall[2]);
+           1e3 * ours[1], 1e3 * ours_all[1], 1e3 * one[1], 1e3 * all[1], r1[1], r1[0], r1[2], rall[1], rall[0],
+           rall[2]);
     double n = (double)res->primitives;
     printf("memory per primitive: ours %.1f B (arrays; heap growth %.1f B), Embree %.1f B held after the commit "
            "(peak %.1f B)\n",

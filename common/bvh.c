@@ -262,7 +262,8 @@ static sah_split best_binned_split(const prim_ref *refs, int first, int count, c
         lo[a] = centroids->lo[a];
         scale[a] = width > 0.0f ? (float)bin_count * (1.0f - 1e-6f) / width : 0.0f;
         for (int k = 0; k < bin_count; k++)
-            bins[a][k] = (sah_bin){{INFINITY, INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY, -INFINITY}, 0};
+            bins[a][k] =
+                (sah_bin){{INFINITY, INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY, -INFINITY}, 0};
     }
     for (int i = first; i < first + count; i++)
         for (int a = 0; a < 3; a++)
@@ -491,7 +492,8 @@ int bvh_build(scene *s)
      * that a scene in light years or in nanometres fits a float's range. */
     vec3 largest = v3_max(v3_max(s->bounds.lo, v3_neg(s->bounds.lo)), v3_max(s->bounds.hi, v3_neg(s->bounds.hi)));
     bvh->unit = power_of_two_below(v3_max_component(largest));
-    builder b = {.refs = malloc((size_t)n * sizeof(prim_ref)), .nodes = malloc((size_t)(2 * n - 1) * sizeof(build_node))};
+    builder b = {.refs = malloc((size_t)n * sizeof(prim_ref)),
+                 .nodes = malloc((size_t)(2 * n - 1) * sizeof(build_node))};
     int status = -1;
     if (b.refs && b.nodes) {
         build_binary_tree(s, &b, n);
@@ -654,14 +656,15 @@ static ALWAYS_INLINE wide_ray setup_wide_ray(const scene *s, vec3 origin, vec3 d
     double direction_unit = power_of_two_below(dx > dy ? (dx > dz ? dx : dz) : (dy > dz ? dy : dz));
     double inv_unit = 1.0 / s->bvh.unit, inv_direction_unit = 1.0 / direction_unit;
     double o[3] = {origin.x * inv_unit, origin.y * inv_unit, origin.z * inv_unit};
-    double d[3] = {direction.x * inv_direction_unit, direction.y * inv_direction_unit, direction.z * inv_direction_unit};
+    double d[3] = {direction.x * inv_direction_unit, direction.y * inv_direction_unit,
+                   direction.z * inv_direction_unit};
     double largest = s->bvh.largest_coordinate;
     for (int a = 0; a < 3; a++)
         largest = fabs(o[a]) > largest ? fabs(o[a]) : largest;
     double margin = 0x1p-18 * largest;
     wide_ray r = {.t_scale = direction_unit * inv_unit};
     for (int a = 0; a < 3; a++) {
-        double inv = 1.0 / d[a]; /* 1/0 = inf is what the slab test wants for an axis-parallel ray */
+        double inv = 1.0 / d[a];          /* 1/0 = inf is what the slab test wants for an axis-parallel ray */
         int negative = signbit(inv) != 0; /* arithmetic, not branches: the signs are coin flips */
         r.inv_dir[a] = (float)inv;
         r.near_origin[a] = (float)(o[a] + copysign(margin, inv));
@@ -796,7 +799,8 @@ static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, d
                 continue;
             }
         } else {
-            for (const leaf_primitive *p = prims + bvh_leaf_first(child), *end = p + bvh_leaf_count(child); p < end; p++) {
+            for (const leaf_primitive *p = prims + bvh_leaf_first(child), *end = p + bvh_leaf_count(child); p < end;
+                 p++) {
                 double t = primitive_hit(p, origin, direction, a, inv_a, nearest);
                 if (t < nearest) {
                     nearest = t;
