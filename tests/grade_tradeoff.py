@@ -49,6 +49,7 @@ import lib
 
 PYTHON = "/usr/bin/python3"
 SCRIPT = os.path.join(lib.ROOT, "tradeoff", "tradeoff.py")
+# The quick run's scenes: tradeoff.py's SCENES less NOT_QUICK (smallpt runs only in a full run or when SCENES names it).
 SCENES = ["cornell", "cornell-spheres", "gap", "sds"]
 FULL_SCENES = ["cornell", "cornell-spheres"]  # every chapter; on gap and sds only chapters 4 (MIS), 5 and 6
 BIDIR = ["light", "bdpt", "vcm"]

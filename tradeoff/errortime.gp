@@ -4,13 +4,22 @@
 #   names  (their titles, quoted words), styles (line style per curve, see below)
 #   t0, e0 (a point the N^-1/2 guide passes through), refrmse (the reference's own RMSE)
 #   tmin, tmax, emin, emax (axis ranges)
-#   optional: xcol (the data file's column of the x axis, default 1), xlabel (its label)
+#   optional: xcol (the data file's column of the x axis, default 1), xlabel (its label),
+#   note (a sentence printed under the title: why a method loses on this scene)
 if (!exists("xcol")) xcol = 1
 if (!exists("xlabel")) xlabel = 'time (s): prepare_s + render_s, median of repeats'
 if (term eq 'png') { set terminal pngcairo size 1000,900 font 'DejaVu Sans,11' noenhanced } \
 else { set terminal svg size 1000,900 font 'DejaVu Sans,11' noenhanced dynamic }
 set output out
 set title title
+# The note: wrapped at about 110 characters a line, under the title.
+if (exists("note")) { \
+  wrapped = ''; line = ''; \
+  do for [i=1:words(note)] { w = word(note, i); \
+    if (strlen(line) + strlen(w) > 110) { wrapped = wrapped . line . "\n"; line = w } \
+    else { line = (strlen(line) > 0) ? line . ' ' . w : w } }; \
+  wrapped = wrapped . line; \
+  set title title . "\n" . wrapped font ',10' }
 set logscale xy
 set xrange [tmin:tmax]
 set yrange [emin:emax]

@@ -5,13 +5,15 @@
 #                           solver, Whitted max depth / min weight, local light samples, photon
 #                           mapping over passes; chapter 6 (light tracing, BDPT, VCM over passes)
 #                           beside chapter 4's MIS and chapter 5 on cornell, cornell-spheres,
-#                           gap and sds (their references: chapter 6's BDPT on gap, VCM on sds,
-#                           2 x 512 passes), and the SDS caustic seen in the mirror
+#                           gap, sds and smallpt (their references: chapter 6's BDPT on gap, VCM on
+#                           sds, 2 x 512 passes; chapter 4's cosine estimator on smallpt), and the
+#                           SDS caustic seen in the mirror
 #                           (tradeoff/sds_convergence.py, about 12 CPU minutes; SDS_CONVERGENCE=0
-#                           skips it) (about 42 CPU minutes in all)
+#                           skips it) (about 42 CPU minutes in all,
+#                           and smallpt about 12 more: 4x its 64x64 run, not measured at 128x128)
 #                           -> out/tradeoff.csv, out/tradeoff.md, out/tradeoff-*.png/.svg
-#   make tradeoff QUICK=1   the whole pipeline on a tiny budget (32x32; 2 min 20 s at load 4)
-#                           -> out/quick/...
+#   make tradeoff QUICK=1   the whole pipeline on a tiny budget (32x32; 2 min 20 s at load 4;
+#                           without smallpt unless SCENES names it) -> out/quick/...
 # Overrides (environment or make variables): SIZE, REF_SPP, REF_PASSES, PT_MAX_SPP, REPEATS, CAP,
 # AA_SPP, OUT, REUSE_REF=1, SCENES=a,b, BIDIR_ONLY=1, REPORT_ONLY=1 (see tradeoff/tradeoff.py).
 

@@ -35,14 +35,19 @@ the pixels that see the floor within 80 mm of the glass ball's focus), with the
 reference's own MSE there, MSE(a - b) / 4 over the region, subtracted.
 
 Chapter 6 (when build/06_bidirectional exists): light tracing, BDPT and VCM over
-their passes on four scenes, beside chapter 4's MIS path tracer and chapter 5's
+their passes on five scenes, beside chapter 4's MIS path tracer and chapter 5's
 progressive photon map: cornell and cornell-spheres (the full sweeps above), and
-gap.scene (the light behind a 20 mm slit) and sds.scene (a caustic seen in a
-mirror), where only chapters 4, 5 and 6 run.  Their references are chapter 6's
-own long runs, as two halves the same way: BDPT on gap (unbiased; path tracing
+gap.scene (the light behind a 20 mm slit), sds.scene (a caustic seen in a
+mirror) and smallpt.scene (smallpt's own: a sphere light mostly buried in the
+ceiling, a mirror and a glass ball; not in QUICK unless SCENES names it), where
+only chapters 4, 5 and 6 run.  Their references, as two halves the same way:
+chapter 6's own long runs on gap and sds, BDPT on gap (unbiased; path tracing
 needs hours there) and VCM on sds (the only method that renders its L S .. D S .. E
 paths in minutes; consistent, as the merging radius shrinks with the passes,
-but its remaining bias is not in the halves' difference).  On sds, caustic_rmse
+but its remaining bias is not in the halves' difference); on smallpt chapter 4's
+cosine estimator, which never samples the light (REFERENCES says why).  Where a
+method loses for a reason of the scene's, SCENE_NOTES says it in one sentence,
+in the report and on the plot.  On sds, caustic_rmse
 is the RMSE over the caustic seen in the mirror (caustic_region.sds_mirror_regions,
 its "caustic"), and in a full run (not QUICK; SDS_CONVERGENCE=0 skips it)
 tradeoff/sds_convergence.py then measures that region properly (a reference
@@ -58,11 +63,11 @@ Outputs (OUT/): tradeoff.csv, tradeoff.md, tradeoff-<scene>.png/.svg (error
 against time, log-log; cornell and cornell-spheres), tradeoff-caustic-cornell-spheres.png/.svg (the caustic
 region's error against time: path tracing and photon mapping), tradeoff-radiosity-<scene>.png/.svg (error against
 iterations per patch size: the discretisation floor), tradeoff-bidirectional-<scene>.png/.svg (chapters 4, 5
-and 6 on each of the four scenes), sds/tradeoff-sds-region.png/.svg (sds_convergence.py), tradeoff/ (the
+and 6 on each of the five scenes), sds/tradeoff-sds-region.png/.svg (sds_convergence.py), tradeoff/ (the
 renders, their stats, the plot data, references.json, targets.json and targets.txt: the issue's targets as the
 lines `target <scene> <ratio> = ...` that the run prints last).
 
-SCENES=a,b,... runs only those of the four scenes (a partial run, for trying things out);
+SCENES=a,b,... runs only those of the five scenes (a partial run, for trying things out);
 BIDIR_ONLY=1 runs on every scene only what chapter 6's comparisons need (chapter 4's MIS, chapter 5,
 chapter 6); REPORT_ONLY=1 renders nothing: it reads OUT/tradeoff.csv and OUT/tradeoff/references.json
 of an earlier run and writes the report, targets.json and the plots again.
@@ -92,16 +97,37 @@ SDS_SCENE = "sds"
 # The scenes with a region whose error is measured apart (caustic_rmse).
 REGIONS = {CAUSTIC_SCENE: caustic_region, SDS_SCENE: lambda w, h: sds_mirror_regions(w, h)["caustic"]}
 
-SCENES = ["cornell", "cornell-spheres", "gap", "sds"]
+SCENES = ["cornell", "cornell-spheres", "gap", "sds", "smallpt"]
 # Every chapter's sweep runs on these; on the others only chapters 4 (MIS), 5 and 6.
 FULL_SCENES = ["cornell", "cornell-spheres"]
+# Left out of QUICK=1 unless SCENES names them: smallpt's reference (2 x 4096 spp of the cosine estimator, which
+# finds the 18-unit light cap only by hitting it) and its sweep would add about a minute to the quick run, and
+# its pipeline is that of gap and sds.
+NOT_QUICK = ["smallpt"]
 BIDIR_METHODS = ["light", "bdpt", "vcm"]
 # The reference of each scene: (chapter, its arguments, what it is); samples per pixel or passes per half
 # come from the config (ref_spp for chapter 4, ref_passes for chapter 6).
 PT_REFERENCE = ("04_pathtrace", ["--estimator", "mis", "--probe-samples", 32], "MIS path tracing (chapter 4)")
 REFERENCES = {"cornell": PT_REFERENCE, "cornell-spheres": PT_REFERENCE,
               "gap": ("06_bidirectional", ["--method", "bdpt"], "BDPT (chapter 6)"),
-              "sds": ("06_bidirectional", ["--method", "vcm"], "VCM (chapter 6)")}
+              "sds": ("06_bidirectional", ["--method", "vcm"], "VCM (chapter 6)"),
+              # smallpt: chapter 4's cosine estimator (BSDF sampling only), not MIS: the light is a sphere of
+              # radius 600 cut by the ceiling, and every method compared here (MIS's light samples, photon
+              # mapping's emission, light tracing, BDPT, VCM) samples it through the same new code, the cap of
+              # common/scene.c's emitter_caps() and its power; the cosine estimator only ever hits the light, so an
+              # error there shows as a disagreement instead of being built into the reference too (as in
+              # bench/bench_smallpt.py).  It costs variance: the cap is small, paths find it by chance.
+              "smallpt": ("04_pathtrace", ["--estimator", "cosine", "--probe-samples", 32],
+                          "cosine path tracing (chapter 4, BSDF sampling only)")}
+# Why a method loses on a scene, one sentence each, in the report's equal-time section and on the plot; {light}
+# and {pm} are filled with what loss_measures() measured on this run's longest light-tracing and photon-mapping
+# points (empty where it has none).
+SCENE_NOTES = {
+    "smallpt": "Light tracing loses: the mirror and glass balls are black to it, as a join to the camera cannot pass "
+               "a specular surface{light}. Photon mapping loses at equal time: each pass adds one eye sample per "
+               "pixel to a pass of photons, and the light's edge, seen directly and in the mirror ball, needs many "
+               "eye samples{pm}.",
+}
 ESTIMATORS = ["hemisphere", "cosine", "light", "mis"]
 SOLVERS = ["jacobi", "gauss-seidel", "shooting", "direct"]
 # Whitted's soft shadows: points per emitter per pixel sample (its default is
@@ -168,7 +194,8 @@ def config():
     unknown = [w for w in wanted if w not in SCENES]
     if unknown:
         sys.exit(f"tradeoff: SCENES: unknown {','.join(unknown)} (known: {','.join(SCENES)})")
-    c["scenes"] = [sc for sc in SCENES if sc in wanted] if wanted else list(SCENES)
+    c["scenes"] = [sc for sc in SCENES if sc in wanted] if wanted else \
+        [sc for sc in SCENES if not (quick and sc in NOT_QUICK)]
     c["bidir_only"] = os.environ.get("BIDIR_ONLY", "") not in ("", "0")
     return c
 
@@ -651,11 +678,72 @@ def report(c, rows, refs, plots, targets):
              "out (discretisation, indirect light, caustics). Cheap at coarse error, unable to go below it.\n"
              "- Photon mapping and VCM are biased by their radius, which shrinks with the passes (R12): their "
              "error falls more slowly than N^-1/2 but keeps falling. Light tracing alone misses what the camera "
-             "sees in a mirror or through glass: a floor on cornell-spheres and sds.\n"
+             "sees in a mirror or through glass: a floor on cornell-spheres, sds and smallpt.\n"
              "- Times include radiosity's form factors (prepare_s) and the pixel loop, on "
              f"{os.cpu_count()} cores.")
     with open(os.path.join(c["out"], "tradeoff.md"), "w") as f:
         f.write("\n".join(L) + "\n")
+
+
+# --- why a method loses ----------------------------------------------------------------------------
+
+def longest_point(rows, scene, curve):
+    pts = ok_rows(rows, scene, curve)
+    return max(pts, key=lambda r: r["order"]) if pts else None
+
+
+def per_pixel_squared_errors(test, reference):
+    return [sum((test[i + k] - reference[i + k]) ** 2 for k in range(3)) / 3.0 for i in range(0, len(reference), 3)]
+
+
+def loss_measures(c, rows, scene):
+    """What makes light tracing and photon mapping lose, measured on their longest points of this run (from the
+    renders left in OUT/tradeoff/<scene>/): light tracing's share of pixels it leaves black (reference above 0.01)
+    and their share of its MSE, its RMSE over the other pixels; photon mapping's share of rays that are photons
+    (its --stats) and the share of its MSE in its worst 1% of pixels.  {} for what is missing."""
+    d = os.path.join(c["out"], "tradeoff", scene)
+    m = {}
+    try:
+        ref = read_pfm(os.path.join(d, "reference.pfm"))[2]
+    except OSError:
+        return m
+    lt = longest_point(rows, scene, "bd-light")
+    path = lt and os.path.join(d, f"bd-light-{lt['setting'].split('=')[1]}.pfm")
+    if path and os.path.exists(path):
+        img = read_pfm(path)[2]
+        se = per_pixel_squared_errors(img, ref)
+        black = [p for p in range(len(se)) if not any(img[3 * p:3 * p + 3]) and sum(ref[3 * p:3 * p + 3]) > 0.03]
+        total, lost = sum(se), sum(se[p] for p in black)
+        if total > 0:
+            m["light"] = {"setting": lt["setting"], "black_pct": 100.0 * len(black) / len(se),
+                          "black_mse_pct": 100.0 * lost / total,
+                          "rmse_elsewhere": math.sqrt((total - lost) / max(len(se) - len(black), 1))}
+    pm = longest_point(rows, scene, "pm")
+    n = pm and pm["setting"].split("=")[1]
+    if pm and os.path.exists(os.path.join(d, f"pm-{n}.pfm")) and os.path.exists(os.path.join(d, f"pm-{n}.json")):
+        with open(os.path.join(d, f"pm-{n}.json")) as f:
+            st = json.load(f)
+        se = sorted(per_pixel_squared_errors(read_pfm(os.path.join(d, f"pm-{n}.pfm"))[2], ref), reverse=True)
+        rays = sum(st.get("counters", {}).get(k, 0) for k in ("camera_rays", "walk_rays", "shadow_rays"))
+        photons = st.get("photon_rays", 0)
+        if sum(se) > 0 and rays + photons > 0:
+            m["pm"] = {"setting": pm["setting"], "photon_pct": 100.0 * photons / (rays + photons),
+                       "top1_mse_pct": 100.0 * sum(se[:max(len(se) // 100, 1)]) / sum(se)}
+    return m
+
+
+def scene_note(c, rows, scene):
+    """SCENE_NOTES[scene] with this run's measurements filled in (None if the scene has no note)."""
+    if scene not in SCENE_NOTES:
+        return None
+    m = loss_measures(c, rows, scene)
+    lt, pm = m.get("light"), m.get("pm")
+    return SCENE_NOTES[scene].format(
+        light=(f": at {lt['setting']} the {lt['black_pct']:.1f}% of pixels it leaves black carry "
+               f"{lt['black_mse_pct']:.0f}% of its MSE, and its RMSE elsewhere is {lt['rmse_elsewhere']:.3g}"
+               if lt else ""),
+        pm=(f": at {pm['setting']} {pm['photon_pct']:.0f}% of its rays are photons, and its worst 1% of pixels "
+            f"carry {pm['top1_mse_pct']:.0f}% of its MSE" if pm else ""))
 
 
 # --- chapter 6 at equal time ------------------------------------------------------------------------
@@ -785,6 +873,9 @@ def bidirectional_report(c, rows, refs, targets):
                 text += (f" Over the SDS region: {chk['pt']:.5g} against {chk['reference']:.5g}, "
                          f"{chk['z']:+.1f} standard errors (path tracing finds those paths only by hitting the "
                          f"light: rare and large samples, so its mean there is low until it has found enough).")
+        note = scene_note(c, rows, scene)
+        if note:
+            text += " " + note
         L.append(text)
         for clock, name in CLOCKS.items():
             L.append(f"\n{name}:\n")
@@ -1087,6 +1178,7 @@ def bidirectional_plot(c, rows, refs, data, scene):
                      f"(reference: {ref['method']}, {ref['spp']} spp)",
             "files": " ".join(data[(scene, cv)] for cv in curves), "names": quoted(CURVE_TITLE[cv] for cv in curves),
             "styles": " ".join(str(CURVES.index(cv) + 1) for cv in curves), "xcol": 5, "xlabel": CPU_AXIS,
+            **({"note": scene_note(c, rows, scene)} if scene in SCENE_NOTES else {}),
             "t0": anchor["cpu_s"], "e0": anchor["rmse"], "refrmse": ref["rmse"],
             "tmin": min(r["cpu_s"] for r in pts) / 2, "tmax": max(r["cpu_s"] for r in pts) * 2,
             "emin": min(min(r["rmse"] for r in pts), ref["rmse"]) / 2, "emax": max(r["rmse"] for r in pts) * 2})
