@@ -17,8 +17,8 @@
  *     1 thread and all threads (OpenMP, static schedule: one contiguous chunk
  *     of rays per thread), interleaved in repeats (their order alternates), and
  *     the ratio ours / Embree of each repeat: min / median / max;
- *   - the build: our bvh_build() against Embree's rtcCommitScene, 1 thread and
- *     all threads (ours is serial), and the memory of each acceleration
+ *   - the build: our bvh_build() against Embree's rtcCommitScene, each at 1
+ *     thread and at all threads, and the memory of each acceleration
  *     structure per primitive: ours from the arrays of scene.bvh (counts times
  *     sizeof, and the heap's growth across the build), Embree's from its
  *     memory monitor (bytes it holds after the commit, and its peak).
