@@ -52,7 +52,7 @@ typedef struct {
     double area;        /* total surface area; an emitting sphere's: that of its cap (below) */
     /* An emitting sphere cut by an opaque sphere emits toward the camera only
      * from the cap { centre + radius * n : n . cap_axis >= cap_cos } (scene.c:
-     * emitter_caps); the samplers and the emitter's power count that cap only.
+     * emitter_cap); the samplers and the emitter's power count that cap only.
      * cap_cos = -1: the whole sphere. */
     vec3 cap_axis;
     double cap_cos;
@@ -207,7 +207,7 @@ double intersect_sphere(vec3 center, double radius, ray r);
 void surface_sample_point(const scene *s, int surface_index, double u1, double u2, double u3, vec3 *point,
                           vec3 *normal);
 
-/* A sphere sampled whole (not cut to a cap by emitter_caps). */
+/* A sphere sampled whole (not cut to a cap by emitter_cap). */
 static inline bool surface_is_whole_sphere(const surface *f)
 {
     return f->kind == SURFACE_SPHERE && !(f->cap_cos > -1.0);

@@ -114,7 +114,7 @@ REFERENCES = {"cornell": PT_REFERENCE, "cornell-spheres": PT_REFERENCE,
               # smallpt: chapter 4's cosine estimator (BSDF sampling only), not MIS: the light is a sphere of
               # radius 600 cut by the ceiling, and every method compared here (MIS's light samples, photon
               # mapping's emission, light tracing, BDPT, VCM) samples it through the same new code, the cap of
-              # common/scene.c's emitter_caps() and its power; the cosine estimator only ever hits the light, so an
+              # common/scene.c's emitter_cap() and its power; the cosine estimator only ever hits the light, so an
               # error there shows as a disagreement instead of being built into the reference too (as in
               # bench/bench_smallpt.py).  It costs variance: the cap is small, paths find it by chance.
               "smallpt": ("04_pathtrace", ["--estimator", "cosine", "--probe-samples", 32],
