@@ -19,8 +19,8 @@
  *     the ratio ours / Embree of each repeat: min / median / max;
  *   - the build: our bvh_build() against Embree's rtcCommitScene, each at 1
  *     thread and at all threads, and the memory of each acceleration
- *     structure per primitive: ours from the arrays of scene.bvh (counts times
- *     sizeof, and the heap's growth across the build), Embree's from its
+ *     structure per primitive: ours from bvh_memory_bytes (the arrays of
+ *     scene.bvh, and the heap's growth across the build), Embree's from its
  *     memory monitor (bytes it holds after the commit, and its peak).
  *
  * How the scene is given to Embree: the triangles as one triangle geometry
