@@ -110,6 +110,7 @@ typedef struct {
     int primitive_count;             /* triangles + spheres */
     double unit;                     /* a power of two: the boxes hold coordinates / unit (any scene fits a float) */
     double largest_coordinate;       /* largest |coordinate| of the root box, in units: sets the box tests' margin */
+    int linear;                      /* 1: every primitive tested, the tree unused: cheaper in some small scenes */
 } scene_bvh;
 
 typedef struct scene {

@@ -486,6 +486,47 @@ static vec3 random_direction(rng *g)
     return d;
 }
 
+/* A scene where the tree only adds work (smallpt's: nine spheres, six of
+ * them walls whose boxes hold the room) is searched by testing every
+ * primitive (bvh.linear); the Cornell box by the tree.  Both ways give the
+ * same hits, to the last bit: forced the other way, they agree. */
+static void test_linear_search_of_small_scenes(void)
+{
+    const char *paths[] = {"scenes/smallpt.scene", "scenes/cornell.scene"};
+    for (int k = 0; k < 2; k++) {
+        scene s;
+        char err[512] = "";
+        int status = scene_load(paths[k], &s, err, sizeof err);
+        CHECK(status == 0, "%s: %.300s", paths[k], err);
+        if (status)
+            continue;
+        CHECK(s.bvh.linear == (k == 0), "%s: linear %d", paths[k], s.bvh.linear);
+        rng g = rng_for(17, (uint64_t)k, 0);
+        int mismatches = 0, hits = 0;
+        for (int i = 0; i < 20000; i++) {
+            vec3 lo = s.bounds.lo, size = v3_sub(s.bounds.hi, s.bounds.lo);
+            if (k == 0)
+                lo = v3(1, 0, 0), size = v3(98, 81.6, 170); /* the room, not the walls' spheres */
+            vec3 o =
+                v3(lo.x + size.x * rng_uniform(&g), lo.y + size.y * rng_uniform(&g), lo.z + size.z * rng_uniform(&g));
+            vec3 d = random_direction(&g), end = v3_madd(o, d, 50 * rng_uniform(&g));
+            hit a, b;
+            int linear = s.bvh.linear;
+            int found_a = scene_intersect(&s, (ray){o, d}, INFINITY, &a), blocked_a = scene_occluded(&s, o, end);
+            s.bvh.linear = !linear;
+            int found_b = scene_intersect(&s, (ray){o, d}, INFINITY, &b), blocked_b = scene_occluded(&s, o, end);
+            s.bvh.linear = linear;
+            hits += found_a;
+            if (found_a != found_b || blocked_a != blocked_b || (found_a && (a.t != b.t || a.primitive != b.primitive)))
+                mismatches++;
+        }
+        CHECK(mismatches == 0, "%s: %d of 20000 rays differ between the tree and testing every primitive", paths[k],
+              mismatches);
+        CHECK(hits > 10000, "%s: only %d hits", paths[k], hits);
+        scene_free(&s);
+    }
+}
+
 static void test_bvh_matches_brute_force(void)
 {
     char *text = random_scene_text();
@@ -772,6 +813,7 @@ int main(void)
     RUN_TEST(test_bad_corpus);
     RUN_TEST(test_error_messages);
     RUN_TEST(test_bvh_matches_brute_force);
+    RUN_TEST(test_linear_search_of_small_scenes);
     RUN_TEST(test_occlusion_between_surfaces);
     RUN_TEST(test_surface_sampling);
     RUN_TEST(test_mesh_sampling_by_area);
