@@ -5,12 +5,14 @@
  * public queries (scene_intersect, scene_intersect_brute_force,
  * scene_occluded).
  */
+#define _DEFAULT_SOURCE /* madvise's MADV_HUGEPAGE (Linux), for the build's large arrays */
 #include "bvh.h"
 
 #include <float.h>
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 
 #ifdef __SSE__
 #include <xmmintrin.h> /* four-wide float SIMD for the box tests */
@@ -435,8 +437,17 @@ static leaf_primitive make_leaf_primitive(const scene *s, int primitive)
  * wants a multiple of the alignment). */
 static void *aligned_array(size_t count, size_t size)
 {
+    enum { HUGE_PAGE = 1 << 21 };
     size_t bytes = (count * size + BVH_ALIGNMENT - 1) / BVH_ALIGNMENT * BVH_ALIGNMENT;
-    return aligned_alloc(BVH_ALIGNMENT, bytes);
+    if (bytes < 2 * HUGE_PAGE)
+        return aligned_alloc(BVH_ALIGNMENT, bytes);
+    bytes = (bytes + HUGE_PAGE - 1) / HUGE_PAGE * HUGE_PAGE;
+    void *p = aligned_alloc(HUGE_PAGE, bytes);
+#ifdef MADV_HUGEPAGE
+    if (p)
+        madvise(p, bytes, MADV_HUGEPAGE);
+#endif
+    return p;
 }
 
 /* The binary tree over n primitives: b->nodes (2 n - 1 of them, indexed as
@@ -492,8 +503,8 @@ int bvh_build(scene *s)
      * that a scene in light years or in nanometres fits a float's range. */
     vec3 largest = v3_max(v3_max(s->bounds.lo, v3_neg(s->bounds.lo)), v3_max(s->bounds.hi, v3_neg(s->bounds.hi)));
     bvh->unit = power_of_two_below(v3_max_component(largest));
-    builder b = {.refs = malloc((size_t)n * sizeof(prim_ref)),
-                 .nodes = malloc((size_t)(2 * n - 1) * sizeof(build_node))};
+    builder b = {.refs = aligned_array((size_t)n, sizeof(prim_ref)),
+                 .nodes = aligned_array((size_t)(2 * n - 1), sizeof(build_node))};
     int status = -1;
     if (b.refs && b.nodes) {
         build_binary_tree(s, &b, n);
