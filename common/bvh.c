@@ -79,13 +79,6 @@ typedef struct {
 } box3f;
 
 static box3f box3f_empty(void) { return (box3f){{INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY}}; }
-static void box3f_grow(box3f *b, const float lo[3], const float hi[3])
-{
-    for (int a = 0; a < 3; a++) {
-        b->lo[a] = lo[a] < b->lo[a] ? lo[a] : b->lo[a];
-        b->hi[a] = hi[a] > b->hi[a] ? hi[a] : b->hi[a];
-    }
-}
 static double box3f_half_area(const box3f *b)
 {
     double dx = b->hi[0] - b->lo[0], dy = b->hi[1] - b->lo[1], dz = b->hi[2] - b->lo[2];
@@ -160,6 +153,10 @@ typedef struct {
     build_node *nodes;
 } builder;
 
+#ifdef __SSE2__
+#include <emmintrin.h> /* four-wide float to int, for the bin indices */
+#endif
+
 /* Which of `bins` bins along an axis a reference falls into. */
 static int bin_of(const prim_ref *r, int axis, float lo, float scale, int bins)
 {
@@ -167,48 +164,122 @@ static int bin_of(const prim_ref *r, int axis, float lo, float scale, int bins)
     return bin < 0 ? 0 : bin >= bins ? bins - 1 : bin;
 }
 
-/* A bin: the box of the references in it (four floats a corner, the
- * fourth unused, so SSE grows it in two instructions) and their number. */
+/* A box four floats a corner, the fourth unused, so SSE grows it in two
+ * instructions: a bin's box, or the box of centroids. */
 typedef struct {
-    float lo[4], hi[4];
-    int count;
-} sah_bin;
+    _Alignas(16) float lo[4];
+    float hi[4];
+} box4;
 
-static inline void bin_add(sah_bin *bin, const prim_ref *r)
+static box4 box4_empty(void)
 {
-    bin->count++;
+    return (box4){{INFINITY, INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY, -INFINITY}};
+}
+
+/* Grows b by the box lo, hi (four floats each, the fourth ignored). */
+static inline void box4_grow(box4 *b, const float *lo, const float *hi)
+{
 #ifdef __SSE__
-    /* Reads r->lo and r->hi four floats wide: the fourth lane is the
-     * primitive index or padding, and bin's fourth lane is never used. */
-    _mm_storeu_ps(bin->lo, _mm_min_ps(_mm_loadu_ps(r->lo), _mm_loadu_ps(bin->lo)));
-    _mm_storeu_ps(bin->hi, _mm_max_ps(_mm_loadu_ps(r->hi), _mm_loadu_ps(bin->hi)));
+    _mm_store_ps(b->lo, _mm_min_ps(_mm_loadu_ps(lo), _mm_load_ps(b->lo)));
+    _mm_store_ps(b->hi, _mm_max_ps(_mm_loadu_ps(hi), _mm_load_ps(b->hi)));
 #else
     for (int a = 0; a < 3; a++) {
-        bin->lo[a] = r->lo[a] < bin->lo[a] ? r->lo[a] : bin->lo[a];
-        bin->hi[a] = r->hi[a] > bin->hi[a] ? r->hi[a] : bin->hi[a];
+        b->lo[a] = lo[a] < b->lo[a] ? lo[a] : b->lo[a];
+        b->hi[a] = hi[a] > b->hi[a] ? hi[a] : b->hi[a];
     }
 #endif
 }
 
-/* The box of references [first, first + count), and the box of their
- * centroids (times two: lo + hi, the same in bin_of and the partition). */
-static void bounds_of_refs(const prim_ref *refs, int first, int count, box3f *box, box3f *centroids)
+/* Grows b by r's centroid times two (lo + hi, as bin_of reads it). */
+static inline void box4_grow_centroid(box4 *b, const prim_ref *r)
 {
-    sah_bin all = {{INFINITY, INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY, -INFINITY}, 0};
-    sah_bin centres = all;
+#ifdef __SSE2__
+    /* The fourth lanes hold the primitive index: masked off before adding
+     * (an integer read as a float is a subnormal, slow in arithmetic). */
+    const __m128 xyz = _mm_castsi128_ps(_mm_set_epi32(0, -1, -1, -1));
+    __m128 c = _mm_add_ps(_mm_and_ps(_mm_load_ps(r->lo), xyz), _mm_and_ps(_mm_load_ps(r->hi), xyz));
+    _mm_store_ps(b->lo, _mm_min_ps(c, _mm_load_ps(b->lo)));
+    _mm_store_ps(b->hi, _mm_max_ps(c, _mm_load_ps(b->hi)));
+#else
+    float c[4] = {r->lo[0] + r->hi[0], r->lo[1] + r->hi[1], r->lo[2] + r->hi[2], 0.0f};
+    box4_grow(b, c, c);
+#endif
+}
+
+static box3f box3f_of(const box4 *b) { return (box3f){{b->lo[0], b->lo[1], b->lo[2]}, {b->hi[0], b->hi[1], b->hi[2]}}; }
+
+/* A node's box and the box of its references' centroids (times two). */
+typedef struct {
+    box3f box, centroids;
+} node_bounds;
+
+/* The bounds of references [first, first + count). */
+static node_bounds bounds_of_refs(const prim_ref *refs, int first, int count)
+{
+    box4 all = box4_empty(), centres = box4_empty();
     for (int i = first; i < first + count; i++) {
-        bin_add(&all, &refs[i]);
-        prim_ref c = refs[i];
-        for (int a = 0; a < 3; a++)
-            c.lo[a] = c.hi[a] = refs[i].lo[a] + refs[i].hi[a];
-        bin_add(&centres, &c);
+        box4_grow(&all, refs[i].lo, refs[i].hi);
+        box4_grow_centroid(&centres, &refs[i]);
     }
+    return (node_bounds){box3f_of(&all), box3f_of(&centres)};
+}
+
+/* The bins of a node along the three axes: bin k of axis a takes the
+ * references whose bin_of(a) is k.  `lo`, `scale` and `last` (bins - 1)
+ * per axis, four wide for bin_all_axes. */
+typedef struct {
+    _Alignas(16) float lo[4];
+    float scale[4], last[4];
+    int bins;
+    box4 box[3][BVH_BINS];
+    int count[3][BVH_BINS];
+} sah_bins;
+
+/* The bins of reference r along all three axes at once: bin_of's
+ * arithmetic four wide (lane 3 unused), clamped before the conversion. */
+static inline void bin_all_axes(const sah_bins *g, const prim_ref *r, int k[4])
+{
+#ifdef __SSE2__
+    const __m128 xyz = _mm_castsi128_ps(_mm_set_epi32(0, -1, -1, -1));
+    __m128 c = _mm_add_ps(_mm_and_ps(_mm_load_ps(r->lo), xyz), _mm_and_ps(_mm_load_ps(r->hi), xyz));
+    __m128 x = _mm_mul_ps(_mm_sub_ps(c, _mm_load_ps(g->lo)), _mm_load_ps(g->scale));
+    x = _mm_min_ps(_mm_max_ps(x, _mm_setzero_ps()), _mm_load_ps(g->last));
+    _mm_storeu_si128((__m128i *)k, _mm_cvttps_epi32(x));
+#else
+    for (int a = 0; a < 3; a++)
+        k[a] = bin_of(r, a, g->lo[a], g->scale[a], g->bins);
+#endif
+}
+
+/* Sets up and fills the bins of references [first, first + count), read once. */
+static void fill_bins(sah_bins *g, const prim_ref *refs, int first, int count, const box3f *centroids)
+{
+    g->bins = count < BVH_BINS ? count : BVH_BINS;
     for (int a = 0; a < 3; a++) {
-        box->lo[a] = all.lo[a];
-        box->hi[a] = all.hi[a];
-        centroids->lo[a] = centres.lo[a];
-        centroids->hi[a] = centres.hi[a];
+        float width = centroids->hi[a] - centroids->lo[a];
+        g->lo[a] = centroids->lo[a];
+        g->scale[a] = width > 0.0f ? (float)g->bins * (1.0f - 1e-6f) / width : 0.0f;
+        g->last[a] = (float)(g->bins - 1);
+        for (int k = 0; k < g->bins; k++) {
+            g->box[a][k] = box4_empty();
+            g->count[a][k] = 0;
+        }
     }
+    g->lo[3] = g->scale[3] = g->last[3] = 0.0f;
+    for (int i = first; i < first + count; i++) {
+        int k[4];
+        bin_all_axes(g, &refs[i], k);
+        for (int a = 0; a < 3; a++) {
+            g->count[a][k[a]]++;
+            box4_grow(&g->box[a][k[a]], refs[i].lo, refs[i].hi);
+        }
+    }
+}
+
+static double box4_half_area(const box4 *b)
+{
+    double dx = b->hi[0] - b->lo[0], dy = b->hi[1] - b->lo[1], dz = b->hi[2] - b->lo[2];
+    return dx * dy + dy * dz + dz * dx;
 }
 
 typedef struct {
@@ -225,114 +296,131 @@ typedef struct {
 static const double SAH_TRAVERSAL_COST = 1.0, SAH_PRIMITIVE_COST = 1.0;
 
 /* Along one axis whose bins are filled: the cheapest split, if cheaper than `best`. */
-static void sweep_bins(const sah_bin bins[BVH_BINS], int bin_count, int axis, float lo, float scale, sah_split *best)
+static void sweep_bins(const sah_bins *g, int axis, sah_split *best)
 {
     double left_cost[BVH_BINS];
     int left_count[BVH_BINS];
-    box3f box = box3f_empty();
+    box4 box = box4_empty();
     int n = 0;
-    for (int k = 0; k < bin_count - 1; k++) {
-        box3f_grow(&box, bins[k].lo, bins[k].hi);
-        n += bins[k].count;
+    for (int k = 0; k < g->bins - 1; k++) {
+        box4_grow(&box, g->box[axis][k].lo, g->box[axis][k].hi);
+        n += g->count[axis][k];
         left_count[k] = n;
-        left_cost[k] = n ? box3f_half_area(&box) * n : 0.0;
+        left_cost[k] = n ? box4_half_area(&box) * n : 0.0;
     }
-    box = box3f_empty();
+    box = box4_empty();
     n = 0;
-    for (int k = bin_count - 1; k > 0; k--) {
-        box3f_grow(&box, bins[k].lo, bins[k].hi);
-        n += bins[k].count;
-        double cost = left_cost[k - 1] + box3f_half_area(&box) * n;
+    for (int k = g->bins - 1; k > 0; k--) {
+        box4_grow(&box, g->box[axis][k].lo, g->box[axis][k].hi);
+        n += g->count[axis][k];
+        double cost = left_cost[k - 1] + box4_half_area(&box) * n;
         if (n > 0 && left_count[k - 1] > 0 && cost < best->cost)
-            *best = (sah_split){.axis = axis, .bin = k, .bins = bin_count, .cost = cost, .lo = lo, .scale = scale};
+            *best = (sah_split){
+                .axis = axis, .bin = k, .bins = g->bins, .cost = cost, .lo = g->lo[axis], .scale = g->scale[axis]};
     }
 }
 
 /* Bins references [first, first + count) along all three axes in one pass
- * (the references are read once) and returns the cheapest split.  All three
- * axes are tried: the longest one is not always the best (a room's walls are
- * as long in every direction).  A node of fewer references than BVH_BINS
- * gets as many bins as references: the bins' fixed cost (clearing and
- * sweeping them) would otherwise dominate the build's small nodes. */
-static sah_split best_binned_split(const prim_ref *refs, int first, int count, const box3f *centroids)
+ * (the references are read once) and returns the cheapest split, and in
+ * boxes[0], boxes[1] the boxes of its two sides (the unions of their bins).
+ * All three axes are tried: the longest one is not always the best (a
+ * room's walls are as long in every direction).  A node of fewer references
+ * than BVH_BINS gets as many bins as references: the bins' fixed cost
+ * (clearing and sweeping them) would otherwise dominate the small nodes. */
+static sah_split best_binned_split(const prim_ref *refs, int first, int count, const box3f *centroids, box3f boxes[2])
 {
-    sah_bin bins[3][BVH_BINS];
-    int bin_count = count < BVH_BINS ? count : BVH_BINS;
-    float lo[3], scale[3];
-    for (int a = 0; a < 3; a++) {
-        float width = centroids->hi[a] - centroids->lo[a];
-        lo[a] = centroids->lo[a];
-        scale[a] = width > 0.0f ? (float)bin_count * (1.0f - 1e-6f) / width : 0.0f;
-        for (int k = 0; k < bin_count; k++)
-            bins[a][k] =
-                (sah_bin){{INFINITY, INFINITY, INFINITY, INFINITY}, {-INFINITY, -INFINITY, -INFINITY, -INFINITY}, 0};
-    }
-    for (int i = first; i < first + count; i++)
-        for (int a = 0; a < 3; a++)
-            bin_add(&bins[a][bin_of(&refs[i], a, lo[a], scale[a], bin_count)], &refs[i]);
+    sah_bins g;
+    fill_bins(&g, refs, first, count, centroids);
     sah_split best = {.axis = -1, .cost = INFINITY};
     for (int a = 0; a < 3; a++)
-        if (scale[a] > 0.0f) /* else all centroids lie in one plane across this axis */
-            sweep_bins(bins[a], bin_count, a, lo[a], scale[a], &best);
+        if (g.scale[a] > 0.0f) /* else all centroids lie in one plane across this axis */
+            sweep_bins(&g, a, &best);
+    if (best.axis < 0)
+        return best;
+    box4 side[2] = {box4_empty(), box4_empty()};
+    for (int k = 0; k < g.bins; k++)
+        box4_grow(&side[k >= best.bin], g.box[best.axis][k].lo, g.box[best.axis][k].hi);
+    boxes[0] = box3f_of(&side[0]);
+    boxes[1] = box3f_of(&side[1]);
     return best;
 }
 
-/* Moves the references of bins < split.bin to the front; returns how many. */
-static int partition_refs(prim_ref *refs, int first, int count, sah_split split)
+/* Moves the references of bins < split.bin to the front; returns how many,
+ * and the centroid bounds of each side in centroids[0], centroids[1]. */
+static int partition_refs(prim_ref *refs, int first, int count, sah_split split, box3f centroids[2])
 {
+    box4 side[2] = {box4_empty(), box4_empty()};
     int i = first, j = first + count - 1;
     while (i <= j) {
         if (bin_of(&refs[i], split.axis, split.lo, split.scale, split.bins) < split.bin) {
-            i++;
+            box4_grow_centroid(&side[0], &refs[i++]);
         } else {
+            box4_grow_centroid(&side[1], &refs[i]);
             prim_ref tmp = refs[i];
             refs[i] = refs[j];
             refs[j--] = tmp;
         }
     }
+    centroids[0] = box3f_of(&side[0]);
+    centroids[1] = box3f_of(&side[1]);
     return i - first;
 }
 
-/* Where to split references [first, first + count): the number that go
- * left (0 < result < count) after reordering them, or 0 when a leaf is
- * cheaper than any split (offered only if count <= BVH_LEAF_SIZE). */
-static int choose_split(prim_ref *refs, int first, int count, const box3f *box, const box3f *centroids, int depth)
+/* Where to split references [first, first + count) of bounds *bounds: the
+ * number that go left (0 < result < count) after reordering them, with the
+ * bounds of both sides in child[0], child[1], or 0 when a leaf is cheaper
+ * than any split (offered only if count <= BVH_LEAF_SIZE). */
+static int choose_split(prim_ref *refs, int first, int count, const node_bounds *bounds, int depth,
+                        node_bounds child[2])
 {
-    int middle = count <= BVH_LEAF_SIZE ? 0 : count / 2; /* a pathological list: halve it */
-    if (depth >= BVH_SAH_MAX_DEPTH)
-        return middle;
-    sah_split best = best_binned_split(refs, first, count, centroids);
-    if (best.axis < 0)
-        return middle;
-    /* Leaf or split?  Both in units of one primitive test per unit area. */
-    double split_cost = SAH_TRAVERSAL_COST + SAH_PRIMITIVE_COST * best.cost / box3f_half_area(box);
-    if (count <= BVH_LEAF_SIZE && !(split_cost < SAH_PRIMITIVE_COST * count))
-        return 0;
-    int left = partition_refs(refs, first, count, best);
-    return left > 0 && left < count ? left : count / 2;
+    int left = count <= BVH_LEAF_SIZE ? 0 : count / 2; /* a pathological list: halve it */
+    if (depth < BVH_SAH_MAX_DEPTH) {
+        box3f boxes[2], centroids[2];
+        sah_split best = best_binned_split(refs, first, count, &bounds->centroids, boxes);
+        if (best.axis >= 0) {
+            /* Leaf or split?  Both in units of one primitive test per unit area. */
+            double split_cost = SAH_TRAVERSAL_COST + SAH_PRIMITIVE_COST * best.cost / box3f_half_area(&bounds->box);
+            if (count <= BVH_LEAF_SIZE && !(split_cost < SAH_PRIMITIVE_COST * count))
+                return 0;
+            int cut = partition_refs(refs, first, count, best, centroids);
+            if (cut > 0 && cut < count) {
+                child[0] = (node_bounds){boxes[0], centroids[0]};
+                child[1] = (node_bounds){boxes[1], centroids[1]};
+                return cut;
+            }
+            left = count / 2;
+        }
+    }
+    if (left > 0) {
+        child[0] = bounds_of_refs(refs, first, left);
+        child[1] = bounds_of_refs(refs, first + left, count - left);
+    }
+    return left;
 }
 
-/* Builds node `index` over references [first, first + count) and its subtree. */
-static void build_subtree(builder *b, int index, int first, int count, int depth)
+/* Builds node `index` over references [first, first + count), of bounds
+ * `bounds`, and its subtree. */
+static void build_subtree(builder *b, int index, int first, int count, int depth, node_bounds bounds)
 {
     build_node *node = &b->nodes[index];
-    box3f centroids;
-    bounds_of_refs(b->refs, first, count, &node->box, &centroids);
+    node->box = bounds.box;
     node->first = first;
     node->count = count;
     node->left = node->right = -1;
-    int left = count > 1 ? choose_split(b->refs, first, count, &node->box, &centroids, depth) : 0;
+    node_bounds child[2];
+    int left = count > 1 ? choose_split(b->refs, first, count, &bounds, depth, child) : 0;
     if (left == 0)
         return;
     node->left = index + 1;
     node->right = index + 2 * left;
     if (left >= BVH_TASK_MIN) {
-#pragma omp task default(none) firstprivate(b, index, first, left, depth)
-        build_subtree(b, index + 1, first, left, depth + 1);
+        node_bounds left_bounds = child[0];
+#pragma omp task default(none) firstprivate(b, index, first, left, depth, left_bounds)
+        build_subtree(b, index + 1, first, left, depth + 1, left_bounds);
     } else {
-        build_subtree(b, index + 1, first, left, depth + 1);
+        build_subtree(b, index + 1, first, left, depth + 1, child[0]);
     }
-    build_subtree(b, index + 2 * left, first + left, count - left, depth + 1);
+    build_subtree(b, index + 2 * left, first + left, count - left, depth + 1, child[1]);
 }
 
 /* ------------------------------------------------------------------------ */
@@ -459,7 +547,7 @@ static void build_binary_tree(const scene *s, builder *b, int n)
         b->refs[i] = make_prim_ref(s, i, 1.0 / s->bvh.unit);
 #pragma omp parallel if (n >= BVH_TASK_MIN)
 #pragma omp single
-    build_subtree(b, 0, 0, n, 0);
+    build_subtree(b, 0, 0, n, 0, bounds_of_refs(b->refs, 0, n));
 }
 
 /* The arrays traversal reads, from the binary tree. */
