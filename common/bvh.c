@@ -89,13 +89,13 @@ static double box3f_half_area(const box3f *b)
  * floats near zero) further. */
 static float round_down(double x)
 {
-    float f = (float)x;
-    return (double)f > x ? f - (fabsf(f) * 0x1p-23f + FLT_MIN) : f;
+    float f = (float)x, step = fabsf(f) * 0x1p-23f + FLT_MIN;
+    return f - ((double)f > x ? step : 0.0f); /* no branch: the comparison is a coin flip */
 }
 static float round_up(double x)
 {
-    float f = (float)x;
-    return (double)f < x ? f + (fabsf(f) * 0x1p-23f + FLT_MIN) : f;
+    float f = (float)x, step = fabsf(f) * 0x1p-23f + FLT_MIN;
+    return f + ((double)f < x ? step : 0.0f);
 }
 
 /* What the build moves around: 32 bytes a primitive, so partitioning a
@@ -126,12 +126,26 @@ static inline double power_of_two_below(double x)
  * rounding, which therefore covers it. */
 static prim_ref make_prim_ref(const scene *s, int primitive, double inv_unit)
 {
-    aabb b = primitive_bounds(s, primitive);
-    double margin = primitive < s->triangle_count ? EDGE_MARGIN * s->epsilon : 0.0;
     prim_ref r = {.primitive = primitive};
+    if (primitive >= s->triangle_count) {
+        aabb b = primitive_bounds(s, primitive);
+        for (int a = 0; a < 3; a++) {
+            r.lo[a] = round_down(v3_get(b.lo, a) * inv_unit);
+            r.hi[a] = round_up(v3_get(b.hi, a) * inv_unit);
+        }
+        return r;
+    }
+    /* A triangle: primitive_bounds' box, with the comparisons inline (fmin
+     * and fmax are calls, for their NaN rules; no coordinate is NaN). */
+    const triangle *t = &s->triangles[primitive];
+    double margin = EDGE_MARGIN * s->epsilon;
     for (int a = 0; a < 3; a++) {
-        r.lo[a] = round_down((v3_get(b.lo, a) - margin) * inv_unit);
-        r.hi[a] = round_up((v3_get(b.hi, a) + margin) * inv_unit);
+        double p0 = v3_get(t->p0, a), p1 = p0 + v3_get(t->e1, a), p2 = p0 + v3_get(t->e2, a);
+        double lo = p1 < p0 ? p1 : p0, hi = p1 > p0 ? p1 : p0;
+        lo = p2 < lo ? p2 : lo;
+        hi = p2 > hi ? p2 : hi;
+        r.lo[a] = round_down((lo - margin) * inv_unit);
+        r.hi[a] = round_up((hi + margin) * inv_unit);
     }
     return r;
 }
@@ -276,10 +290,20 @@ static void fill_bins(sah_bins *g, const prim_ref *refs, int first, int count, c
     }
 }
 
-static double box4_half_area(const box4 *b)
+/* box3f_half_area's arithmetic, two doubles at a time where SSE2 has them. */
+static inline double box4_half_area(const box4 *b)
 {
+#ifdef __SSE2__
+    __m128 lo = _mm_load_ps(b->lo), hi = _mm_load_ps(b->hi);
+    __m128d dxy = _mm_sub_pd(_mm_cvtps_pd(hi), _mm_cvtps_pd(lo));
+    __m128d dz = _mm_sub_sd(_mm_cvtps_pd(_mm_movehl_ps(hi, hi)), _mm_cvtps_pd(_mm_movehl_ps(lo, lo)));
+    __m128d products = _mm_mul_pd(dxy, _mm_shuffle_pd(dxy, dz, 1)); /* dx dy, dy dz */
+    return _mm_cvtsd_f64(products) + _mm_cvtsd_f64(_mm_unpackhi_pd(products, products)) +
+           _mm_cvtsd_f64(_mm_mul_sd(dz, dxy));
+#else
     double dx = b->hi[0] - b->lo[0], dy = b->hi[1] - b->lo[1], dz = b->hi[2] - b->lo[2];
     return dx * dy + dy * dz + dz * dx;
+#endif
 }
 
 typedef struct {
