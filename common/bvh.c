@@ -319,28 +319,37 @@ typedef struct {
  * costs a test of every primitive in it (MacDonald and Booth 1990). */
 static const double SAH_TRAVERSAL_COST = 1.0, SAH_PRIMITIVE_COST = 1.0;
 
-/* Along one axis whose bins are filled: the cheapest split, if cheaper than `best`. */
+/* Along one axis whose bins are filled: the cheapest split, if cheaper than
+ * `best`.  Only the bins holding references are swept: a split beside an
+ * empty bin costs what the split on its other side costs, and of equal
+ * costs the sweep keeps the first it meets, the highest bin, as it would. */
 static void sweep_bins(const sah_bins *g, int axis, sah_split *best)
 {
     double left_cost[BVH_BINS];
-    int left_count[BVH_BINS];
+    int used[BVH_BINS], m = 0;
+    for (int k = 0; k < g->bins; k++)
+        if (g->count[axis][k] > 0)
+            used[m++] = k;
     box4 box = box4_empty();
     int n = 0;
-    for (int k = 0; k < g->bins - 1; k++) {
-        box4_grow(&box, g->box[axis][k].lo, g->box[axis][k].hi);
-        n += g->count[axis][k];
-        left_count[k] = n;
-        left_cost[k] = n ? box4_half_area(&box) * n : 0.0;
+    for (int j = 0; j < m - 1; j++) {
+        box4_grow(&box, g->box[axis][used[j]].lo, g->box[axis][used[j]].hi);
+        n += g->count[axis][used[j]];
+        left_cost[j] = box4_half_area(&box) * n;
     }
     box = box4_empty();
     n = 0;
-    for (int k = g->bins - 1; k > 0; k--) {
-        box4_grow(&box, g->box[axis][k].lo, g->box[axis][k].hi);
-        n += g->count[axis][k];
-        double cost = left_cost[k - 1] + box4_half_area(&box) * n;
-        if (n > 0 && left_count[k - 1] > 0 && cost < best->cost)
-            *best = (sah_split){
-                .axis = axis, .bin = k, .bins = g->bins, .cost = cost, .lo = g->lo[axis], .scale = g->scale[axis]};
+    for (int j = m - 1; j > 0; j--) {
+        box4_grow(&box, g->box[axis][used[j]].lo, g->box[axis][used[j]].hi);
+        n += g->count[axis][used[j]];
+        double cost = left_cost[j - 1] + box4_half_area(&box) * n;
+        if (cost < best->cost)
+            *best = (sah_split){.axis = axis,
+                                .bin = used[j],
+                                .bins = g->bins,
+                                .cost = cost,
+                                .lo = g->lo[axis],
+                                .scale = g->scale[axis]};
     }
 }
 
@@ -562,44 +571,90 @@ static void *aligned_array(size_t count, size_t size)
     return p;
 }
 
-/* The binary tree over n primitives: b->nodes (2 n - 1 of them, indexed as
- * build_node says) and b->refs in leaf order. */
-static void build_binary_tree(const scene *s, builder *b, int n)
+/* References [first, first + count) made, and their bounds. */
+static node_bounds make_refs(const scene *s, prim_ref *refs, int first, int count)
 {
-#pragma omp parallel for schedule(static) if (n >= BVH_TASK_MIN)
-    for (int i = 0; i < n; i++)
-        b->refs[i] = make_prim_ref(s, i, 1.0 / s->bvh.unit);
-#pragma omp parallel if (n >= BVH_TASK_MIN)
-#pragma omp single
-    build_subtree(b, 0, 0, n, 0, bounds_of_refs(b->refs, 0, n));
+    double inv_unit = 1.0 / s->bvh.unit;
+    box4 all = box4_empty(), centres = box4_empty();
+    for (int i = first; i < first + count; i++) {
+        refs[i] = make_prim_ref(s, i, inv_unit);
+        box4_grow(&all, refs[i].lo, refs[i].hi);
+        box4_grow_centroid(&centres, &refs[i]);
+    }
+    return (node_bounds){box3f_of(&all), box3f_of(&centres)};
 }
 
-/* The arrays traversal reads, from the binary tree. */
+static void box3f_merge(box3f *into, const box3f *other)
+{
+    for (int a = 0; a < 3; a++) {
+        into->lo[a] = other->lo[a] < into->lo[a] ? other->lo[a] : into->lo[a];
+        into->hi[a] = other->hi[a] > into->hi[a] ? other->hi[a] : into->hi[a];
+    }
+}
+
+/* The binary tree over n primitives: b->nodes (2 n - 1 of them, indexed as
+ * build_node says) and b->refs in leaf order.  Run by one thread of the
+ * team: the references are made in chunks of BVH_TASK_MIN, as tasks, their
+ * bounds merged in a fixed order (min and max: exact in any order anyway). */
+static int build_binary_tree(const scene *s, builder *b, int n)
+{
+    int chunks = (n + BVH_TASK_MIN - 1) / BVH_TASK_MIN;
+    node_bounds *parts = malloc((size_t)chunks * sizeof *parts);
+    if (parts == NULL)
+        return -1;
+#pragma omp taskloop default(none) shared(s, b, n, parts, chunks) grainsize(1)
+    for (int c = 0; c < chunks; c++) {
+        int first = c * BVH_TASK_MIN;
+        parts[c] = make_refs(s, b->refs, first, n - first < BVH_TASK_MIN ? n - first : BVH_TASK_MIN);
+    }
+    node_bounds root = parts[0];
+    for (int c = 1; c < chunks; c++) {
+        box3f_merge(&root.box, &parts[c].box);
+        box3f_merge(&root.centroids, &parts[c].centroids);
+    }
+    free(parts);
+#pragma omp taskgroup
+    build_subtree(b, 0, 0, n, 0, root);
+    return 0;
+}
+
+/* The wide nodes from the binary tree (see collapse). */
+static void collapse_tree(const builder *b, scene_bvh *bvh)
+{
+    bvh->node_count = 0;
+    if (b->nodes[0].left < 0) {
+        root_leaf(&b->nodes[0], bvh->nodes);
+        bvh->node_count = 1;
+    } else {
+        collapse(b->nodes, 0, bvh->nodes, &bvh->node_count);
+    }
+}
+
+/* The arrays traversal reads, from the binary tree.  Run by one thread of
+ * the team: the collapse (serial) is a task, and runs alongside the leaf
+ * primitives, made in tasks of BVH_TASK_MIN. */
 static int build_wide_tree(scene *s, const builder *b, int n)
 {
     scene_bvh *bvh = &s->bvh;
     /* A binary tree with n leaves has n - 1 inner nodes; a wide node takes
      * at least one of them. */
-    wide_node *wide = aligned_array((size_t)(n > 1 ? n - 1 : 1), sizeof *wide);
+    bvh->nodes = aligned_array((size_t)(n > 1 ? n - 1 : 1), sizeof *bvh->nodes);
     bvh->leaf_primitives = aligned_array((size_t)n, sizeof *bvh->leaf_primitives);
     bvh->primitive_order = malloc((size_t)n * sizeof *bvh->primitive_order);
-    bvh->nodes = wide;
-    if (wide == NULL || bvh->leaf_primitives == NULL || bvh->primitive_order == NULL)
+    if (bvh->nodes == NULL || bvh->leaf_primitives == NULL || bvh->primitive_order == NULL)
         return -1;
-    bvh->node_count = 0;
-    if (b->nodes[0].left < 0) {
-        root_leaf(&b->nodes[0], wide);
-        bvh->node_count = 1;
-    } else {
-        collapse(b->nodes, 0, wide, &bvh->node_count);
-    }
     const box3f *root = &b->nodes[0].box;
     for (int a = 0; a < 3; a++)
         bvh->largest_coordinate = fmax(bvh->largest_coordinate, fmax(fabs(root->lo[a]), fabs(root->hi[a])));
-#pragma omp parallel for schedule(static) if (n >= BVH_TASK_MIN)
-    for (int i = 0; i < n; i++) {
-        bvh->primitive_order[i] = b->refs[i].primitive;
-        bvh->leaf_primitives[i] = make_leaf_primitive(s, b->refs[i].primitive);
+#pragma omp taskgroup
+    {
+#pragma omp task default(none) shared(b, bvh)
+        collapse_tree(b, bvh);
+#pragma omp taskloop default(none) shared(s, b, bvh, n) grainsize(BVH_TASK_MIN)
+        for (int i = 0; i < n; i++) {
+            bvh->primitive_order[i] = b->refs[i].primitive;
+            bvh->leaf_primitives[i] = make_leaf_primitive(s, b->refs[i].primitive);
+        }
     }
     return 0;
 }
@@ -619,8 +674,15 @@ int bvh_build(scene *s)
                  .nodes = aligned_array((size_t)(2 * n - 1), sizeof(build_node))};
     int status = -1;
     if (b.refs && b.nodes) {
-        build_binary_tree(s, &b, n);
-        status = build_wide_tree(s, &b, n);
+        /* One team for the whole build, its work in tasks: a thread that
+         * the system runs late joins in late, and holds up one barrier. */
+#pragma omp parallel if (n >= BVH_TASK_MIN) default(none) shared(s, b, n, status)
+#pragma omp single
+        {
+            status = build_binary_tree(s, &b, n);
+            if (status == 0)
+                status = build_wide_tree(s, &b, n);
+        }
     }
     free(b.refs);
     free(b.nodes);
