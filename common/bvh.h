@@ -13,10 +13,9 @@
  *     centroid bounds; the children's boxes are the unions of their bins (as
  *     Embree's builder does: Wald et al. 2014, "Embree: a kernel framework
  *     for efficient CPU ray tracing").  Nodes of two references are split in
- *     closed form.  The whole build is one OpenMP team whose work is tasks
- *     (references and leaf primitives in chunks, large subtrees each on its
- *     own range of the references, the collapse beside the leaf
- *     primitives); the tree does not depend on the number of threads.
+ *     closed form.  References and leaf primitives are made in parallel
+ *     loops, large subtrees built as OpenMP tasks, each on its own range of
+ *     the references; the tree does not depend on the number of threads.
  *     Arrays of 4 MB and more are in huge pages (madvise), as Embree's are.
  *   - Collapse: the binary tree becomes an 8-wide tree (wide_node), each
  *     node holding the boxes of up to eight children side by side, so that
