@@ -157,8 +157,8 @@ static prim_ref make_prim_ref(const scene *s, int primitive, double inv_unit)
 
 /* The binary tree as built.  Node `index` over references [first, first +
  * count) owns node indices [index, index + 2 count - 1): its left child
- * (of `left_count` references) is index + 1, its right child index + 2
- * left_count.  Known before the children are built, these indices let the
+ * (of `left` references, as build_subtree calls it) is index + 1, its right
+ * child index + 2 left.  Known before the children are built, these indices let the
  * two subtrees be built at once, and make the tree the same for any number
  * of threads (unused indices are never read). */
 typedef struct {
