@@ -10,7 +10,13 @@ against triangle count, ours and Embree's).
 Environment: BENCH_REPEATS (7), BENCH_SIZES (exponents, "3,4,5,6"),
 BENCH_SCANS ("bunny,dragon-res4,dragon-res3,dragon-res2,dragon"; "none"),
 BENCH_IMAGE (rays per set as an image, "512x512"), BENCH_EMBREE_FAST=1
-(Embree without its robust flag).
+(Embree without its robust flag), BENCH_BUILDS_ONLY=1 (time the builds
+only: no rays, no ray table, no plot; into embree-builds.json and .md).
+
+The builds: ours at 1 thread and at all threads, Embree's each on a device
+of its own ("threads=1", or the default) made for it alone: two Embree
+devices alive at once both build on all threads, whatever their "threads".
+The table gives each build's CPU / wall time, the threads that worked.
 """
 import json
 import os
@@ -54,12 +60,19 @@ def ratios(ours, theirs):
     return three([a / b for a, b in zip(ours, theirs)])
 
 
+def busy(build, wall, cpu):
+    """The median CPU / wall time of one kind of build (how many threads worked), or "?" in old results."""
+    if cpu not in build:
+        return "?"
+    return f"{statistics.median(c / w for c, w in zip(build[cpu], build[wall])):.2f}"
+
+
 def table(results):
     lines = ["| scene | triangles | rays | threads | ours Mrays/s | Embree Mrays/s | ours/Embree min / median / max "
              "| hit or blocked, ours / Embree | disagreements | load |",
              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
-        for s in r["sets"]:
+        for s in [] if r.get("builds_only") else r["sets"]:
             for t in s["timing"]:
                 lo, mid, hi = ratios(t["ours_mrays"], t["embree_mrays"])
                 n = max(s["rays"], 1)
@@ -70,8 +83,9 @@ def table(results):
                              f"({100 * s['disagreements'] / n:.3f} %, {s['disagreements_at_ends']} at ends) | "
                              f"{r['load'][0]:.1f}-{r['load'][1]:.1f} |")
     lines += ["", "| scene | primitives | build ours (ms, 1 thread / all) | Embree 1 thread | Embree all | ours/Embree 1 thread "
-              "min / median / max | ours/Embree all | bytes/primitive ours (heap) | Embree held (peak) |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "min / median / max | ours/Embree all | CPU/wall ours 1 / all, Embree 1 / all "
+              "| bytes/primitive ours (heap) | Embree held (peak) |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         b, m, n = r["build"], r["memory_bytes"], r["primitives"]
         one, every = ratios(b["ours_s"], b["embree_1_thread_s"]), ratios(b["ours_all_threads_s"], b["embree_all_threads_s"])
@@ -80,6 +94,9 @@ def table(results):
                      f"{1e3 * statistics.median(b['embree_1_thread_s']):.3f} | "
                      f"{1e3 * statistics.median(b['embree_all_threads_s']):.3f} | "
                      f"{one[0]:.2f} / **{one[1]:.2f}** / {one[2]:.2f} | {every[0]:.2f} / {every[1]:.2f} / {every[2]:.2f} | "
+                     f"{busy(b, 'ours_s', 'ours_cpu_s')} / {busy(b, 'ours_all_threads_s', 'ours_all_threads_cpu_s')}, "
+                     f"{busy(b, 'embree_1_thread_s', 'embree_1_thread_cpu_s')} / "
+                     f"{busy(b, 'embree_all_threads_s', 'embree_all_threads_cpu_s')} | "
                      f"{m['ours_arrays'] / n:.0f} ({m['ours_heap_growth'] / n:.0f}) | "
                      f"{m['embree_held'] / n:.0f} ({m['embree_peak'] / n:.0f}) |")
     return "\n".join(lines) + "\n"
@@ -122,10 +139,13 @@ def main():
         return
     repeats = os.environ.get("BENCH_REPEATS", "7")
     extra = ["--fast"] if os.environ.get("BENCH_EMBREE_FAST") == "1" else []
-    os.makedirs(os.path.join(OUT, "embree"), exist_ok=True)
+    builds_only = os.environ.get("BENCH_BUILDS_ONLY") == "1"
+    extra += ["--builds-only"] if builds_only else []
+    name = "embree-builds" if builds_only else "embree"  # builds only: the full results stay
+    os.makedirs(os.path.join(OUT, name), exist_ok=True)
     results = []
     for label, path, kind in scenes():
-        out = os.path.join(OUT, "embree", label.replace(" ", "-").replace("^", "") + ".json")
+        out = os.path.join(OUT, name, label.replace(" ", "-").replace("^", "") + ".json")
         before = os.getloadavg()[0]
         print(f"-- {label} (load {before:.1f}) --")
         print(run(program, path, "--repeats", repeats, "--size", os.environ.get("BENCH_IMAGE", "512x512"),
@@ -134,13 +154,14 @@ def main():
             result = json.load(f)
         result.update(label=label, kind=kind, load=[before, os.getloadavg()[0]])
         results.append(result)
-    with open(os.path.join(OUT, "embree.json"), "w") as f:
+    with open(os.path.join(OUT, name + ".json"), "w") as f:
         json.dump(results, f, indent=1)
     text = table(results)
-    with open(os.path.join(OUT, "embree.md"), "w") as f:
+    with open(os.path.join(OUT, name + ".md"), "w") as f:
         f.write(text)
     print(text)
-    plot(results)
+    if not builds_only:
+        plot(results)
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 /* bench_embree.c — the same rays through common/'s BVH and through Embree.
  *
  * usage: build/bench/bench_embree SCENE [--size WxH] [--repeats N] [--seed N]
- *                                 [--fast] [--json FILE]
+ *                                 [--fast] [--builds-only] [--json FILE]
  * Measures, on one scene:
  *   - three ray sets made once from a fixed seed: camera rays (one jittered
  *     ray per pixel), diffuse-bounce rays (from each camera hit, cosine
@@ -21,7 +21,14 @@
  *     thread and at all threads, and the memory of each acceleration
  *     structure per primitive: ours from bvh_memory_bytes (the arrays of
  *     scene.bvh, and the heap's growth across the build), Embree's from its
- *     memory monitor (bytes it holds after the commit, and its peak).
+ *     memory monitor (bytes it holds after the commit, and its peak).  The
+ *     four builds are interleaved.  Each Embree build runs on a device made
+ *     for it ("threads=1" or the default) while no other device is alive:
+ *     Embree 3.13 with TBB gives every device the threads of the device that
+ *     asks for most, so a "threads=1" device next to a default one builds
+ *     on all threads (CPU / wall time 2.0 on 2 cores, as this bench measured
+ *     before).  Each build's CPU / wall time (the threads that worked) is
+ *     printed.  --builds-only times the builds alone (no rays).
  *
  * How the scene is given to Embree: the triangles as one triangle geometry
  * (vertices rounded to float, primID = our triangle index, vertex and index
@@ -81,6 +88,15 @@ static double now_seconds(void)
 {
     struct timespec t;
     clock_gettime(CLOCK_MONOTONIC, &t);
+    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+/* CPU seconds of all the process's threads: over a build, CPU / wall time is
+ * how many threads worked (idle pool threads asleep count nothing). */
+static double cpu_seconds(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
     return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
 }
 
@@ -517,6 +533,8 @@ static agreement compare_set(const bench *b, int set)
     return (agreement){n, {found_ours, found_theirs}, disagreements, at_ends};
 }
 
+static RTCDevice device_make(const char *config);
+
 /* ------------------------------------------------------------------------ */
 /* Timing                                                                   */
 
@@ -525,7 +543,9 @@ typedef struct {
     agreement agree[SET_COUNT];
     double mrays[2][2][SET_COUNT][MAX_REPEATS]; /* [thread configuration][implementation][set][repeat] */
     double build[4][MAX_REPEATS]; /* seconds: ours 1 thread, Embree 1 thread, Embree all threads, ours all threads */
+    double build_cpu[4][MAX_REPEATS]; /* the process's CPU seconds over the same builds */
     long ours_array_bytes, ours_heap_bytes, embree_bytes, embree_peak_bytes, primitives;
+    int builds_only; /* no rays cast: agree and mrays unset */
 } results;
 
 /* Every set, both implementations, each thread count, in `repeats` rounds;
@@ -548,49 +568,96 @@ static size_t heap_in_use(void)
     return m.uordblks + m.hblkhd;
 }
 
-static double time_our_build(scene *s, int threads, long *heap_bytes)
+static double time_our_build(scene *s, int threads, long *heap_bytes, double *cpu)
 {
     int before_threads = omp_get_max_threads();
     omp_set_num_threads(threads);
     bvh_free(&s->bvh);
+    if (bvh_build(s)) { /* untimed, as Embree's device gets a commit before the timed one */
+        fprintf(stderr, "bench_embree: out of memory in bvh_build\n");
+        exit(2);
+    }
+    bvh_free(&s->bvh);
     size_t before = heap_in_use();
-    double start = now_seconds();
+    double start = now_seconds(), cpu_start = cpu_seconds();
     if (bvh_build(s)) {
         fprintf(stderr, "bench_embree: out of memory in bvh_build\n");
         exit(2);
     }
     double seconds = now_seconds() - start;
+    *cpu = cpu_seconds() - cpu_start;
     *heap_bytes = (long)(heap_in_use() - before);
     omp_set_num_threads(before_threads);
     return seconds;
 }
 
 static double time_embree_build(RTCDevice device, const scene *s, embree_buffers eb, int robust, long *bytes,
-                                long *peak)
+                                long *peak, double *cpu)
 {
     RTCScene es = embree_scene_make(device, s, eb, robust);
     atomic_store(&embree_bytes, 0);
     atomic_store(&embree_peak, 0);
-    double start = now_seconds();
+    double start = now_seconds(), cpu_start = cpu_seconds();
     rtcCommitScene(es);
     double seconds = now_seconds() - start;
+    *cpu = cpu_seconds() - cpu_start;
     *bytes = atomic_load(&embree_bytes);
     *peak = atomic_load(&embree_peak);
     rtcReleaseScene(es);
     return seconds;
 }
 
-/* Builds, interleaved: ours (serial), Embree with 1 thread, Embree with all. */
-static void time_builds(scene *s, RTCDevice devices[2], embree_buffers eb, int robust, results *res)
+/* One Embree build on a device of its own, made for it and released after
+ * it, so that no other device is alive: Embree (3.13 with TBB) runs every
+ * device's builds on as many threads as the device that asks for the most
+ * ("threads=1" next to a default device builds on all of them).  The
+ * device's first commit, untimed, starts its threads. */
+static double time_embree_build_alone(int threads, const scene *s, embree_buffers eb, int robust, long *bytes,
+                                      long *peak, double *cpu)
 {
+    char config[32];
+    snprintf(config, sizeof config, "threads=%d", threads);
+    RTCDevice device = device_make(config);
+    long unused_bytes, unused_peak;
+    double unused_cpu;
+    time_embree_build(device, s, eb, robust, &unused_bytes, &unused_peak, &unused_cpu);
+    double seconds = time_embree_build(device, s, eb, robust, bytes, peak, cpu);
+    rtcReleaseDevice(device);
+    return seconds;
+}
+
+/* A pause before each pair of builds (an untimed one, then the timed one,
+ * for both implementations), so that they do not share the cores with the
+ * other implementation's threads: OpenMP's and TBB's idle threads spin a
+ * while before they sleep. */
+static void quiet_pause(void)
+{
+    struct timespec pause = {0, 50 * 1000 * 1000};
+    nanosleep(&pause, NULL);
+}
+
+/* Builds, interleaved: ours at 1 thread, ours at all threads, Embree at 1
+ * thread, Embree at all; each repeat starts with the next of the four. */
+static void time_builds(scene *s, embree_buffers eb, int robust, results *res)
+{
+    static const int slot[4] = {0, 3, 1, 2}; /* build[] of each of the four */
+    int all = omp_get_max_threads();
     long bytes, peak;
-    time_embree_build(devices[0], s, eb, robust, &bytes, &peak); /* warm-up: thread pools start */
-    for (int r = 0; r < res->repeats; r++) {
-        res->build[0][r] = time_our_build(s, 1, &res->ours_heap_bytes);
-        res->build[3][r] = time_our_build(s, omp_get_max_threads(), &bytes);
-        res->build[1][r] = time_embree_build(devices[0], s, eb, robust, &res->embree_bytes, &res->embree_peak_bytes);
-        res->build[2][r] = time_embree_build(devices[1], s, eb, robust, &bytes, &peak);
-    }
+    for (int r = 0; r < res->repeats; r++)
+        for (int k = 0; k < 4; k++) {
+            int which = (k + r) % 4;
+            double *cpu = &res->build_cpu[slot[which]][r];
+            quiet_pause();
+            if (which == 0)
+                res->build[0][r] = time_our_build(s, 1, &res->ours_heap_bytes, cpu);
+            else if (which == 1)
+                res->build[3][r] = time_our_build(s, all, &bytes, cpu);
+            else if (which == 2)
+                res->build[1][r] =
+                    time_embree_build_alone(1, s, eb, robust, &res->embree_bytes, &res->embree_peak_bytes, cpu);
+            else
+                res->build[2][r] = time_embree_build_alone(all, s, eb, robust, &bytes, &peak, cpu);
+        }
     long n = s->triangle_count + s->sphere_count;
     res->primitives = n;
     res->ours_array_bytes = (long)bvh_memory_bytes(&s->bvh);
@@ -601,7 +668,7 @@ static void time_builds(scene *s, RTCDevice devices[2], embree_buffers eb, int r
 
 static void print_results(const bench *b, const results *res)
 {
-    for (int set = 0; set < SET_COUNT; set++) {
+    for (int set = 0; set < SET_COUNT && !res->builds_only; set++) {
         const agreement *a = &res->agree[set];
         double n = a->rays > 0 ? (double)a->rays : 1.0;
         printf("%-6s %8ld rays: %s ours %.2f%%, Embree %.2f%%; %ld disagreements (%.4f%%), %ld of them at a ray's "
@@ -609,7 +676,7 @@ static void print_results(const bench *b, const results *res)
                SET_NAME[set], a->rays, set == SET_SHADOW ? "blocked" : "hit", 100.0 * a->found[OURS] / n,
                100.0 * a->found[EMBREE] / n, a->disagreements, 100.0 * a->disagreements / n, a->at_ends);
     }
-    for (int c = 0; c < res->configs; c++)
+    for (int c = 0; c < res->configs && !res->builds_only; c++)
         for (int set = 0; set < SET_COUNT; set++) {
             double ours[3], theirs[3], ratio[3], r[MAX_REPEATS];
             for (int k = 0; k < res->repeats; k++)
@@ -637,6 +704,16 @@ static void print_results(const bench *b, const results *res)
            "ours/Embree %.2f (min %.2f, max %.2f) at 1 thread, %.2f (min %.2f, max %.2f) at all\n",
            1e3 * ours[1], 1e3 * ours_all[1], 1e3 * one[1], 1e3 * all[1], r1[1], r1[0], r1[2], rall[1], rall[0],
            rall[2]);
+    double busy[4][3]; /* CPU / wall time of each build: the threads that worked */
+    for (int c = 0; c < 4; c++) {
+        double q[MAX_REPEATS];
+        for (int k = 0; k < res->repeats; k++)
+            q[k] = res->build_cpu[c][k] / res->build[c][k];
+        summary(q, res->repeats, busy[c]);
+    }
+    printf("build CPU / wall time (medians; the threads at work): ours %.2f 1 thread, %.2f all threads, Embree %.2f 1 "
+           "thread, %.2f all threads\n",
+           busy[0][1], busy[3][1], busy[1][1], busy[2][1]);
     double n = (double)res->primitives;
     printf("memory per primitive: ours %.1f B (arrays; heap growth %.1f B), Embree %.1f B held after the commit "
            "(peak %.1f B)\n",
@@ -684,12 +761,17 @@ static int write_json(const char *path, const bench *b, const results *res, int 
             b->s->path, b->s->triangle_count, b->s->sphere_count, RTC_VERSION_STRING);
     fprintf(f, "  \"embree_robust\": %s,\n  \"embree_margin\": %.6g,\n  \"repeats\": %d,\n", robust ? "true" : "false",
             b->margin, res->repeats);
+    fprintf(f, "  \"builds_only\": %s,\n", res->builds_only ? "true" : "false");
     json_sets(f, res);
     fprintf(f, "  \"build\": {");
     json_list(f, "ours_s", res->build[0], res->repeats, ", ");
     json_list(f, "ours_all_threads_s", res->build[3], res->repeats, ", ");
     json_list(f, "embree_1_thread_s", res->build[1], res->repeats, ", ");
-    json_list(f, "embree_all_threads_s", res->build[2], res->repeats, "},\n");
+    json_list(f, "embree_all_threads_s", res->build[2], res->repeats, ", ");
+    json_list(f, "ours_cpu_s", res->build_cpu[0], res->repeats, ", ");
+    json_list(f, "ours_all_threads_cpu_s", res->build_cpu[3], res->repeats, ", ");
+    json_list(f, "embree_1_thread_cpu_s", res->build_cpu[1], res->repeats, ", ");
+    json_list(f, "embree_all_threads_cpu_s", res->build_cpu[2], res->repeats, "},\n");
     fprintf(f, "  \"threads_all\": %d,\n  \"primitives\": %ld,\n", res->threads[res->configs - 1], res->primitives);
     fprintf(f,
             "  \"memory_bytes\": {\"ours_arrays\": %ld, \"ours_heap_growth\": %ld, \"embree_held\": %ld, "
@@ -740,7 +822,7 @@ static RTCDevice device_make(const char *config)
 
 typedef struct {
     const char *path, *json;
-    int width, height, repeats, robust;
+    int width, height, repeats, robust, builds_only;
     uint64_t seed;
 } options;
 
@@ -758,6 +840,8 @@ static int parse_options(int argc, char **argv, options *o)
             o->json = argv[++i];
         else if (!strcmp(argv[i], "--fast"))
             o->robust = 0;
+        else if (!strcmp(argv[i], "--builds-only"))
+            o->builds_only = 1;
         else if (argv[i][0] != '-' && !o->path)
             o->path = argv[i];
         else
@@ -773,7 +857,7 @@ int main(int argc, char **argv)
     if (parse_options(argc, argv, &o)) {
         fprintf(stderr,
                 "usage: bench_embree SCENE [--size WxH] [--repeats N (1..%d)] [--seed N] [--fast] "
-                "[--json FILE]\n",
+                "[--builds-only] [--json FILE]\n",
                 MAX_REPEATS);
         return 2;
     }
@@ -783,36 +867,38 @@ int main(int argc, char **argv)
         fprintf(stderr, "%s\n", err);
         return 2;
     }
-    RTCDevice devices[2] = {device_make("threads=1"), device_make(NULL)};
+    RTCDevice device = device_make(NULL);
     embree_buffers eb = embree_buffers_make(&s);
-    bench b = {.s = &s, .embree = embree_scene_make(devices[1], &s, eb, o.robust)};
+    bench b = {.s = &s, .embree = embree_scene_make(device, &s, eb, o.robust)};
     rtcCommitScene(b.embree);
-    make_sets(&b, o.width, o.height, o.seed);
+    make_sets(&b, o.builds_only ? 1 : o.width, o.builds_only ? 1 : o.height, o.seed);
     b.margin = EMBREE_MARGIN * largest_coordinate(&b, eb);
     printf("scene %s: %d triangles, %d spheres (an Embree user geometry calling intersect_sphere); Embree %s, "
            "%s scene, default build quality; Embree's rays start and end %.3g later and earlier (float origins)\n",
            s.path, s.triangle_count, s.sphere_count, RTC_VERSION_STRING, o.robust ? "robust" : "fast (not robust)",
            b.margin);
-    results res = {.repeats = o.repeats, .configs = 1, .threads = {1, omp_get_max_threads()}};
+    results res = {
+        .repeats = o.repeats, .configs = 1, .threads = {1, omp_get_max_threads()}, .builds_only = o.builds_only};
     if (res.threads[1] > 1)
         res.configs = 2;
     else
         res.threads[0] = 1;
-    for (int set = 0; set < SET_COUNT; set++)
-        res.agree[set] = compare_set(&b, set);
-    time_sets(&b, &res);
-    time_builds(&s, devices, eb, o.robust, &res);
+    if (!o.builds_only) {
+        for (int set = 0; set < SET_COUNT; set++)
+            res.agree[set] = compare_set(&b, set);
+        time_sets(&b, &res);
+    }
+    rtcReleaseScene(b.embree); /* no device alive while the builds are timed (see time_embree_build_alone) */
+    rtcReleaseDevice(device);
+    time_builds(&s, eb, o.robust, &res);
     print_results(&b, &res);
     int status = 0;
     if (o.json && write_json(o.json, &b, &res, o.robust)) {
         fprintf(stderr, "bench_embree: cannot write %s\n", o.json);
         status = 2;
     }
-    rtcReleaseScene(b.embree);
     for (int set = 0; set < SET_COUNT; set++)
         free(b.sets[set]);
-    rtcReleaseDevice(devices[0]);
-    rtcReleaseDevice(devices[1]);
     free(eb.vertices);
     free(eb.indices);
     scene_free(&s);

@@ -7,9 +7,16 @@
  *   - Build: a binary tree by the binned surface area heuristic (Wald 2007,
  *     "On fast construction of SAH-based bounding volume hierarchies"), over
  *     compact 32-byte primitive references with single-precision boxes
- *     rounded outward, so a box never shrinks below its primitive.  Large
- *     subtrees are built as OpenMP tasks, each on its own range of the
- *     references; the tree does not depend on the number of threads.
+ *     rounded outward, so a box never shrinks below its primitive.  A node's
+ *     references are read twice: once to bin them along all three axes at
+ *     once (SSE), once to partition them, which also gives the children's
+ *     centroid bounds; the children's boxes are the unions of their bins (as
+ *     Embree's builder does: Wald et al. 2014, "Embree: a kernel framework
+ *     for efficient CPU ray tracing").  Nodes of two references are split in
+ *     closed form.  References and leaf primitives are made in parallel
+ *     loops, large subtrees built as OpenMP tasks, each on its own range of
+ *     the references; the tree does not depend on the number of threads.
+ *     Arrays of 4 MB and more are in huge pages (madvise), as Embree's are.
  *   - Collapse: the binary tree becomes an 8-wide tree (wide_node), each
  *     node holding the boxes of up to eight children side by side, so that
  *     two SSE instructions do one step of the slab test for all eight (Wald
