@@ -39,6 +39,12 @@ typedef struct {
     double f;
 } mlt_sample;
 
+/* What a chain did in a pass: rays, mutations, accepted ones, large steps and the sum of their f and f^2. */
+typedef struct {
+    uint64_t rays, proposed, accepted, large, large_accepted;
+    double large_f, large_f2;
+} chain_tally;
+
 typedef struct {
     bidir_state bidir; /* chapter 6's: the camera, the lights' pick, --bounces */
     int method, chains, bootstrap, max_length;
@@ -53,8 +59,10 @@ typedef struct {
     rng *chain_rng;
     splat **records; /* each chain's splats of the pass, added in chain order */
     int *record_count, record_capacity;
-    vec3 *image; /* this pass's */
-    uint64_t rays, proposed, accepted, large_proposed, large_accepted;
+    vec3 *splat_sum, *image;   /* all splats so far (H, without b); this pass's image */
+    chain_tally *tally, total; /* each chain's of the pass; all of them */
+    double bootstrap_b, bootstrap_error;
+    uint64_t rays;
 } mlt_state;
 
 #define STATE(field) offsetof(mlt_state, field)
@@ -207,72 +215,88 @@ static void propose(const mlt_state *m, const mlt_sample *x, mlt_sample *y, bool
 
 /* ---- the chain ----------------------------------------------------------------------------------- */
 
-/* (R20) A state's splats, each weighted by `weight` b / f (expected-value splatting: weight is the chance the chain is
- * there), into the chain's record of the pass. */
+/* (R20) A state's splats, each weighted by `weight` / f (expected-value splatting: weight is the chance the chain is
+ * there), into the chain's record of the pass; the image is b times their sum. */
 static void record(const mlt_state *m, const mlt_sample *x, double weight, splat *out, int *count)
 {
     if (!(weight > 0.0) || !(x->f > 0.0))
         return;
     for (int i = 0; i < x->splat_count && *count < m->record_capacity; i++)
-        out[(*count)++] = (splat){x->splats[i].pixel, v3_scale(x->splats[i].value, weight * m->b / x->f)};
+        out[(*count)++] = (splat){x->splats[i].pixel, v3_scale(x->splats[i].value, weight / x->f)};
 }
 
 /* One Metropolis-Hastings step of chain c: propose, splat both the proposal (weight a) and the current state
- * (weight 1 - a) (R20), accept with probability a (R18). */
-static void metropolis_step(mlt_state *m, const scene *s, int c, mlt_sample *y, uint64_t *counts)
+ * (weight 1 - a) (R20), accept with probability a (R18).  A large step's f is one more independent sample of b. */
+static void metropolis_step(mlt_state *m, const scene *s, int c, mlt_sample *y)
 {
     mlt_sample *x = &m->current[c];
+    chain_tally *n = &m->tally[c];
     rng *g = &m->chain_rng[c];
     bool large = rng_uniform(g) < m->large_step;
     propose(m, x, y, large, g);
-    evaluate(m, s, y, g, &counts[0]);
+    evaluate(m, s, y, g, &n->rays);
     double a = x->f > 0.0 ? fmin(1.0, y->f / x->f) : 1.0; /* (R18) */
     record(m, y, a, m->records[c], &m->record_count[c]);
     record(m, x, 1.0 - a, m->records[c], &m->record_count[c]);
-    counts[1]++;
-    counts[3] += large;
+    n->proposed++;
+    if (large)
+        n->large++, n->large_f += y->f, n->large_f2 += y->f * y->f;
     if (rng_uniform(g) < a) {
         memcpy(x, y, sizeof *x);
-        counts[2]++;
-        counts[4] += large;
+        n->accepted++;
+        n->large_accepted += large;
     }
 }
 
+/* (R20) b from the bootstrap and every large step so far (both independent samples of f, u uniform), pooled. */
+static void update_b(mlt_state *m)
+{
+    double n0 = m->bootstrap, n1 = (double)m->total.large, mean1 = n1 > 0 ? m->total.large_f / n1 : 0.0;
+    double variance1 = n1 > 1 ? fmax(0.0, m->total.large_f2 / n1 - mean1 * mean1) * n1 / (n1 - 1) : 0.0;
+    m->b = (n0 * m->bootstrap_b + m->total.large_f) / (n0 + n1);
+    m->b_error = sqrt(n0 * n0 * m->bootstrap_error * m->bootstrap_error + n1 * variance1) / (n0 + n1);
+}
+
 /* Before pass i: every chain makes its share of one mutation per pixel (in parallel, each with its own numbers), then
- * the splats are added in chain order (the same sums for any --threads). */
+ * the splats and tallies are added in chain order (the same sums for any --threads).  The driver averages the
+ * passes' images; so that the average is the latest b times all the splats so far (R20), this pass's image is the
+ * change: b_i H_i - b_(i-1) H_(i-1), H the sum of the splats. */
 static int begin_pass(void *state_pointer, const scene *s, const render_options *o, int pass, char *err,
                       size_t err_size)
 {
     mlt_state *m = state_pointer;
     (void)o, (void)pass, (void)err, (void)err_size;
-    uint64_t counts[5] = {0};
 #pragma omp parallel
     {
         mlt_sample *proposal = malloc(sizeof *proposal);
-        uint64_t local[5] = {0};
 #pragma omp for schedule(dynamic, 1)
         for (int c = 0; c < m->active_chains; c++) {
             long first = (long)m->pixels * c / m->active_chains, last = (long)m->pixels * (c + 1) / m->active_chains;
             m->record_count[c] = 0;
+            m->tally[c] = (chain_tally){0};
             for (long i = first; i < last && proposal; i++)
-                metropolis_step(m, s, c, proposal, local);
+                metropolis_step(m, s, c, proposal);
         }
-#pragma omp critical
-        for (int i = 0; i < 5; i++)
-            counts[i] += local[i];
         free(proposal);
     }
-    m->rays += counts[0], m->proposed += counts[1], m->accepted += counts[2];
-    m->large_proposed += counts[3], m->large_accepted += counts[4];
-    memset(m->image, 0, (size_t)m->pixels * sizeof *m->image);
-    for (int c = 0; c < m->active_chains; c++)
+    double b_before = m->b;
+    for (int p = 0; p < m->pixels; p++)
+        m->image[p] = v3_scale(m->splat_sum[p], -b_before);
+    for (int c = 0; c < m->active_chains; c++) {
+        chain_tally *n = &m->tally[c], *all = &m->total;
+        all->rays += n->rays, all->proposed += n->proposed, all->accepted += n->accepted;
+        all->large += n->large, all->large_accepted += n->large_accepted;
+        all->large_f += n->large_f, all->large_f2 += n->large_f2;
         for (int i = 0; i < m->record_count[c]; i++)
-            m->image[m->records[c][i].pixel] = v3_add(m->image[m->records[c][i].pixel], m->records[c][i].value);
+            m->splat_sum[m->records[c][i].pixel] = v3_add(m->splat_sum[m->records[c][i].pixel], m->records[c][i].value);
+    }
+    update_b(m);
+    for (int p = 0; p < m->pixels; p++)
+        m->image[p] = v3_add(m->image[p], v3_scale(m->splat_sum[p], m->b));
     return 0;
 }
 
-/* (R20) The pass's estimate of pixel p: b over the mutations per pixel (one a pass) times the splats that landed in
- * it; the driver averages the passes. */
+/* (R20) Pixel p's image (begin_pass): b over the mutations per pixel (one a pass) times the splats that landed in it. */
 static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, render_counters *counters)
 {
     const mlt_state *m = state_pointer;
@@ -293,41 +317,59 @@ static void bootstrap_sample(const mlt_state *m, const scene *s, int i, int leng
     evaluate(m, s, x, &g, rays);
 }
 
-/* (R20) b = the mean of f over independent paths (u uniform), and its standard error; each length's share of it sets
- * the chain's choice of lengths (R21), a tenth spread evenly so that every length stays reachable. */
-static int estimate_b(mlt_state *m, const scene *s)
+/* The bootstrap's paths, in parallel: path i has length shortest + i mod (the number of lengths), so that every
+ * length has its share (stratified: b's error is then only the spread within each length). */
+static int bootstrap_paths(mlt_state *m, const scene *s)
 {
     int n = m->bootstrap, lengths = m->longest - m->shortest + 1;
-    int *length = malloc((size_t)n * sizeof *length);
-    m->bootstrap_length = length;
+    uint64_t rays = 0;
+    m->bootstrap_length = malloc((size_t)n * sizeof *m->bootstrap_length);
     m->bootstrap_f = malloc(((size_t)n + 1) * sizeof *m->bootstrap_f);
-    if (!length || !m->bootstrap_f)
+    if (!m->bootstrap_length || !m->bootstrap_f)
         return 2;
-#pragma omp parallel
+#pragma omp parallel reduction(+ : rays)
     {
         mlt_sample *x = malloc(sizeof *x);
-        uint64_t rays = 0;
 #pragma omp for schedule(dynamic, 256)
         for (int i = 0; i < n; i++) {
+            m->bootstrap_length[i] = m->shortest + i % lengths;
             if (x)
-                bootstrap_sample(m, s, i, 0, x, &rays);
-            m->bootstrap_f[i + 1] = x ? x->f : 0.0, length[i] = x ? x->length : 0;
+                bootstrap_sample(m, s, i, m->bootstrap_length[i], x, &rays);
+            m->bootstrap_f[i + 1] = x ? x->f : 0.0;
         }
-#pragma omp atomic
-        m->rays += rays;
         free(x);
     }
-    double sum = 0.0, squares = 0.0, share[MAX_LENGTH + 1] = {0};
+    m->rays += rays;
+    return 0;
+}
+
+/* (R20) b = the mean of f over independent paths (u uniform), each length's mean weighted alike (f holds the
+ * length's 1 / probability), and its standard error; each length's share of b sets the chain's choice of lengths
+ * (R21), with a tenth spread evenly so that every length stays reachable. */
+static int estimate_b(mlt_state *m, const scene *s)
+{
+    int lengths = m->longest - m->shortest + 1;
+    if (bootstrap_paths(m, s))
+        return 2;
+    double sum[MAX_LENGTH + 1] = {0}, squares[MAX_LENGTH + 1] = {0}, count[MAX_LENGTH + 1] = {0}, variance = 0.0;
     m->bootstrap_f[0] = 0.0;
-    for (int i = 1; i <= n; i++) {
-        double f = m->bootstrap_f[i];
-        sum += f, squares += f * f, share[length[i - 1]] += f;
-        m->bootstrap_f[i] = m->bootstrap_f[i - 1] + f; /* cumulated: the chains pick starts by it */
+    for (int i = 0; i < m->bootstrap; i++) {
+        double f = m->bootstrap_f[i + 1];
+        int k = m->bootstrap_length[i];
+        sum[k] += f, squares[k] += f * f, count[k]++;
+        m->bootstrap_f[i + 1] = m->bootstrap_f[i] + f; /* cumulated: the chains pick starts by it */
     }
-    m->b = sum / n; /* (R20) */
-    m->b_error = n > 1 ? sqrt(fmax(0.0, squares / n - m->b * m->b) / (n - 1)) : 0.0;
+    m->b = 0.0;
     for (int k = m->shortest; k <= m->longest; k++) {
-        m->length_pdf[k] = sum > 0.0 ? 0.9 * share[k] / sum + 0.1 / lengths : 1.0 / lengths; /* (R21) */
+        double mean = count[k] > 0 ? sum[k] / count[k] : 0.0;
+        m->b += mean / lengths; /* (R20) */
+        variance += count[k] > 1 ? fmax(0.0, squares[k] / count[k] - mean * mean) / (count[k] - 1) : 0.0;
+        sum[k] = mean / lengths;
+    }
+    m->b_error = sqrt(variance) / lengths;
+    m->bootstrap_b = m->b, m->bootstrap_error = m->b_error;
+    for (int k = m->shortest; k <= m->longest; k++) {
+        m->length_pdf[k] = m->b > 0.0 ? 0.9 * sum[k] / m->b + 0.1 / lengths : 1.0 / lengths; /* (R21) */
         m->length_cdf[k + 1] = m->length_cdf[k] + m->length_pdf[k];
     }
     return 0;
@@ -377,16 +419,21 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
     m->records = calloc((size_t)m->active_chains, sizeof *m->records);
     m->record_count = calloc((size_t)m->active_chains, sizeof *m->record_count);
     m->image = calloc((size_t)m->pixels, sizeof *m->image);
-    bool failed = !m->current || !m->chain_rng || !m->records || !m->record_count || !m->image || estimate_b(m, s);
+    m->splat_sum = calloc((size_t)m->pixels, sizeof *m->splat_sum);
+    m->tally = calloc((size_t)m->active_chains, sizeof *m->tally);
+    bool failed = !m->current || !m->chain_rng || !m->records || !m->record_count || !m->image || !m->splat_sum ||
+                  !m->tally || estimate_b(m, s);
     for (int c = 0; !failed && c < m->active_chains; c++)
         failed = !(m->records[c] = malloc((size_t)m->record_capacity * sizeof(splat)));
     if (failed) {
         snprintf(err, err_size, "argv:0: out of memory for %d chains", m->active_chains);
         return 2;
     }
-#pragma omp parallel for schedule(dynamic, 1)
+    uint64_t rays = 0;
+#pragma omp parallel for schedule(dynamic, 1) reduction(+ : rays)
     for (int c = 0; c < m->active_chains; c++)
-        start_chain(m, s, c, &m->bidir.light_rays);
+        start_chain(m, s, c, &rays);
+    m->rays += rays;
     return 0;
 }
 
@@ -401,13 +448,16 @@ static void write_stats(const void *state_pointer, FILE *json)
     json_field_number(json, "bootstrap_paths", m->bootstrap);
     json_field_number(json, "b", m->b);
     json_field_number(json, "b_standard_error", m->b_error);
+    json_field_number(json, "bootstrap_b", m->bootstrap_b);
+    json_field_number(json, "bootstrap_b_standard_error", m->bootstrap_error);
     json_field_number(json, "shortest_length", m->method == METHOD_MMLT ? m->shortest : 1);
     json_field_number(json, "longest_length", m->method == METHOD_MMLT ? m->longest : RENDER_BOUNCES_UNLIMITED);
-    json_field_number(json, "mutations", (double)m->proposed);
-    json_field_number(json, "acceptance", m->proposed ? (double)m->accepted / m->proposed : 0.0);
+    json_field_number(json, "mutations", (double)m->total.proposed);
+    json_field_number(json, "large_steps", (double)m->total.large);
+    json_field_number(json, "acceptance", m->total.proposed ? (double)m->total.accepted / m->total.proposed : 0.0);
     json_field_number(json, "large_step_acceptance",
-                      m->large_proposed ? (double)m->large_accepted / m->large_proposed : 0.0);
-    json_field_number(json, "rays", (double)m->rays);
+                      m->total.large ? (double)m->total.large_accepted / m->total.large : 0.0);
+    json_field_number(json, "rays", (double)(m->rays + m->total.rays));
 }
 
 static void finish(void *state_pointer)
@@ -415,7 +465,8 @@ static void finish(void *state_pointer)
     mlt_state *m = state_pointer;
     for (int c = 0; m->records && c < m->active_chains; c++)
         free(m->records[c]);
-    free(m->records), free(m->record_count), free(m->current), free(m->chain_rng), free(m->image);
+    free(m->records), free(m->record_count), free(m->current), free(m->chain_rng), free(m->image), free(m->splat_sum),
+        free(m->tally);
     free(m->bootstrap_f), free(m->bootstrap_length);
     bidir_finish(&m->bidir);
 }
