@@ -2,8 +2,8 @@
  *
  * Defined in chapters/06_bidirectional.c, where lecture 6 reads them: the two
  * subpaths (extend, light_subpath), the path of a strategy (s, t) (join), its
- * unweighted value (strategy_value: (R13) over (R14)), which strategies can
- * make a path (strategy_allowed) and the power heuristic over them
+ * unweighted value (strategy_value: (R13) over (R14)), the strategies that
+ * can draw a path (strategy_allowed) and the power heuristic over them
  * (mis_weight: (R15)).  Chapter 7 (Metropolis light transport) draws the same
  * paths from a vector of uniform numbers: every random number these functions
  * take comes through the rng they are given, which replays that vector
