@@ -296,7 +296,7 @@ static int begin_pass(void *state_pointer, const scene *s, const render_options 
     return 0;
 }
 
-/* (R20) Pixel p's image (begin_pass): b over the mutations per pixel (one a pass) times the splats that landed in it. */
+/* (R20) Pixel p's part of this pass (begin_pass): the driver's mean over the M passes is b / M times its splats. */
 static vec3 radiance(const void *state_pointer, const scene *s, ray r, rng *g, render_counters *counters)
 {
     const mlt_state *m = state_pointer;
