@@ -59,7 +59,8 @@ $(BUILD)/%: chapters/%.c $(COMMON_OBJ)
 # object), so neither includes the other and each answer is written
 # once: chapter 2 shades with chapter 1's local model (chapters/local_model.h),
 # chapter 03c computes form factors as chapter 3 (chapters/radiosity_model.h),
-# chapter 5 scatters and samples lights as chapter 4 (chapters/pathtrace_model.h).
+# chapter 5 scatters and samples lights as chapter 4 (chapters/pathtrace_model.h), chapter 7 draws its
+# paths as chapter 6 (chapters/bidir_model.h).
 $(BUILD)/chapters/%_model.o: chapters/%.c
 	@mkdir -p $(dir $@)
 	$(CC) $(CFLAGS) -Dmain=chapter_$*_main -Icommon -MF $(@:.o=.d) -MT $@ -c $< -o $@
@@ -67,6 +68,8 @@ $(BUILD)/02_whitted: $(BUILD)/chapters/01_local_model.o
 $(BUILD)/03c_hierarchical: $(BUILD)/chapters/03_radiosity_model.o
 $(BUILD)/05_photonmap: $(BUILD)/chapters/04_pathtrace_model.o
 $(BUILD)/06_bidirectional: $(BUILD)/chapters/04_pathtrace_model.o $(BUILD)/chapters/05_photonmap_model.o
+$(BUILD)/07_metropolis: $(BUILD)/chapters/04_pathtrace_model.o $(BUILD)/chapters/05_photonmap_model.o \
+                        $(BUILD)/chapters/06_bidirectional_model.o
 
 $(BUILD)/bench/%: bench/%.c $(COMMON_OBJ)
 	@mkdir -p $(dir $@)

@@ -18,12 +18,12 @@
 
 #include "render.h"
 #include "sampling.h"
-#include "bidir_store.h"     /* bookkeeping: the state, options, storage of light subpaths, stats */
-#include "photonmap_model.h" /* chapter 5's as_flux; through it chapter 4's f, pdfs, scattering */
+#include "bidir_store.h" /* bookkeeping: the state, options, storage of light subpaths, stats */
+#include "bidir_model.h" /* what chapter 7 uses of this one; chapter 5's as_flux, chapter 4's f, pdfs, scattering */
 
 /* A path x_0 .. x_k of k edges is the term K^(k-1) E (R6): does --bounces A:B keep it?  At a sensor (probes,
  * surface means: sensor_sample) x_(k-1) is the sensor's point, whose reflection is bounce x_k.surface (0 or 1). */
-static bool keeps_length(const bidir_state *st, const path_vertex *x, int k)
+bool keeps_length(const bidir_state *st, const path_vertex *x, int k)
 {
     return bounces_keep(st->bounces, k - 1 - (x[k].kind == AT_SENSOR ? 1 - x[k].surface : 0));
 }
@@ -57,8 +57,8 @@ static double camera_importance(const pinhole *c, double cos_theta)
 
 /* Extend subpath p (count vertices, the last one left toward w with weight alpha) by a random walk as chapter 4's
  * (R2), up to `cap` vertices; a light subpath carries flux (chapter 5's as_flux).  Returns the new count. */
-static int extend(const scene *s, path_vertex *p, int count, int cap, vec3 alpha, vec3 w, bool roulette, bool flux,
-                  rng *g, uint64_t *rays)
+int extend(const scene *s, path_vertex *p, int count, int cap, vec3 alpha, vec3 w, bool roulette, bool flux, rng *g,
+           uint64_t *rays)
 {
     for (; count < cap; count++) {
         hit h;
@@ -92,7 +92,7 @@ static double light_point_pdf(const bidir_state *st, const scene *s, const path_
 
 /* A light subpath: a light picked by power, a point on it, a direction drawn like the emitted power (cosine; a
  * point light: the sphere), then a walk.  y_0's weight is 1 / its density, y_1's L_e cos / p(w) more. */
-static int light_subpath(const bidir_state *st, const scene *s, rng *g, path_vertex *y, uint64_t *rays, bool roulette)
+int light_subpath(const bidir_state *st, const scene *s, rng *g, path_vertex *y, uint64_t *rays, bool roulette)
 {
     int i = pick_light(st, s, rng_uniform(g));
     double u1 = rng_uniform(g), u2 = rng_uniform(g);
@@ -153,7 +153,7 @@ static bool connect_to_camera(const bidir_state *st, const scene *s, const path_
 /* ---- 2. bidirectional path tracing: every (s, t), weighted by (R15) ---------------------------- */
 
 /* The path x_0 .. x_k of a strategy: y_0 .. y_{s-1}, then z_{t-1} .. z_0. */
-static int join(const path_vertex *y, int s_count, const path_vertex *z, int t_count, path_vertex *x)
+int join(const path_vertex *y, int s_count, const path_vertex *z, int t_count, path_vertex *x)
 {
     memcpy(x, y, (size_t)s_count * sizeof *x);
     for (int i = 0; i < t_count; i++)
@@ -192,8 +192,6 @@ static double area_pdf(const bidir_state *st, const scene *s, const path_vertex 
     return direction_pdf(x, e, j, dir, &st->camera) * cos_at(&x[i], path_toward(e, i, -dir)) / (D * D);
 }
 
-typedef enum { CONNECT, MERGE } technique;
-
 /* Merging (R16) at vertex v, whose neighbour toward the eye is n: VCM merges only where the eye sees v in a mirror
  * or glass (L .. D S .. E): elsewhere a join makes the path as well, and a merge adds a photon search and blur. */
 static bool may_merge_at(const bidir_state *st, const path_vertex *v, const path_vertex *n)
@@ -203,7 +201,7 @@ static bool may_merge_at(const bidir_state *st, const path_vertex *v, const path
 
 /* Can the method make x_0 .. x_k by joining s light to t = k + 1 - s eye vertices (or merging at x_s)?  Not through a
  * delta: a mirror, glass, the pinhole (t = 0), a point light (s = 0). */
-static bool strategy_allowed(const bidir_state *st, const path_vertex *x, int k, technique how, int s)
+bool strategy_allowed(const bidir_state *st, const path_vertex *x, int k, technique how, int s)
 {
     int t = k + 1 - s;
     bool sensor = x[k].kind == AT_SENSOR; /* its point is z_1, given: no (s, 1), no merging, no L_e there */
@@ -250,7 +248,7 @@ static void path_pdfs(const bidir_state *st, const scene *s, const path_vertex *
  * for x_0 .. x_k.  Dividing both densities of one vertex by the same number changes no weight (every strategy takes
  * one of them), so each is divided by the larger: a long path in millimetres does not underflow.  If the strategy's
  * own density still does, the path is dropped (weight 0, counted in the stats). [exercise 6.4] */
-static double mis_weight(const bidir_state *st, const scene *s, const path_vertex *x, int k, technique how, int used)
+double mis_weight(const bidir_state *st, const scene *s, const path_vertex *x, int k, technique how, int used)
 {
     double pdf_light[MAX_PATH], pdf_eye[MAX_PATH], merge_chance[MAX_PATH], sum = 0.0;
     if (st->single_strategy)
@@ -291,8 +289,8 @@ static vec3 connect(const scene *s, const path_vertex *y, int s_count, const pat
 
 /* The unweighted value of strategy (s, t) on subpaths y, z: (R13)'s integrand over (R14)'s density as they carry
  * it.  s = 0: the eye subpath found the light by itself; t = 1: light tracing (into *pixel); else a join. */
-static vec3 strategy_value(const bidir_state *st, const scene *s, const path_vertex *y, int s_count,
-                           const path_vertex *z, int t, int *pixel, uint64_t *rays)
+vec3 strategy_value(const bidir_state *st, const scene *s, const path_vertex *y, int s_count, const path_vertex *z,
+                    int t, int *pixel, uint64_t *rays)
 {
     vec3 C = v3_splat(0.0);
     if (s_count == 0)

@@ -12,15 +12,32 @@
  *                 what a uniform double (53 bits) needs.  A path tracer draws
  *                 some ten numbers per path vertex, so one step per number
  *                 rather than two matters.
+ *
+ * Primary sample space (Kelemen et al. 2002; chapter 7): a generator given a
+ * `replay` vector hands out its stored numbers u_0, u_1, ... in order instead,
+ * so that the code that draws a path is a function of that vector; past the
+ * stored ones it draws fresh numbers and stores them.  One test of a pointer
+ * per number, measured as no cost to the other chapters.
  */
 #ifndef COMMON_RNG_H
 #define COMMON_RNG_H
 
 #include <stdint.h>
 
+typedef struct primary_samples primary_samples;
 typedef struct {
     uint64_t state, increment;
+    primary_samples *replay; /* NULL: the generator's own numbers */
 } rng;
+
+/* A vector of uniform numbers in [0, 1) read in order (next).  The first
+ * `count` are given; a read past them takes a number from `fresh` and, while
+ * there is room, stores it (capacity; past that it is not kept). */
+struct primary_samples {
+    double *u;
+    int count, capacity, next;
+    rng fresh;
+};
 
 /* SplitMix64 finaliser: spreads nearby integers (pixel 17, pixel 18) to
  * unrelated 64-bit values. */
@@ -58,7 +75,7 @@ static inline uint64_t rng_next_u64(rng *g)
 /* A stream for sample `sample` of item `index` (pixel, probe, patch ...). */
 static inline rng rng_for(uint64_t seed, uint64_t index, uint64_t sample)
 {
-    rng g = {.state = 0, .increment = (hash64(seed ^ 0x5851f42d4c957f2dull) << 1u) | 1u};
+    rng g = {.state = 0, .increment = (hash64(seed ^ 0x5851f42d4c957f2dull) << 1u) | 1u, .replay = NULL};
     uint64_t init = hash64(hash64(seed) ^ hash64(index + 0x632be59bd9b4e019ull) ^ (sample * 0xd1342543de82ef95ull));
     rng_step(&g);
     g.state += init;
@@ -68,9 +85,25 @@ static inline rng rng_for(uint64_t seed, uint64_t index, uint64_t sample)
 
 /* Uniform double in [0, 1): the top 53 bits of one 64-bit output (converted
  * through int64_t, which the hardware does in one instruction; they fit). */
-static inline double rng_uniform(rng *g)
+static inline double rng_fresh_uniform(rng *g)
 {
     return (double)(int64_t)(rng_next_u64(g) >> 11) * (1.0 / 9007199254740992.0);
 }
+
+/* The next number of a replayed vector (primary_samples). */
+static inline double primary_sample_next(primary_samples *p)
+{
+    if (p->next < p->count)
+        return p->u[p->next++];
+    double u = rng_fresh_uniform(&p->fresh);
+    if (p->next < p->capacity) {
+        p->u[p->next] = u;
+        p->count = p->next + 1;
+    }
+    p->next++;
+    return u;
+}
+
+static inline double rng_uniform(rng *g) { return g->replay ? primary_sample_next(g->replay) : rng_fresh_uniform(g); }
 
 #endif

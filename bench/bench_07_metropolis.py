@@ -1,0 +1,101 @@
+"""Metropolis light transport (chapter 7) against BDPT (chapter 6) at equal time on Veach's door ajar.
+
+scenes/door-ajar.scene: the lamp is in the far room, its light reaches the camera's room only
+through the crack of a door open 4 degrees.  Each method renders BENCH7_SIZE x BENCH7_SIZE (default
+64) for --time BENCH7_SECONDS (default 10; the budget counts MLT's bootstrap) on one thread,
+BENCH7_SEEDS times (default 4) with different seeds: MLT's error is correlated (one b per image,
+chains that linger), so its per-pixel error is measured over independent runs, never within one.
+Methods: MMLT (chapter 7's default), PSSMLT, and BDPT (chapter 6 --method bdpt); BENCH7_METHODS
+picks (mmlt,pssmlt,bdpt).  The reference is the mean of two independent BDPT renders a and b of
+BENCH7_REFERENCE_SECONDS each (default 120, two threads; kept in out/bench/07/ by size and
+reused); its own noise, mean((a - b)^2) / 4 per pixel, is subtracted from each method's MSE.
+Prints, per method, the RMSE over seeds and pixels (and its spread: the RMSE of each seed), the
+image mean against the reference's, mutations or passes per pixel; then the target: MMLT's RMSE at
+most half of BDPT's.  A benchmark, not a test: it prints what it measures, met or not.
+
+    /usr/bin/python3 bench/bench_07_metropolis.py        (BENCH7_SECONDS=30 BENCH7_SEEDS=8 ... to vary)
+"""
+import json
+import math
+import os
+import subprocess
+import sys
+
+from common import BUILD, ROOT
+
+sys.path.insert(0, os.path.join(ROOT, "tests"))
+from pfm import read_pfm  # noqa: E402
+
+SIZE = int(os.environ.get("BENCH7_SIZE", "64"))
+SECONDS = float(os.environ.get("BENCH7_SECONDS", "10"))
+SEEDS = int(os.environ.get("BENCH7_SEEDS", "4"))
+REFERENCE_SECONDS = float(os.environ.get("BENCH7_REFERENCE_SECONDS", "120"))
+METHODS = os.environ.get("BENCH7_METHODS", "mmlt,pssmlt,bdpt").split(",")
+SCENE = "scenes/door-ajar.scene"
+OUT = os.path.join(ROOT, "out", "bench", "07")
+RUNS = {"mmlt": ("07_metropolis", ["--method", "mmlt"]), "pssmlt": ("07_metropolis", ["--method", "pssmlt"]),
+        "bdpt": ("06_bidirectional", ["--method", "bdpt"])}
+
+
+def render(chapter, args, name):
+    """Render the scene into out/bench/07/NAME.pfm; return (pixels as a flat list, stats)."""
+    os.makedirs(OUT, exist_ok=True)
+    pfm, stats = os.path.join(OUT, name + ".pfm"), os.path.join(OUT, name + ".json")
+    command = [os.path.join(BUILD, chapter), SCENE, "--size", f"{SIZE}x{SIZE}", "--quiet", "--out", pfm,
+               "--stats", stats, *map(str, args)]
+    print("  " + " ".join(command[:1] + [os.path.relpath(c, ROOT) if c.startswith(ROOT) else c
+                                        for c in command[1:]]), flush=True)
+    result = subprocess.run(command, cwd=ROOT, capture_output=True, text=True)
+    if result.returncode:
+        sys.exit(f"bench: {' '.join(command)} failed: {result.stderr}")
+    with open(stats) as f:
+        return list(read_pfm(pfm)[2]), json.load(f)
+
+
+def reference():
+    """Two independent long BDPT renders (reused when present): their mean and its noise per pixel."""
+    halves = []
+    for seed in (9001, 9002):
+        name = f"reference-{SIZE}-{seed}"
+        pfm = os.path.join(OUT, name + ".pfm")
+        if os.path.exists(pfm):
+            halves.append(list(read_pfm(pfm)[2]))
+        else:
+            halves.append(render("06_bidirectional", ["--method", "bdpt", "--time", REFERENCE_SECONDS, "--threads", 2,
+                                                      "--seed", seed], name)[0])
+    a, b = halves
+    mean = [(x + y) / 2 for x, y in zip(a, b)]
+    noise = sum((x - y) ** 2 for x, y in zip(a, b)) / len(a) / 4  # the MSE of the mean of the two
+    return mean, noise
+
+
+def main():
+    print(f"bench_07_metropolis: {SCENE} at {SIZE}x{SIZE}, {SECONDS:g} s a run on one thread, {SEEDS} seeds")
+    ref, ref_noise = reference()
+    ref_mean = sum(ref) / len(ref)
+    print(f"reference (BDPT, 2 x {REFERENCE_SECONDS:g} s): mean {ref_mean:.5g}, its own MSE {ref_noise:.3g} "
+          "(subtracted below)")
+    rmse = {}
+    for method in METHODS:
+        chapter, args = RUNS[method]
+        per_seed, means, counts = [], [], []
+        for i in range(SEEDS):
+            img, stats = render(chapter, [*args, "--time", SECONDS, "--threads", 1, "--seed", 100 + i],
+                                f"{method}-{SIZE}-{i}")
+            per_seed.append(sum((x - r) ** 2 for x, r in zip(img, ref)) / len(ref))
+            means.append(sum(img) / len(img))
+            counts.append(stats["spp"])
+        mse = max(0.0, sum(per_seed) / SEEDS - ref_noise)
+        rmse[method] = math.sqrt(mse)
+        seeds = ", ".join(f"{math.sqrt(max(0.0, m - ref_noise)):.4g}" for m in per_seed)
+        print(f"{method:7s} RMSE {rmse[method]:.4g} (relative {rmse[method] / ref_mean:.3f}; per seed {seeds}); "
+              f"image mean {sum(means) / SEEDS:.5g} vs {ref_mean:.5g}; {min(counts)}-{max(counts)} "
+              f"{'mutations' if chapter == '07_metropolis' else 'passes'} per pixel")
+    if "mmlt" in rmse and "bdpt" in rmse and rmse["bdpt"] > 0:
+        ratio = rmse["mmlt"] / rmse["bdpt"]
+        print(f"target door-ajar MMLT/BDPT RMSE = {ratio:.2f} at {SECONDS:g} s (<= 0.5: "
+              f"{'met' if ratio <= 0.5 else 'not met'})")
+
+
+if __name__ == "__main__":
+    main()
