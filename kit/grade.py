@@ -764,7 +764,8 @@ def main(argv):
                   "sandbox": "none: graded with --unsafe (UNSAFE=1), the submission's code ran unconfined"
                              if opts.get("unsafe", False) else "bubblewrap (kit/sandbox.py)" if opts["sandbox"] == "bwrap"
                              else f"a separate user (uid {opts['uid']}) with per-user and per-process limits "
-                                  "(--sandbox user: no namespaces here, the file system is not hidden)",
+                                  "(--sandbox user: no namespaces here, the file system is not hidden; no sockets: a seccomp "
+                                  "filter)",
                   "statistics": "Welch's t per tile and channel and on the image mean, one-sided F on the noise, "
                                 "Holm within a criterion, Bonferroni over the compare criteria",
                   "build_errors": {c: built.get(f"build/{c}") for c in chapters if built.get(f"build/{c}")},

@@ -34,12 +34,21 @@ but the grader is root, mode "user" is the weaker fallback: the programs run
 directly as uid 65534 with per-user and per-process limits (processes of the
 uid, address space, CPU time, file size), a cgroup where one can be made,
 an empty environment, and every process of the uid killed after the run.
+Without a network namespace, the network is shut by a seccomp filter
+(no_network_filter): socket(), socketpair() and io_uring fail with EACCES,
+so no host listener, TCP or unix, can be reached; unshare(2) would need
+CAP_SYS_ADMIN, which Docker's default profile withholds, while seccomp
+filters are allowed there.  Without a private /tmp, every file the uid
+leaves in /tmp, /var/tmp and /dev/shm is removed after each run.
 The filesystem is not hidden there: the grader must keep what the
 submission must not read unreadable to others (the Gradescope set-up script does).
 """
+import ctypes
 import json
 import os
+import platform
 import select
+import struct
 import shutil
 import signal
 import stat
@@ -265,6 +274,8 @@ class Sandbox:
                 os.setgroups([])
                 os.setgid(self.uid)
                 os.setuid(self.uid)
+            if self.mode == "user":  # no network namespace: no sockets at all
+                install_no_network_filter()
         return start
 
     def run(self, argv, cwd=None, timeout=300.0, cgroup=None):
@@ -297,9 +308,10 @@ class Sandbox:
                         _kill_all(group) if group else kill_user(self.uid)
                         break
                 p.wait()
-                if self.mode == "user":  # nothing of the run may outlive it: no PID namespace here
+                if self.mode == "user":  # nothing of the run may outlive it: no PID namespace, no private /tmp
                     left = kill_user(self.uid)
                     stopped = stopped or (f"{left} processes outlived the run (killed)" if left else "")
+                    remove_files_of(self.uid)
                 if not stopped and group and group.out_of_memory():
                     stopped = f"the sandbox's memory cap of {self.limits.memory_mib} MiB"
                 for _ in range(100 if group else 0):  # the PID namespace's processes die with bwrap, a moment later
@@ -525,8 +537,98 @@ def _passwd_has(uid):
 
 
 def fallback_unavailable():
-    """None when the "user" fallback can run here (root, to switch to uid 65534), else why not."""
-    return None if os.geteuid() == 0 else "the fallback sandbox (a separate user) needs root to switch to it"
+    """None when the "user" fallback can run here (root, to switch to another uid, and a seccomp
+    filter that shuts the network), else why not."""
+    if os.geteuid() != 0:
+        return "the fallback sandbox (a separate user) needs root to switch to it"
+    return no_network_unavailable()
+
+
+# ---- the fallback's network: a seccomp filter ---------------------------------------------------------
+
+# x86-64 Linux: the audit architecture and the system calls that make sockets (socket, socketpair) or an
+# io_uring (which can make sockets itself).  Numbers from <asm/unistd_64.h>.
+AUDIT_ARCH_X86_64 = 0xC000003E
+X32_SYSCALL_BIT = 0x40000000
+NO_NETWORK_SYSCALLS = (41, 53, 425)  # socket, socketpair, io_uring_setup
+PR_SET_NO_NEW_PRIVS, PR_SET_SECCOMP, SECCOMP_MODE_FILTER = 38, 22, 2
+SECCOMP_RET_KILL_PROCESS, SECCOMP_RET_ERRNO, SECCOMP_RET_ALLOW = 0x80000000, 0x00050000, 0x7FFF0000
+EACCES = 13
+
+
+def no_network_filter():
+    """The classic-BPF program of no_network: struct sock_filter {u16 code; u8 jt, jf; u32 k} each."""
+    load_arch, load_nr = (0x20, 0, 0, 4), (0x20, 0, 0, 0)  # BPF_LD | BPF_W | BPF_ABS of seccomp_data
+    n = len(NO_NETWORK_SYSCALLS)
+    program = [load_arch, (0x15, 1, 0, AUDIT_ARCH_X86_64), (0x06, 0, 0, SECCOMP_RET_KILL_PROCESS), load_nr,
+               (0x35, n + 2, 0, X32_SYSCALL_BIT)]  # x32 calls: the same numbers another way in: killed
+    for i, number in enumerate(NO_NETWORK_SYSCALLS):  # BPF_JMP | BPF_JEQ | BPF_K: to the EACCES return
+        program.append((0x15, n - i, 0, number))
+    program += [(0x06, 0, 0, SECCOMP_RET_ALLOW), (0x06, 0, 0, SECCOMP_RET_ERRNO | EACCES),
+                (0x06, 0, 0, SECCOMP_RET_KILL_PROCESS)]
+    return b"".join(struct.pack("HBBI", *insn) for insn in program), len(program)
+
+
+def install_no_network_filter():
+    """In the process about to run the submission: no new privileges, then the filter (for good:
+    a seccomp filter is inherited by every child and cannot be removed)."""
+    code, count = no_network_filter()
+    buffer = ctypes.create_string_buffer(code, len(code))
+
+    class SockFprog(ctypes.Structure):
+        _fields_ = [("len", ctypes.c_ushort), ("filter", ctypes.c_void_p)]
+
+    libc = ctypes.CDLL(None, use_errno=True)
+    prog = SockFprog(count, ctypes.cast(buffer, ctypes.c_void_p))
+    if libc.prctl(PR_SET_NO_NEW_PRIVS, 1, 0, 0, 0) != 0 or \
+            libc.prctl(PR_SET_SECCOMP, SECCOMP_MODE_FILTER, ctypes.byref(prog), 0, 0) != 0:
+        raise OSError(ctypes.get_errno(), "cannot install the sandbox's seccomp filter")
+
+
+def no_network_unavailable():
+    """None when a child process can install the filter and is then refused a socket, else why not."""
+    if platform.machine() != "x86_64":
+        return f"the fallback's network filter is written for x86-64, not {platform.machine()}"
+    pid = os.fork()
+    if pid == 0:
+        code = 3
+        try:
+            install_no_network_filter()
+            import socket
+            try:
+                socket.socket(socket.AF_INET, socket.SOCK_STREAM).close()
+                code = 2  # the filter is in, but a socket was made
+            except PermissionError:
+                code = 0
+        except OSError:
+            code = 1
+        os._exit(code)
+    _, status = os.waitpid(pid, 0)
+    code = os.waitstatus_to_exitcode(status)
+    return None if code == 0 else {1: "the fallback cannot install its seccomp filter here (no network isolation)",
+                                   2: "the fallback's seccomp filter does not stop sockets here"}.get(
+                                       code, f"the fallback's network check ended with {code}")
+
+
+def remove_files_of(uid, places=("/tmp", "/var/tmp", "/dev/shm")):
+    """Remove what uid (a grading's own, user_for_grading) left at the top of the shared temporary
+    places, directories with all they hold."""
+    for place in places:
+        try:
+            names = os.listdir(place)
+        except OSError:
+            continue
+        for name in names:
+            path = os.path.join(place, name)
+            try:
+                if os.lstat(path).st_uid != uid:
+                    continue
+                if stat.S_ISDIR(os.lstat(path).st_mode):
+                    shutil.rmtree(path, ignore_errors=True)
+                else:
+                    os.unlink(path)
+            except OSError:
+                continue
 
 
 def _exited(p, seconds):

@@ -208,7 +208,8 @@ def test_hostile_submission_is_contained(ctx):
 def test_the_fallback_sandbox_contains_the_hostile_submission(ctx):
     """--sandbox user (Gradescope's Docker: no user namespaces) hides no file, so what a submission
     may not read must be unreadable to others there (the archive's set-up does it); the rest holds
-    as under bubblewrap: no forged result, no classmate's report changed, nothing left running."""
+    as under bubblewrap: no forged result, no classmate's report changed, nothing left running, no
+    connection to a host listener (TCP or unix), no file left in /tmp, /var/tmp or /dev/shm."""
     if "asan" in ctx.build:
         return
     victim_dir = ctx.path("fallback-reports")
@@ -217,10 +218,55 @@ def test_the_fallback_sandbox_contains_the_hostile_submission(ctx):
     with open(victim, "w") as f:
         f.write('{"total": 100}')
     os.chmod(victim, 0o644)
-    hostile = submission(ctx, "fallback-hostile", hostile_constructor(victim))
+    # Without a network namespace: a TCP listener on the host's loopback and a unix socket anyone
+    # may connect to, both waiting; without a private /tmp: files left in the shared places.
+    tcp = socket.socket()
+    tcp.bind(("127.0.0.1", 0))
+    tcp.listen()
+    unix_dir = ctx.path("unix")
+    os.makedirs(unix_dir)
+    os.chmod(ctx.path(""), 0o755)
+    os.chmod(unix_dir, 0o777)
+    unix_path = os.path.join(unix_dir, "listener")
+    unix = socket.socket(socket.AF_UNIX)
+    unix.bind(unix_path)
+    os.chmod(unix_path, 0o777)
+    unix.listen()
+    left_files = [f"{place}/gi-hostile-left-{os.getpid()}" for place in ("/tmp", "/var/tmp", "/dev/shm")]
+    probe = f"""
+    /* 7. the host's listeners, TCP and unix; files in the shared temporary places */
+    int t = socket(AF_INET, SOCK_STREAM, 0);
+    struct sockaddr_in b = {{.sin_family = AF_INET, .sin_port = htons({tcp.getsockname()[1]}),
+                            .sin_addr = {{htonl(0x7f000001)}}}};
+    if (t >= 0 && connect(t, (struct sockaddr *)&b, sizeof b) == 0) fprintf(stderr, "NET connected tcp\\n");
+    int u = socket(AF_UNIX, SOCK_STREAM, 0);
+    struct sockaddr_un c = {{.sun_family = AF_UNIX}};
+    snprintf(c.sun_path, sizeof c.sun_path, "%s", {c_string(unix_path)});
+    if (u >= 0 && connect(u, (struct sockaddr *)&c, sizeof c) == 0) fprintf(stderr, "NET connected unix\\n");
+    const char *places[] = {{{", ".join(c_string(f) for f in left_files)}}};
+    for (int i = 0; i < 3; i++) {{
+        FILE *f = fopen(places[i], "w");
+        if (f) fputs("left", f), fclose(f);
+    }}
+"""
+    hostile = submission(ctx, "fallback-hostile", probe + hostile_constructor(victim),
+                         before_includes="#include <sys/un.h>\n")
     report_dir = ctx.path("fallback-report")
     r = grade(ctx, hostile, report_dir, "--sandbox", "user")
     time.sleep(6)  # the detached process would have written by now
+    for listener in (tcp, unix):
+        listener.setblocking(False)
+        try:
+            listener.accept()
+            raise AssertionError(f"the fallback's submission connected to the host's {listener.family.name} listener")
+        except BlockingIOError:
+            pass
+        finally:
+            listener.close()
+    left = [f for f in left_files if os.path.exists(f)]
+    for f in left:
+        os.unlink(f)
+    assert not left, f"the fallback's grading left the submission's files behind: {left}"
     assert r.returncode == 0, f"grading with --sandbox user: exit {r.returncode}: {r.stderr[-800:]}"
     report = read_report(report_dir)
     row = report["criteria"][0]
