@@ -651,7 +651,45 @@ def write_html(path, report, name):
         f.write("\n".join(out) + "\n")
 
 
+SCRATCH_PREFIX = "gi-grade-"
+
+
+def end_on_signals():
+    """SIGTERM, SIGHUP and SIGINT end a grading through main's `finally:`, which ends its sandboxes and
+    removes its cgroups and its scratch directory.  SIGKILL cannot be caught: the next grading removes
+    what such a one left (remove_stale_scratch)."""
+    def stop(signum, frame):
+        raise SystemExit(128 + signum)
+    for sig in (signal.SIGTERM, signal.SIGHUP, signal.SIGINT):
+        signal.signal(sig, stop)
+
+
+def remove_stale_scratch():
+    """Scratch directories of gradings that were killed: named gi-grade-PID-..., their grader gone."""
+    top = tempfile.gettempdir()
+    for name in os.listdir(top):
+        parts = name[len(SCRATCH_PREFIX):].split("-")
+        if not name.startswith(SCRATCH_PREFIX) or not parts[0].isdigit():
+            continue
+        try:
+            with open(f"/proc/{parts[0]}/cmdline", "rb") as f:
+                alive = b"grade.py" in f.read()
+        except OSError:
+            alive = False
+        if not alive:
+            shutil.rmtree(os.path.join(top, name), ignore_errors=True)
+
+
+def private_scratch(work, uid):
+    """The scratch directory open to the grader and to the sandbox's uid (its group) only: no other
+    grading's student code (another uid under --sandbox user) can enter it."""
+    if os.geteuid() == 0:
+        os.chown(work, 0, uid)
+    os.chmod(work, 0o750 if os.geteuid() == 0 else 0o700)  # not root: the sandbox runs as the grader
+
+
 def main(argv):
+    end_on_signals()
     opts = parse_args(argv)
     try:
         rub = rubric_module.load(ROOT, opts["rubric"])
@@ -701,13 +739,15 @@ def main(argv):
     start = time.time()
     date = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     digest, files = submission_hash(submission)
-    work = tempfile.mkdtemp(prefix="gi-grade-")
+    remove_stale_scratch()
+    work = tempfile.mkdtemp(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-")
     try:
         names = sorted(markers.chapter_names(ROOT).values())
         needed = set(chapters) | set(chapters_run_by(criteria, names))
         src, missing = prepare(submission, work, chapters, later_chapters(needed))
         if not opts.get("unsafe", False):  # the sandbox user writes the build and nothing else of the tree
             os.chown(os.path.join(src, "build"), opts["uid"], opts["uid"])
+            private_scratch(work, opts["uid"])
         absent = {c for c in chapters for f in missing if f == f"chapters/{c}.c"}
         present = [c for c in chapters if c not in absent]
         all_chapters = sorted(os.path.splitext(f)[0] for f in os.listdir(os.path.join(src, "chapters"))

@@ -14,6 +14,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import socket
 import stat
 import subprocess
@@ -277,6 +278,45 @@ def test_the_fallback_sandbox_contains_the_hostile_submission(ctx):
         assert f.read() == '{"total": 100}', "the classmate's report changed"
     left = subprocess.run(["pgrep", "-f", "sleep 7777"], capture_output=True, text=True).stdout.split()
     assert not left, f"processes of the hostile submission outlived its grading: {left}"
+
+
+def test_a_killed_grading_leaves_no_scratch_to_read(ctx):
+    """A grading's scratch directory (the tree it builds, its outputs) is the grader's and its sandbox
+    uid's only while it runs; a grading ended by SIGTERM removes it, and one ended by SIGKILL (which
+    cannot be caught) leaves it to the next grading, which removes it before it starts."""
+    if "asan" in ctx.build:
+        return
+    honest = submission(ctx, "scratch-honest")
+    top = tempfile.gettempdir()
+
+    def start_and_wait(name):
+        p = subprocess.Popen(GRADE + [honest, "--report", ctx.path(name), "--chapters", "01_local", "--rubric",
+                                      rubric_file(ctx)], cwd=ROOT, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL, start_new_session=True)
+        prefix = f"gi-grade-{p.pid}-"
+        for _ in range(600):
+            mine = [n for n in os.listdir(top) if n.startswith(prefix)]
+            if mine and os.path.isdir(os.path.join(top, mine[0], "scratch")):
+                return p, os.path.join(top, mine[0])
+            time.sleep(0.05)
+        p.kill()
+        raise AssertionError(f"no scratch directory {prefix}* appeared")
+
+    p, work = start_and_wait("terminated")
+    mode = stat.S_IMODE(os.stat(work).st_mode)
+    assert mode & 0o007 == 0, f"the scratch directory {work} is open to others: {oct(mode)}"
+    os.killpg(p.pid, signal.SIGTERM)
+    p.wait(timeout=60)
+    assert not os.path.exists(work), f"a grading ended by SIGTERM left {work}"
+    p, killed_work = start_and_wait("killed")
+    os.killpg(p.pid, signal.SIGKILL)
+    p.wait(timeout=60)
+    assert os.path.exists(killed_work), "SIGKILL cannot be caught: its scratch is left for the next grading"
+    p, work = start_and_wait("next")
+    os.killpg(p.pid, signal.SIGTERM)
+    p.wait(timeout=60)
+    assert not os.path.exists(killed_work), f"the next grading did not remove the killed one's {killed_work}"
+    assert not os.path.exists(work), f"a grading ended by SIGTERM left {work}"
 
 
 def test_caps_stop_fork_bombs_memory_and_huge_files(ctx):
