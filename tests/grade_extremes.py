@@ -4,6 +4,14 @@ Scale (the Cornell box in kilometres and in tenths of a micrometre), grazing
 views, albedo 0 and 0.999, a tiny very bright light, IOR 1 and 4, zero-area
 triangles inside a mesh, a light coplanar with the ceiling.  Every image must
 be finite; where an answer is known, the image must show it.
+
+Chapter 7's image is a Markov chain's histogram: one rounding difference that
+flips one acceptance sends the chain elsewhere from then on, and with albedo 0
+a pixel holds Le times how often the chain landed in it.  So for it the scaled
+scenes must agree in their normalisation b (the image's mean luminance, from
+independent paths and the large steps: within 4 standard errors), not pixel by
+pixel, and the albedo-0 image's mean is b, Le within 4 standard errors.
+Chapter 6 has its extreme scales in grade_06_bidirectional.py.
 """
 import math
 import os
@@ -12,7 +20,9 @@ import subprocess
 
 from lib import ROOT, finite_image, lambert_polygon_irradiance, probe
 
-CHAPTERS = ("01_local", "02_whitted", "03_radiosity", "03c_hierarchical", "04_pathtrace", "05_photonmap")  # 06: grade_06
+CHAPTERS = ("01_local", "02_whitted", "03_radiosity", "03c_hierarchical", "04_pathtrace", "05_photonmap",
+            "07_metropolis")  # 06: grade_06
+MARKOV_CHAIN = "07_metropolis"  # its pixels are not comparable one by one (module docstring)
 # Per-chapter settings that keep a 32x32 render well under a second.
 QUICK = {
     "01_local": ["--light-samples", "4"],
@@ -21,6 +31,7 @@ QUICK = {
     "03c_hierarchical": ["--eps", "0.1", "--levels", "4", "--quadrature", "1", "--eps-spread", "0"],
     "04_pathtrace": ["--spp", "16"],
     "05_photonmap": ["--photons", "20000", "--probe-photons", "4096"],
+    "07_metropolis": ["--spp", "4", "--bootstrap", "4000"],
 }
 
 
@@ -62,6 +73,10 @@ def mean_radiance(img):
     return sum(sum(px) for px in img.pixels) / (3 * len(img.pixels))
 
 
+def mean_luminance(img):
+    return sum(0.2126 * r + 0.7152 * g + 0.0722 * b for r, g, b in img.pixels) / len(img.pixels)
+
+
 def test_scale_invariance_every_chapter(ctx):
     """The Cornell box scaled by 1e-4 and by 1e4 renders the same image as at
     scale 1 (same seed, so the same random numbers): no acne (self-hits would
@@ -70,19 +85,26 @@ def test_scale_invariance_every_chapter(ctx):
     differ by more than 1e-3 relative, and the mean radiance by 1e-4."""
     text = cornell_text()
     for chapter in CHAPTERS:
-        images = {}
+        images, stats = {}, {}
         for s in (1.0, 1e-4, 1e4):
             scene = ctx.write(f"cornell-{s:g}.scene", scale_scene(text, s))
             extra = list(QUICK[chapter])
             if chapter == "03_radiosity":
                 extra = ["--patch-size", repr(100 * s)]
-            images[s], _ = ctx.render(chapter, scene, "--size", "32x32", *extra, name=f"{chapter}-{s:g}")
+            images[s], stats[s] = ctx.render(chapter, scene, "--size", "32x32", *extra, name=f"{chapter}-{s:g}")
             assert finite_image(images[s]), f"{chapter} scale {s}: non-finite pixels"
         base = images[1.0]
         for s in (1e-4, 1e4):
+            mean_change = abs(mean_radiance(images[s]) - mean_radiance(base)) / mean_radiance(base)
+            if chapter == MARKOV_CHAIN:
+                b, b1 = stats[s]["b"], stats[1.0]["b"]
+                bound = 4 * math.hypot(stats[s]["b_standard_error"], stats[1.0]["b_standard_error"])
+                assert abs(b - b1) <= bound, f"{chapter} scale {s:g}: b {b} against {b1} at scale 1 (bound {bound})"
+                assert abs(mean_luminance(images[s]) - b) <= 1e-5 * b, \
+                    f"{chapter} scale {s:g}: the image's mean luminance {mean_luminance(images[s])} is not b = {b}"
+                continue
             differing = sum(1 for a, b in zip(base.pixels, images[s].pixels)
                             if any(abs(x - y) > 1e-3 * max(abs(x), 1e-3) for x, y in zip(a, b)))
-            mean_change = abs(mean_radiance(images[s]) - mean_radiance(base)) / mean_radiance(base)
             assert differing <= 0.005 * len(base.pixels), \
                 f"{chapter} scale {s:g}: {differing} of {len(base.pixels)} pixels differ (acne or leaks)"
             assert mean_change < 1e-4, f"{chapter} scale {s:g}: mean radiance changed by {mean_change:.2e}"
@@ -114,7 +136,12 @@ def test_albedo_zero_shows_emission_only(ctx):
     """Albedo 0: nothing is reflected, every chapter shows exactly Le."""
     scene = ctx.write("black.scene", FURNACE.format(e=0.5, rho=0.0))
     for chapter in CHAPTERS:
-        img, _ = ctx.render(chapter, scene, "--size", "8x8", *QUICK[chapter], name=chapter)
+        img, stats = ctx.render(chapter, scene, "--size", "8x8", *QUICK[chapter], name=chapter)
+        if chapter == MARKOV_CHAIN:  # the mean is b, a Monte Carlo estimate (strategies weigh paths differently)
+            b, se = stats["b"], stats["b_standard_error"]
+            assert abs(b - 0.5) <= 4 * se + 1e-9 and abs(mean_luminance(img) - b) <= 1e-5 * b, \
+                f"{chapter}: albedo 0 furnace: b {b} +- {se}, image mean luminance {mean_luminance(img)}, Le 0.5"
+            continue
         worst = max(abs(c - 0.5) for px in img.pixels for c in px)
         assert worst < 1e-6, f"{chapter}: albedo 0 furnace deviates from Le by {worst}"
 
@@ -243,7 +270,8 @@ def test_valgrind_memcheck_each_chapter(ctx):
     settings = {"01_local": ["--probe-samples", "64"], "02_whitted": [], "03_radiosity": ["--patch-size", "0.5"],
                 "03c_hierarchical": ["--levels", "3", "--eps", "0.1"],
                 "04_pathtrace": ["--spp", "2", "--probe-samples", "64"],
-                "05_photonmap": ["--photons", "2000", "--probe-photons", "64"]}
+                "05_photonmap": ["--photons", "2000", "--probe-photons", "64"],
+                "07_metropolis": ["--spp", "2", "--bootstrap", "200", "--chains", "4"]}
     for chapter in CHAPTERS:
         exe = os.path.join(ROOT, ctx.build, chapter)
         r = subprocess.run(["valgrind", "-q", "--error-exitcode=99", "--leak-check=full",

@@ -35,7 +35,7 @@ PYTHON = sys.executable or "/usr/bin/python3"
 OUT = os.path.join(ROOT, "out", "slides")
 WORK = os.path.join(ROOT, "build", "slides")
 DECKS = ["01_local", "02_whitted", "03a_rendering_equation", "03b_radiosity", "03c_hierarchical", "04_pathtrace", "05_photonmap",
-         "06_bidirectional", "07_tradeoff"]
+         "06_bidirectional", "07_metropolis", "08_tradeoff"]
 PLAIN = "build"
 # out/slides and build/slides are shared: the plain pass builds the decks, the sanitizer pass reuses them.
 RUN_IN_SEQUENCE = True

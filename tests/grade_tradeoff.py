@@ -35,6 +35,10 @@ How the tolerances are derived (a quick run: 32x32 pixels, spp 2, 8, ..., 512):
   (one pixel of the mirror ball, a rare eye path that hits the 13 mm light, weighted
   against merging with only 1,024 light paths a pass, dominates even the reference's
   error: its own RMSE 0.15 against 0.001 on cornell).
+- Chapter 7 (PSSMLT and MMLT over mutations per pixel, 4 .. 64): at least 3 points on
+  every scene, each over at least 2 independent seeds with a finite standard error over
+  them (its error is correlated across pixels; a fall of the error is not tested: two
+  seeds give no standard error to test it with).
 - A reference from chapter 6 (BDPT on gap) against chapter 4: path tracing's longest
   run has the reference's image mean within 4 standard errors, sqrt(MSE / pixels) (path
   tracing's pixels have independent errors; it is unbiased, so a biased reference fails).
@@ -53,6 +57,7 @@ SCRIPT = os.path.join(lib.ROOT, "tradeoff", "tradeoff.py")
 SCENES = ["cornell", "cornell-spheres", "gap", "sds"]
 FULL_SCENES = ["cornell", "cornell-spheres"]  # every chapter; on gap and sds only chapters 4 (MIS), 5 and 6
 BIDIR = ["light", "bdpt", "vcm"]
+METROPOLIS = ["pssmlt", "mmlt"]  # chapter 7: every point over independent seeds (tradeoff.py's MLT_METHODS)
 ESTIMATORS = ["hemisphere", "cosine", "light", "mis"]
 REQUIRED_COLUMNS = ["scene", "method", "setting", "spp", "patches", "time_s", "rmse", "relmse", "ssim"]
 SLOPE_HALF_WIDTH_QUICK = 0.2
@@ -82,7 +87,7 @@ def _pipeline(ctx):
         refs = json.load(f)["references"]
     for r in rows:
         for k in ("spp", "patches", "time_s", "cpu_s", "rmse", "relmse", "ssim", "mse_se", "ref_mse", "patch_size",
-                  "pixels", "mean"):
+                  "pixels", "mean", "seeds"):
             r[k] = float(r[k]) if r.get(k) not in ("", None) else None
     _runs[ctx.build] = (out, rows, refs)
     return _runs[ctx.build]
@@ -108,7 +113,7 @@ def test_tradeoff_1_pipeline_outputs(ctx):
     assert not missing, f"tradeoff.csv lacks columns {missing}"
     for scene in SCENES:
         methods = {r["method"] for r in rows if r["scene"] == scene and r["status"] == "ok"}
-        expected = {"pathtrace", "photonmap", "bidirectional"}
+        expected = {"pathtrace", "photonmap", "bidirectional", "metropolis"}
         if scene in FULL_SCENES:
             expected |= {"radiosity", "whitted", "local"}
         assert methods >= expected, f"{scene}: methods {methods}, expected {expected}"
@@ -116,6 +121,12 @@ def test_tradeoff_1_pipeline_outputs(ctx):
             assert len(_curve(rows, scene, f"pt-{e}")) >= 3, f"{scene}: fewer than 3 points for {e}"
         for m in BIDIR:
             assert len(_curve(rows, scene, f"bd-{m}")) >= 3, f"{scene}: fewer than 3 points for chapter 6's {m}"
+        for m in METROPOLIS:
+            points = _curve(rows, scene, f"mlt-{m}")
+            assert len(points) >= 3, f"{scene}: fewer than 3 points for chapter 7's {m}"
+            for r in points:  # correlated error: the RMSE over independent seeds, its standard error over them
+                assert r["seeds"] >= 2 and r["mse_se"] is not None and math.isfinite(r["mse_se"]), \
+                    f"{scene} mlt-{m} {r['setting']}: seeds {r['seeds']}, mse_se {r['mse_se']}"
         for r in rows:
             if r["scene"] == scene and r["status"] == "ok":
                 for k in ("time_s", "cpu_s", "rmse", "relmse", "ssim"):

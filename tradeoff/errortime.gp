@@ -35,7 +35,7 @@ set key outside below center horizontal maxcols 2 Left reverse samplen 2 box
 set xlabel offset 0,-0.3
 
 # 1-4 path tracing estimators, 5-8 radiosity solvers, 9-10 Whitted, 11 local, 12 photon mapping,
-# 13-15 chapter 6: light tracing, BDPT, VCM
+# 13-15 chapter 6: light tracing, BDPT, VCM; 16-17 chapter 7: PSSMLT, MMLT (dot-dashed)
 set style line 1  lc rgb '#9467bd' lw 2 pt 7  ps 0.9
 set style line 2  lc rgb '#1f77b4' lw 2 pt 5  ps 0.9
 set style line 3  lc rgb '#17becf' lw 2 pt 9  ps 1.0
@@ -51,6 +51,8 @@ set style line 12 lc rgb '#ff7f0e' lw 2.5 pt 11 ps 1.2 dt 1
 set style line 13 lc rgb '#8fbc8f' lw 2 pt 10 ps 1.1 dt 2
 set style line 14 lc rgb '#1f3fbf' lw 2.5 pt 5 ps 1.0 dt 1
 set style line 15 lc rgb '#2ca02c' lw 3 pt 7 ps 1.1 dt 1
+set style line 16 lc rgb '#e377c2' lw 2 pt 12 ps 1.2 dt 4
+set style line 17 lc rgb '#8b0000' lw 2.5 pt 6 ps 1.2 dt 4
 
 guide(t) = e0 * sqrt(t0 / t)
 plot for [i=1:words(files)] word(files, i) using int(xcol):2 with linespoints ls int(word(styles, i)) title word(names, i), \

@@ -12,6 +12,10 @@
 #                           skips it) (about 42 CPU minutes in all,
 #                           and smallpt about 12 more: 4x its 64x64 run, not measured at 128x128)
 #                           -> out/tradeoff.csv, out/tradeoff.md, out/tradeoff-*.png/.svg
+#                           Chapter 7 (PSSMLT and MMLT over mutations per pixel, each point the RMSE
+#                           over independent seeds) on the same plots as chapter 6, and
+#                           tradeoff/metropolis_blotches.py: BDPT beside MMLT at 1 s and 16 s
+#                           -> out/metropolis-blotches.png (docs/metropolis-blotches.png; 70 s)
 #   make tradeoff QUICK=1   the whole pipeline on a tiny budget (32x32; 2 min 20 s at load 4;
 #                           without smallpt unless SCENES names it) -> out/quick/...
 # Overrides (environment or make variables): SIZE, REF_SPP, REF_PASSES, PT_MAX_SPP, REPEATS, CAP,
@@ -26,5 +30,6 @@ QUICK ?=
 tradeoff: deps-tradeoff
 	$(MAKE) --no-print-directory all
 	QUICK=$(QUICK) BUILD=$(BUILD) $(PYTHON) tradeoff/tradeoff.py
+	case "$${REPORT_ONLY:-}" in "" | 0) QUICK=$(QUICK) BUILD=$(BUILD) $(PYTHON) tradeoff/metropolis_blotches.py ;; esac
 	case ",$${SCENES:-cornell},$${BIDIR_ONLY:-}$${REPORT_ONLY:-}" in *,cornell, | *,cornell,*,) \
 	  QUICK=$(QUICK) BUILD=$(BUILD) $(PYTHON) tradeoff/hierarchical.py ;; esac

@@ -105,6 +105,11 @@ FULL_SCENES = ["cornell", "cornell-spheres"]
 # its pipeline is that of gap and sds.
 NOT_QUICK = ["smallpt"]
 BIDIR_METHODS = ["light", "bdpt", "vcm"]
+# Chapter 7's Markov chains, over mutations per pixel.  Their error is correlated (one normalisation b per image,
+# chains that linger in blotches), so one image's pixels are not independent samples of it: each point is rendered
+# with mlt_seeds independent seeds, its RMSE the root of their mean MSE against the reference, its mse_se the
+# standard error of that mean over the seeds.
+MLT_METHODS = ["pssmlt", "mmlt"]
 # The reference of each scene: (chapter, its arguments, what it is); samples per pixel or passes per half
 # come from the config (ref_spp for chapter 4, ref_passes for chapter 6).
 PT_REFERENCE = ("04_pathtrace", ["--estimator", "mis", "--probe-samples", 32], "MIS path tracing (chapter 4)")
@@ -138,7 +143,7 @@ COMMON_SEED = 424242
 CSV_COLUMNS = ["scene", "method", "variant", "curve", "setting", "spp", "patches", "iterations", "light_samples",
                "max_depth", "min_weight", "patch_size", "seed", "time_s", "time_min_s", "repeats", "prepare_s",
                "render_s", "cpu_s", "rmse", "relmse", "ssim", "psnr", "mse_se", "ref_mse", "caustic_rmse", "pixels", "mean",
-               "region_mean", "region_pixels", "order", "status"]
+               "region_mean", "region_pixels", "seeds", "order", "status"]
 
 
 def env_int(name, default):
@@ -159,12 +164,14 @@ def config():
         c = dict(quick=True, pm_passes=[2, 8], pm_photons=5000, size=32, ref_spp=4096, pt_max_spp=512, repeats=1, cap=5.0, aa_spp=16,
                  bd_passes={"light": [2, 8, 32, 128], "bdpt": [2, 8, 32, 128], "vcm": [2, 8, 32, 128]},
                  ref_passes=256, bd_pm_passes=[2, 8, 32], bd_cap=10.0,
+                 mlt_spp=[4, 16, 64], mlt_seeds=2, mlt_bootstrap=20000,
                  patch_sizes=[200, 100], slow_solver_sizes=1, iters=[1, 2, 4, 8, 16], shoot_iters=[1, 2],
                  depths=[0, 1, 2, 4], min_weights=[0.3, 0.03], light_samples=[1, 4, 16, 64])
     else:
         c = dict(quick=False, pm_passes=[2, 8, 32, 128, 512], pm_photons=50000, size=128, ref_spp=8192, pt_max_spp=2048, repeats=3, cap=20.0, aa_spp=64,
                  bd_passes={"light": [2, 8, 32, 128, 512], "bdpt": [2, 8, 32, 128, 512], "vcm": [2, 8, 32, 128]},
                  ref_passes=512, bd_pm_passes=[2, 8, 32, 128], bd_cap=300.0,
+                 mlt_spp=[4, 16, 64, 256], mlt_seeds=4, mlt_bootstrap=100000,
                  patch_sizes=[200, 141, 100, 71, 50, 35, 25], slow_solver_sizes=7, iters=[1, 2, 3, 4, 6, 8, 12, 16, 24, 32],
                  shoot_iters=[1, 2, 3, 4, 6, 8], depths=[0, 1, 2, 3, 4, 6, 10],
                  min_weights=[0.5, 0.2, 0.1, 0.05, 0.02, 0.01], light_samples=[1, 2, 4, 8, 16, 32, 64])
@@ -174,6 +181,7 @@ def config():
     c["pt_max_spp"] = env_int("PT_MAX_SPP", c["pt_max_spp"])
     c["repeats"] = env_int("REPEATS", c["repeats"])
     c["cap"] = env_float("CAP", c["cap"])
+    c["mlt_seeds"] = max(2, env_int("MLT_SEEDS", c["mlt_seeds"]))
     # Samples per pixel of the methods whose sweep is not over spp (local,
     # Whitted, radiosity): the reference averages radiance over each pixel's
     # area, and one sample through the pixel centre would add an aliasing error
@@ -330,6 +338,29 @@ class Runner:
                 "caustic_rmse": caustic, "pixels": w * h, "mean": sum(pixels) / len(pixels), "region_mean": region_mean,
                 "region_pixels": len(index) if region_mean is not None else None, "status": status, "_stats": first}
 
+    def seeded_point(self, chapter, scene, args, name, ref, ref_pixels, seeds, cap=None):
+        """One sweep point of a method whose error is correlated across pixels (chapter 7): rendered once with
+        each of `seeds`; RMSE = sqrt(mean MSE over the seeds), mse_se = the standard error of that mean over
+        the seeds (not over pixels), time and CPU time the medians, status ok only if every run was."""
+        runs = [self.point(chapter, scene, list(args) + ["--seed", seed], f"{name}-s{k}", ref, ref_pixels, 1, cap)
+                for k, seed in enumerate(seeds)]
+        if any(r["status"] != "ok" for r in runs):
+            return {"status": "over budget", "time_s": None, "seeds": len(seeds)}
+        mses = [r["rmse"] ** 2 for r in runs]
+        mean = statistics.fmean
+        caustic = [r["caustic_rmse"] for r in runs]
+        row = dict(runs[0])
+        row.update({"time_s": statistics.median(r["time_s"] for r in runs), "time_min_s": min(r["time_s"] for r in runs),
+                    "repeats": 1, "seeds": len(seeds), "cpu_s": statistics.median(r["cpu_s"] for r in runs),
+                    "prepare_s": statistics.median(r["prepare_s"] for r in runs),
+                    "render_s": statistics.median(r["render_s"] for r in runs),
+                    "rmse": math.sqrt(mean(mses)), "mse_se": statistics.stdev(mses) / math.sqrt(len(mses)),
+                    "relmse": mean(r["relmse"] for r in runs), "ssim": mean(r["ssim"] for r in runs),
+                    "psnr": mean(r["psnr"] for r in runs), "mean": mean(r["mean"] for r in runs),
+                    "caustic_rmse": math.sqrt(mean(e * e for e in caustic)) if None not in caustic else None,
+                    "region_mean": mean(r["region_mean"] for r in runs) if runs[0]["region_mean"] is not None else None})
+        return row
+
 
 # --- the sweeps ---------------------------------------------------------------------------
 
@@ -382,7 +413,7 @@ def sweep_scene(run, scene, rows):
     full = scene in FULL_SCENES and not c["bidir_only"]
     seed = [0]
 
-    def add(method, variant, curve, setting, chapter, args, name, extra, repeats=None, cap=None):
+    def add(method, variant, curve, setting, chapter, args, name, extra, repeats=None, cap=None, seeds=0):
         # Path tracing: a new seed per point, so the points of a sweep are
         # independent (the slope fit weighs them as such).  Local, Whitted and
         # radiosity: one common seed (common random numbers), so every point
@@ -390,7 +421,13 @@ def sweep_scene(run, scene, rows):
         # points are the method's, not the jitter's.
         seed[0] += 1
         point_seed = seed[0] if method in ("pathtrace", "photonmap", "bidirectional") else COMMON_SEED
-        r = run.point(chapter, scene, list(args) + ["--seed", point_seed], name, ref_path, ref_pixels, repeats, cap)
+        if seeds:  # Metropolis: independent seeds seed*1000 + k, k < seeds
+            point_seed = 1000 * seed[0]
+            r = run.seeded_point(chapter, scene, args, name, ref_path, ref_pixels,
+                                 [point_seed + k for k in range(seeds)], cap)
+        else:
+            r = run.point(chapter, scene, list(args) + ["--seed", point_seed], name, ref_path, ref_pixels, repeats,
+                          cap)
         r.update(extra)
         r.update({"scene": scene, "method": method, "variant": variant, "curve": curve, "setting": setting,
                   "seed": point_seed, "order": seed[0], "ref_mse": ref_info["mse"]})
@@ -422,6 +459,15 @@ def sweep_scene(run, scene, rows):
             for n in c["bd_passes"][m]:
                 r = add("bidirectional", m, f"bd-{m}", f"passes={n}", "06_bidirectional", ["--method", m, "--spp", n],
                         f"bd-{m}-{n}", {}, cap=cap)
+                if r["status"] != "ok":
+                    break
+    # Chapter 7: PSSMLT and MMLT over mutations per pixel, each point over independent seeds (MLT_METHODS).
+    if os.access(run.exe("07_metropolis"), os.X_OK):
+        for m in MLT_METHODS:
+            for n in c["mlt_spp"]:
+                r = add("metropolis", m, f"mlt-{m}", f"mutations={n}", "07_metropolis",
+                        ["--method", m, "--spp", n, "--bootstrap", c["mlt_bootstrap"]], f"mlt-{m}-{n}", {}, cap=cap,
+                        seeds=c["mlt_seeds"])
                 if r["status"] != "ok":
                     break
     if not full:
@@ -540,12 +586,13 @@ def thresholds(rows, scene, ref_rmse):
 
 def report(c, rows, refs, plots, targets):
     curves_order = [f"pt-{e}" for e in ESTIMATORS] + [f"radiosity-{s}" for s in SOLVERS] + \
-                   ["whitted-depth", "whitted-weight", "local", "pm", "bd-light", "bd-bdpt", "bd-vcm"]
+                   ["whitted-depth", "whitted-weight", "local", "pm", "bd-light", "bd-bdpt", "bd-vcm", "mlt-pssmlt",
+                    "mlt-mmlt"]
     curve_title = {f"pt-{e}": f"path tracing ({e})" for e in ESTIMATORS}
     curve_title.update({f"radiosity-{s}": f"radiosity ({s})" for s in SOLVERS})
     curve_title.update({"whitted-depth": "Whitted (max depth)", "whitted-weight": "Whitted (min weight)",
                         "local": "local (light samples)", "pm": "photon mapping", "bd-light": "light tracing",
-                        "bd-bdpt": "BDPT", "bd-vcm": "VCM"})
+                        "bd-bdpt": "BDPT", "bd-vcm": "VCM", "mlt-pssmlt": "PSSMLT", "mlt-mmlt": "MMLT"})
     L = []
     L.append("# Speed against accuracy, every method (generated by tradeoff/tradeoff.py)\n")
     L.append(f"Mode: {'QUICK (a smoke run: tiny images, few points, 1 repeat)' if c['quick'] else 'full'}; "
@@ -748,7 +795,7 @@ def scene_note(c, rows, scene):
 
 # --- chapter 6 at equal time ------------------------------------------------------------------------
 
-BD_CURVES = ["pt-mis", "pm", "bd-light", "bd-bdpt", "bd-vcm"]
+BD_CURVES = ["pt-mis", "pm", "bd-light", "bd-bdpt", "bd-vcm", "mlt-pssmlt", "mlt-mmlt"]
 CLOCKS = {"cpu_s": "CPU time", "time_s": "wall-clock time"}
 
 
@@ -848,7 +895,7 @@ def bidirectional_report(c, rows, refs, targets):
     if not targets:
         return []
     title = {"pt-mis": "path tracing (MIS)", "pm": "photon mapping", "bd-light": "light tracing",
-             "bd-bdpt": "BDPT", "bd-vcm": "VCM"}
+             "bd-bdpt": "BDPT", "bd-vcm": "VCM", "mlt-pssmlt": "PSSMLT", "mlt-mmlt": "MMLT"}
     L = ["\n## Chapters 4, 5 and 6 at equal time\n",
          "Each curve's RMSE with the reference's own MSE subtracted, interpolated (log-log, between its points, "
          "never beyond them) at the times of VCM's points; '—' where a curve has no point on both sides or does "
@@ -856,7 +903,9 @@ def bidirectional_report(c, rows, refs, targets):
          "axis: on a shared machine it is steadier than the wall clock, given second. Targets of chapter 6: "
          "BDPT at most 1/2 of path "
          "tracing's RMSE on gap; VCM within 1.1x of the better of BDPT and photon mapping on every scene; the "
-         "SDS region's error falling with VCM's time.\n"]
+         "SDS region's error falling with VCM's time. Chapter 7 (PSSMLT, MMLT) is on the same plots and tables: "
+         "its error is correlated across pixels, so each of its points is the RMSE over independent seeds "
+         "(`seeds` in tradeoff.csv), its standard error over the seeds.\n"]
     for scene, res in targets.items():
         ref = refs[scene]
         L.append(f"\n### {scene}.scene\n")
@@ -1034,13 +1083,15 @@ def gnuplot(script, variables):
 
 
 CURVES = [f"pt-{e}" for e in ESTIMATORS] + [f"radiosity-{s}" for s in SOLVERS] + \
-         ["whitted-depth", "whitted-weight", "local", "pm", "bd-light", "bd-bdpt", "bd-vcm"]
+         ["whitted-depth", "whitted-weight", "local", "pm", "bd-light", "bd-bdpt", "bd-vcm", "mlt-pssmlt", "mlt-mmlt"]
 CURVE_TITLE = {f"pt-{e}": f"path tracing ({e})" for e in ESTIMATORS}
 CURVE_TITLE.update({f"radiosity-{s}": f"radiosity ({s}, converged; patch sizes)" for s in SOLVERS})
 CURVE_TITLE["pm"] = "photon mapping (progressive passes)"
 CURVE_TITLE.update({"whitted-depth": "Whitted (max depth)", "whitted-weight": "Whitted (min weight)",
                     "local": "local (light samples)", "bd-light": "light tracing (chapter 6, passes)",
-                    "bd-bdpt": "BDPT (chapter 6, passes)", "bd-vcm": "VCM (chapter 6, passes)"})
+                    "bd-bdpt": "BDPT (chapter 6, passes)", "bd-vcm": "VCM (chapter 6, passes)",
+                    "mlt-pssmlt": "PSSMLT (chapter 7, mutations/pixel; RMSE over seeds)",
+                    "mlt-mmlt": "MMLT (chapter 7, mutations/pixel; RMSE over seeds)"})
 
 
 def quoted(words):
@@ -1120,7 +1171,7 @@ def plots(c, rows, refs):
         made += bidirectional_plot(c, rows, refs, data, scene)
         if not has_full_sweep(rows, scene):
             continue
-        curves = [cv for cv in CURVES if (scene, cv) in data and not cv.startswith("bd-")]
+        curves = [cv for cv in CURVES if (scene, cv) in data and not cv.startswith(("bd-", "mlt-"))]
         # The guide N^-1/2 (RMSE ~ time^-1/2) through MIS's middle point.
         mis = sorted(ok_rows(rows, scene, "pt-mis"), key=lambda r: r["spp"])
         anchor = mis[len(mis) // 2] if mis else ok_rows(rows, scene)[0]
@@ -1174,7 +1225,8 @@ def bidirectional_plot(c, rows, refs, data, scene):
         out = os.path.join(c["out"], f"tradeoff-bidirectional-{scene}.{term}")
         gnuplot("errortime.gp", {
             "term": term, "out": out,
-            "title": f"{scene}.scene, {c['size']}x{c['size']}: chapters 4, 5 and 6, error against time "
+            "title": f"{scene}.scene, {c['size']}x{c['size']}: chapters 4, 5, 6"
+                     f"{' and 7' if any(cv.startswith('mlt-') for cv in curves) else ''}, error against time "
                      f"(reference: {ref['method']}, {ref['spp']} spp)",
             "files": " ".join(data[(scene, cv)] for cv in curves), "names": quoted(CURVE_TITLE[cv] for cv in curves),
             "styles": " ".join(str(CURVES.index(cv) + 1) for cv in curves), "xcol": 5, "xlabel": CPU_AXIS,

@@ -111,8 +111,9 @@ static void trim_spaces(char *text)
 }
 
 /* What variant of its chapter an image is: the estimator (path tracing),
- * the solver (radiosity), the photon maps, the bidirectional method, the
- * local model (chapters 1, 2), the bounces unless all of them. */
+ * the solver (radiosity), the photon maps, the bidirectional or Metropolis
+ * method and the large-step probability, the local model (chapters 1, 2), the
+ * bounces unless all of them. */
 static void stats_variant(const cJSON *json, char *out, size_t out_size)
 {
     const char *solver = string_of(json, "solver_used"), *model = string_of(json, "model");
@@ -129,6 +130,8 @@ static void stats_variant(const cJSON *json, char *out, size_t out_size)
         append_field(out, out_size, &used, "maps %s", string_of(json, "maps"));
     if (string_of(json, "method")[0])
         append_field(out, out_size, &used, "method %s", string_of(json, "method"));
+    if (isfinite(number_of(json, "large_step")))
+        append_field(out, out_size, &used, "large step %g", number_of(json, "large_step"));
     if (model[0])
         append_field(out, out_size, &used, "model %s%s%s", model,
                      cJSON_IsTrue(member(json, "normalised")) ? " normalised" : "",
@@ -140,18 +143,26 @@ static void stats_variant(const cJSON *json, char *out, size_t out_size)
     trim_spaces(out);
 }
 
-/* Label line 2: samples or patches, seconds, the relative error. */
+/* Label line 2: samples or patches (mutations per pixel for Metropolis), seconds, for a Markov chain its
+ * acceptance rate and the normalisation b, the relative error. */
 static void stats_detail(const panel *p, const cJSON *json, char *out, size_t out_size)
 {
     double patches = number_of(json, "patches"), time_s = number_of(json, "time_s");
+    double acceptance = number_of(json, "acceptance"), b = number_of(json, "b");
     size_t used = 0;
     out[0] = '\0';
     if (isfinite(patches))
         append_field(out, out_size, &used, "patches %.0f", patches);
+    else if (isfinite(p->spp) && isfinite(acceptance)) /* a Markov chain: --spp counts mutations per pixel */
+        append_field(out, out_size, &used, "mutations/px %.0f", p->spp);
     else if (isfinite(p->spp))
         append_field(out, out_size, &used, "spp %.0f", p->spp);
     if (isfinite(time_s))
         append_field(out, out_size, &used, "%.2f s", time_s);
+    if (isfinite(acceptance))
+        append_field(out, out_size, &used, "accepted %.0f%%", 100.0 * acceptance);
+    if (isfinite(b))
+        append_field(out, out_size, &used, "b %.3g", b);
     /* The relative error, (t - r)^2 / (r^2 + 0.01): an absolute one (RMSE) is
      * ruled by the few pixels on the light's edge, where radiance is 100 x
      * the walls', and would rank a method by how it draws the light's edge. */
@@ -199,6 +210,8 @@ void panel_read_stats(panel *p, const char *json_path)
     p->all_bounces = bounces_of(json, &first, &last) && first == 0 && last >= 1000000;
     p->spp = number_of(json, "spp"), p->relmse = number_of(json, "relmse");
     p->has_stats = true;
+    if (!p->warning[0] && string_of(json, "warning")[0]) /* a file's warning, as a live child's stderr gives it */
+        snprintf(p->warning, sizeof p->warning, "warning: %.150s", string_of(json, "warning")), p->warnings = 1;
     stats_detail(p, json, p->detail, sizeof p->detail);
     cJSON_Delete(json);
 }
