@@ -135,7 +135,8 @@ static void path_tracer_sample(const mlt_state *m, const scene *s, rng *g, mlt_s
 
 /* 2. mmlt (R21): the chain's length k, a strategy (s, t) of the k + 1 with t >= 1 picked by the connection stream's
  * first number, subpaths of exactly s and t vertices (no roulette), their join: (R13) over (R14), weighted by (R15)
- * (n = light_paths for t = 1, as in chapter 6: both pick a pixel once), times k + 1 over the length's probability. */
+ * (n = light_paths for t = 1, as in chapter 6: both pick a pixel once), times k + 1 over the length's probability.
+ * [exercise 7.5] */
 static void strategy_sample(const mlt_state *m, const scene *s, rng *g, mlt_sample *x, uint64_t *rays)
 {
     int k = x->length, s_used = (int)fmin(rng_uniform(&g[CONNECT_STREAM]) * (k + 1), k), t = k + 1 - s_used;
@@ -182,7 +183,7 @@ static void evaluate(const mlt_state *m, const scene *s, mlt_sample *x, rng *fre
 /* ---- the mutations (R19) ------------------------------------------------------------------------- */
 
 /* Kelemen's small step: u moved by +-s2 exp(-log(s2 / s1) xi), between s1 = 1/1024 and s2 = 1/64, wrapped into
- * [0, 1).  Symmetric: moving back is as likely, so T cancels in (R18). */
+ * [0, 1).  Symmetric: moving back is as likely, so T cancels in (R18). [exercise 7.2] */
 static double small_step(double u, rng *g)
 {
     const double s1 = 1.0 / 1024.0, s2 = 1.0 / 64.0;
@@ -202,7 +203,7 @@ static int pick_length(const mlt_state *m, double v)
 }
 
 /* The proposal y from x: a large step draws every number afresh (a count of 0: each is drawn when read) and a new
- * length; a small step moves each number x has, and keeps its length. */
+ * length; a small step moves each number x has, and keeps its length. [exercise 7.3] */
 static void propose(const mlt_state *m, const mlt_sample *x, mlt_sample *y, bool large, rng *g)
 {
     y->length = large ? pick_length(m, rng_uniform(g)) : x->length;
@@ -226,7 +227,8 @@ static void record(const mlt_state *m, const mlt_sample *x, double weight, splat
 }
 
 /* One Metropolis-Hastings step of chain c: propose, splat both the proposal (weight a) and the current state
- * (weight 1 - a) (R20), accept with probability a (R18).  A large step's f is one more independent sample of b. */
+ * (weight 1 - a) (R20), accept with probability a (R18).  A large step's f is one more independent sample of b.
+ * [exercise 7.1] */
 static void metropolis_step(mlt_state *m, const scene *s, int c, mlt_sample *y)
 {
     mlt_sample *x = &m->current[c];
@@ -268,7 +270,7 @@ static int begin_pass(void *state_pointer, const scene *s, const render_options 
     (void)o, (void)pass, (void)err, (void)err_size;
 #pragma omp parallel
     {
-        mlt_sample *proposal = malloc(sizeof *proposal);
+        mlt_sample *proposal = calloc(1, sizeof *proposal); /* zeroed: a proposal of no numbers, length 0 */
 #pragma omp for schedule(dynamic, 1)
         for (int c = 0; c < m->active_chains; c++) {
             long first = (long)m->pixels * c / m->active_chains, last = (long)m->pixels * (c + 1) / m->active_chains;
@@ -324,7 +326,7 @@ static int bootstrap_paths(mlt_state *m, const scene *s)
     int n = m->bootstrap, lengths = m->longest - m->shortest + 1;
     uint64_t rays = 0;
     m->bootstrap_length = malloc((size_t)n * sizeof *m->bootstrap_length);
-    m->bootstrap_f = malloc(((size_t)n + 1) * sizeof *m->bootstrap_f);
+    m->bootstrap_f = calloc((size_t)n + 1, sizeof *m->bootstrap_f);
     if (!m->bootstrap_length || !m->bootstrap_f)
         return 2;
 #pragma omp parallel reduction(+ : rays)
@@ -345,12 +347,12 @@ static int bootstrap_paths(mlt_state *m, const scene *s)
 
 /* (R20) b = the mean of f over independent paths (u uniform), each length's mean weighted alike (f holds the
  * length's 1 / probability), and its standard error; each length's share of b sets the chain's choice of lengths
- * (R21), with a tenth spread evenly so that every length stays reachable. */
-static int estimate_b(mlt_state *m, const scene *s)
+ * (R21), with a tenth spread evenly so that every length stays reachable.  The paths are bootstrap_paths' (path i's f
+ * in bootstrap_f[i + 1], its length in bootstrap_length[i]); bootstrap_f is left cumulated, bootstrap_f[i] the sum of
+ * the first i, for start_chain. [exercise 7.4] */
+static void estimate_b(mlt_state *m)
 {
     int lengths = m->longest - m->shortest + 1;
-    if (bootstrap_paths(m, s))
-        return 2;
     double sum[MAX_LENGTH + 1] = {0}, squares[MAX_LENGTH + 1] = {0}, count[MAX_LENGTH + 1] = {0}, variance = 0.0;
     m->bootstrap_f[0] = 0.0;
     for (int i = 0; i < m->bootstrap; i++) {
@@ -372,7 +374,6 @@ static int estimate_b(mlt_state *m, const scene *s)
         m->length_pdf[k] = m->b > 0.0 ? 0.9 * sum[k] / m->b + 0.1 / lengths : 1.0 / lengths; /* (R21) */
         m->length_cdf[k + 1] = m->length_cdf[k] + m->length_pdf[k];
     }
-    return 0;
 }
 
 /* Start-up bias: chain c starts at a bootstrap path picked with probability proportional to its f, so that it starts
@@ -422,13 +423,14 @@ static int prepare(void *state_pointer, const scene *s, const render_options *o,
     m->splat_sum = calloc((size_t)m->pixels, sizeof *m->splat_sum);
     m->tally = calloc((size_t)m->active_chains, sizeof *m->tally);
     bool failed = !m->current || !m->chain_rng || !m->records || !m->record_count || !m->image || !m->splat_sum ||
-                  !m->tally || estimate_b(m, s);
+                  !m->tally || bootstrap_paths(m, s);
     for (int c = 0; !failed && c < m->active_chains; c++)
         failed = !(m->records[c] = malloc((size_t)m->record_capacity * sizeof(splat)));
     if (failed) {
         snprintf(err, err_size, "argv:0: out of memory for %d chains", m->active_chains);
         return 2;
     }
+    estimate_b(m);
     uint64_t rays = 0;
 #pragma omp parallel for schedule(dynamic, 1) reduction(+ : rays)
     for (int c = 0; c < m->active_chains; c++)

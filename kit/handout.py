@@ -116,9 +116,17 @@ def _budget_names(function):
 
 
 def _test_functions(path):
+    """The module's functions, and those it imports from another grade module (`from grade_06_bidirectional
+    import expect_tiles_agree`: chapter 7 compares tiles by chapter 6's rule)."""
     with open(path) as f:
         tree = ast.parse(f.read(), path)
-    return {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)}
+    found = {}
+    for n in tree.body:
+        if isinstance(n, ast.ImportFrom) and (n.module or "").startswith("grade_"):
+            other = _test_functions(os.path.join(os.path.dirname(path), n.module + ".py"))
+            found.update({a.name: other[a.name] for a in n.names if a.name in other})
+    found.update({n.name: n for n in tree.body if isinstance(n, ast.FunctionDef)})
+    return found
 
 
 def grade_criteria_with_budget(root, criteria):

@@ -38,7 +38,8 @@ def make_handout(ctx, name, chapters):
 
 # The chapters whose objects a chapter links (the Makefile's model objects, chapters/local_model.h and the like).
 LINKS = {"02_whitted": ["01_local"], "03c_hierarchical": ["03_radiosity"], "05_photonmap": ["04_pathtrace"],
-         "06_bidirectional": ["04_pathtrace", "05_photonmap"]}
+         "06_bidirectional": ["04_pathtrace", "05_photonmap"],
+         "07_metropolis": ["04_pathtrace", "05_photonmap", "06_bidirectional"]}
 
 
 def check_stub_run(r, chapter, pfm, what):
@@ -200,14 +201,15 @@ def test_handout_of_chapter_5_stubs_run_and_say_so(ctx):
 
 
 def test_handout_stubs_run_every_method_under_the_sanitizers(ctx):
-    """make handout for chapters 2-4, 03c and 6 (1 and 5 have their own tests above), built with
+    """make handout for chapters 2-4, 03c, 6 and 7 (1 and 5 have their own tests above), built with
     AddressSanitizer and UndefinedBehaviorSanitizer (SANITIZE=1): every method of each chapter
     runs on the spheres or the Cornell box with its stubs (exit 0, finite pixels, no sanitizer
     report), and each stub it reaches says TODO once.  A stub returns zero: this checks that the
     chapters survive the zeros (a stub does not write its pointer outputs)."""
     if "asan" in ctx.build:
         return
-    out = make_handout(ctx, "handout234", "02_whitted 03_radiosity 03c_hierarchical 04_pathtrace 06_bidirectional")
+    out = make_handout(ctx, "handout234", "02_whitted 03_radiosity 03c_hierarchical 04_pathtrace 06_bidirectional "
+                       "07_metropolis")
     r = subprocess.run(["make", "-j2", "--no-print-directory", "all", "BUILD=build/asan", "SANITIZE=1"], cwd=out,
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0 and "warning" not in r.stderr, r.stderr[-3000:]
@@ -218,6 +220,8 @@ def test_handout_stubs_run_every_method_under_the_sanitizers(ctx):
     runs += [("03c_hierarchical", box, [])]
     runs += [("04_pathtrace", spheres, ["--spp", 4, "--estimator", e]) for e in ("hemisphere", "cosine", "light", "mis")]
     runs += [("06_bidirectional", spheres, ["--spp", 2, "--method", m]) for m in ("light", "bdpt", "vcm")]
+    runs += [("07_metropolis", spheres, ["--spp", 2, "--method", m, "--bootstrap", 4096, "--chains", 64])
+             for m in ("pssmlt", "mmlt")]
     for chapter, scene, args in runs:
         pfm = ctx.path("stub.pfm")
         r = subprocess.run([os.path.join(out, "build", "asan", chapter), scene, "--quiet", "--size", "12x12",
