@@ -9,7 +9,8 @@ Methods: MMLT (chapter 7's default), PSSMLT, and BDPT (chapter 6 --method bdpt);
 picks (mmlt,pssmlt,bdpt).  The reference is the mean of two independent BDPT renders a and b of
 BENCH7_REFERENCE_SECONDS each (default 120, two threads; kept in out/bench/07/ by size and
 reused); its own noise, mean((a - b)^2) / 4 per pixel, is subtracted from each method's MSE.
-Prints, per method, the RMSE over seeds and pixels (and its spread: the RMSE of each seed), the
+Seeds are interleaved across methods (load changes hit all alike).  Prints, per method, the RMSE over
+seeds and pixels (and its spread: min/median/max and the RMSE of each seed), the
 image mean against the reference's, mutations or passes per pixel; then the target: MMLT's RMSE at
 most half of BDPT's.  A benchmark, not a test: it prints what it measures, met or not.
 
@@ -70,27 +71,35 @@ def reference():
 
 
 def main():
-    print(f"bench_07_metropolis: {SCENE} at {SIZE}x{SIZE}, {SECONDS:g} s a run on one thread, {SEEDS} seeds")
+    print(f"bench_07_metropolis: {SCENE} at {SIZE}x{SIZE}, {SECONDS:g} s a run on one thread, {SEEDS} seeds; "
+          f"load average {os.getloadavg()[0]:.2f} (2 threads of a shared machine make wall-clock noisy)")
     ref, ref_noise = reference()
     ref_mean = sum(ref) / len(ref)
     print(f"reference (BDPT, 2 x {REFERENCE_SECONDS:g} s): mean {ref_mean:.5g}, its own MSE {ref_noise:.3g} "
           "(subtracted below)")
     rmse = {}
-    for method in METHODS:
-        chapter, args = RUNS[method]
-        per_seed, means, counts = [], [], []
-        for i in range(SEEDS):
+    results = {method: ([], [], []) for method in METHODS}
+    for i in range(SEEDS):  # interleaved: seed i of every method, then seed i + 1, so load changes hit all alike
+        for method in METHODS:
+            chapter, args = RUNS[method]
             img, stats = render(chapter, [*args, "--time", SECONDS, "--threads", 1, "--seed", 100 + i],
                                 f"{method}-{SIZE}-{i}")
+            per_seed, means, counts = results[method]
             per_seed.append(sum((x - r) ** 2 for x, r in zip(img, ref)) / len(ref))
             means.append(sum(img) / len(img))
             counts.append(stats["spp"])
+    for method in METHODS:
+        chapter = RUNS[method][0]
+        per_seed, means, counts = results[method]
         mse = max(0.0, sum(per_seed) / SEEDS - ref_noise)
         rmse[method] = math.sqrt(mse)
-        seeds = ", ".join(f"{math.sqrt(max(0.0, m - ref_noise)):.4g}" for m in per_seed)
+        per_rmse = sorted(math.sqrt(max(0.0, m - ref_noise)) for m in per_seed)
+        seeds = (f"min {per_rmse[0]:.4g}, median {per_rmse[len(per_rmse) // 2]:.4g}, max {per_rmse[-1]:.4g}; "
+                 + ", ".join(f"{math.sqrt(max(0.0, m - ref_noise)):.4g}" for m in per_seed))
         print(f"{method:7s} RMSE {rmse[method]:.4g} (relative {rmse[method] / ref_mean:.3f}; per seed {seeds}); "
               f"image mean {sum(means) / SEEDS:.5g} vs {ref_mean:.5g}; {min(counts)}-{max(counts)} "
               f"{'mutations' if chapter == '07_metropolis' else 'passes'} per pixel")
+    print(f"load average at the end {os.getloadavg()[0]:.2f}")
     if "mmlt" in rmse and "bdpt" in rmse and rmse["bdpt"] > 0:
         ratio = rmse["mmlt"] / rmse["bdpt"]
         print(f"target door-ajar MMLT/BDPT RMSE = {ratio:.2f} at {SECONDS:g} s (<= 0.5: "
