@@ -138,8 +138,10 @@ def test_agrees_with_bdpt(ctx):
     caustics) and gap (the light behind a slit), and PSSMLT on the Cornell box: 2 x 2 tile means (each channel)
     over RENDERS seeds each, within t_bound(RENDERS - 1, 48) combined standard errors (chapter 6's rule against
     path tracing), each standard error below 5 % of the image's mean in that channel."""
+    # gap: 1024 mutations a pixel, not 256: at 256 the spread of MMLT's tile means there sat at the guard's
+    # edge and failed the solution in 2 of 4 gradings (kit/CALIBRATION.md); four times the mutations halve it.
     runs = [("scenes/cornell.scene", ["--method", "mmlt"]), ("scenes/cornell-spheres.scene", ["--method", "mmlt"]),
-            ("scenes/gap.scene", ["--method", "mmlt"]), ("scenes/cornell.scene", ["--method", "pssmlt"])]
+            ("scenes/gap.scene", ["--method", "mmlt", "--spp", 1024]), ("scenes/cornell.scene", ["--method", "pssmlt"])]
     if sanitizers_run_once(ctx, runs[0][0], [(CHAPTER, args + SMALL) for _, args in runs[:1] + runs[3:]]):
         return
     for scene, args in runs:
@@ -147,8 +149,8 @@ def test_agrees_with_bdpt(ctx):
                                                                        "bdpt", "--probe-samples", 32],
                                       "bd", renders=RENDERS)
         got, command = tile_estimates(ctx, CHAPTER, scene, ["--size", "16x16", "--spp", 256, *args, *SMALL], "mlt",
-                                      renders=RENDERS)
-        expect_tiles_agree(f"mean radiance by {' '.join(args)} on {scene}", got, reference, 48,
+                                      renders=RENDERS)  # a later --spp (gap's) wins
+        expect_tiles_agree(f"mean radiance by {' '.join(map(str, args))} on {scene}", got, reference, 48,
                            "chapter 6's BDPT", 0.05, command, df=RENDERS - 1)
 
 
