@@ -35,7 +35,7 @@ directly as uid 65534 with per-user and per-process limits (processes of the
 uid, address space, CPU time, file size), a cgroup where one can be made,
 an empty environment, and every process of the uid killed after the run.
 Without a network namespace, the network is shut by a seccomp filter
-(no_network_filter): socket(), socketpair() and io_uring fail with EACCES,
+(no_network_filter): the system calls socket, socketpair and io_uring_setup fail with EACCES,
 so no host listener, TCP or unix, can be reached; unshare(2) would need
 CAP_SYS_ADMIN, which Docker's default profile withholds, while seccomp
 filters are allowed there.  Without a private /tmp, every file the uid
