@@ -139,7 +139,7 @@ def test_agrees_with_bdpt(ctx):
     over RENDERS seeds each, within t_bound(RENDERS - 1, 48) combined standard errors (chapter 6's rule against
     path tracing), each standard error below 5 % of the image's mean in that channel."""
     # gap: 1024 mutations a pixel, not 256: at 256 the spread of MMLT's tile means there sat at the guard's
-    # edge and failed the solution in 2 of 4 gradings (kit/CALIBRATION.md); four times the mutations halve it.
+    # edge and failed the solution in 2 of 4 gradings (the kit's calibration); four times the mutations halve it.
     runs = [("scenes/cornell.scene", ["--method", "mmlt"]), ("scenes/cornell-spheres.scene", ["--method", "mmlt"]),
             ("scenes/gap.scene", ["--method", "mmlt", "--spp", 1024]), ("scenes/cornell.scene", ["--method", "pssmlt"])]
     if sanitizers_run_once(ctx, runs[0][0], [(CHAPTER, args + SMALL) for _, args in runs[:1] + runs[3:]]):
