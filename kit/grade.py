@@ -676,8 +676,10 @@ def remove_stale_scratch():
                 alive = b"grade.py" in f.read()
         except OSError:
             alive = False
-        if not alive:
-            shutil.rmtree(os.path.join(top, name), ignore_errors=True)
+        path = os.path.join(top, name)
+        # only a real directory the grader made (not a link, nor one a student's uid made in /tmp)
+        if not alive and os.path.isdir(path) and not os.path.islink(path) and os.lstat(path).st_uid == os.geteuid():
+            shutil.rmtree(path, ignore_errors=True)
 
 
 def private_scratch(work, uid):
