@@ -186,7 +186,7 @@ static void evaluate(const mlt_state *m, const scene *s, mlt_sample *x, rng *fre
  * [0, 1).  Symmetric: moving back is as likely, so T cancels in (R18). [exercise 7.2] */
 static double small_step(double u, rng *g)
 {
-    const double s1 = 1.0 / 1024.0, s2 = 1.0 / 32.0; /* s2: measured best on door-ajar (1/128..1/8) */
+    const double s1 = 1.0 / 1024.0, s2 = 1.0 / 32.0;      /* s2: measured best on door-ajar (1/128..1/8) */
     double du = s2 * exp(-log(s2 / s1) * rng_uniform(g)); /* (R19) */
     u += rng_uniform(g) < 0.5 ? du : -du;
     u -= floor(u); /* (R19) wraparound mod 1 */
