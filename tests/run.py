@@ -1,10 +1,12 @@
 #!/usr/bin/python3
 """The test runner behind `make test`.
 
-usage: tests/run.py [-k TEXT] [-j N] BUILD_DIR [BUILD_DIR ...]   (e.g. build build/asan)
+usage: tests/run.py [-k TEXT] [-j N] [--cluster] BUILD_DIR [BUILD_DIR ...]   (e.g. build build/asan)
 
   -k TEXT     run only the grading tests whose full name contains TEXT
               (BUILD:grade_MODULE:test_NAME); the C unit tests are skipped
+  --cluster   run the class-scale tests tests/cluster_*.py instead (`make test-cluster`: hosts over
+              ssh, Slurm, the Gradescope container; long, so not part of `make test`); no C unit tests
   -j N        run N tests at a time (default: the number of CPUs this process may use, at most 4)
   -h, --help  this text
 
@@ -87,9 +89,9 @@ def run_grading_test(build, module, name):
         return [(full, False, f"{detail}\n     (its files: {ctx.scratch})")]
 
 
-def load_modules():
+def load_modules(prefix):
     modules = []
-    for path in sorted(glob.glob(os.path.join(lib.ROOT, "tests", "grade_*.py"))):
+    for path in sorted(glob.glob(os.path.join(lib.ROOT, "tests", prefix + "*.py"))):
         module_name = os.path.splitext(os.path.basename(path))[0]
         spec = importlib.util.spec_from_file_location(module_name, path)
         module = importlib.util.module_from_spec(spec)
@@ -98,15 +100,15 @@ def load_modules():
     return modules
 
 
-def plan(builds, only):
+def plan(builds, only, cluster):
     """The work as (side by side, alone): lists of sequences, each a list of (function, build,
     *arguments) run in order."""
-    modules = load_modules()
+    modules = load_modules("cluster_" if cluster else "grade_")
     in_sequence = {m.__name__: [] for m in modules
                    if getattr(m, "RUN_IN_SEQUENCE", False) or getattr(m, "RUN_ALONE", False)}
     alone = []
     for build in builds:
-        if not only:
+        if not only and not cluster:
             for exe in sorted(glob.glob(os.path.join(lib.ROOT, build, "tests", "test_*"))):
                 if not exe.endswith(".d") and os.access(exe, os.X_OK):
                     alone.append([(run_unit_test, build, exe)])
@@ -175,10 +177,12 @@ def parse_arguments(args):
         print(__doc__.strip())
         sys.exit(0)
     options = {"-k": None, "-j": str(min(4, len(os.sched_getaffinity(0))))}
-    rest = []
+    rest, cluster = [], False
     while args:
         word = args.pop(0)
-        if word in options:
+        if word == "--cluster":
+            cluster = True
+        elif word in options:
             if not args:
                 bad(f"{word} without a value")
             options[word] = args.pop(0)
@@ -188,7 +192,7 @@ def parse_arguments(args):
             rest.append(word)
     if not options["-j"].isdigit() or not 1 <= int(options["-j"]) <= 64:
         bad(f"-j {options['-j']} (a number of tests at a time, 1 to 64)")
-    return options["-k"], int(options["-j"]), rest or ["build"]
+    return options["-k"], int(options["-j"]), cluster, rest or ["build"]
 
 
 def bad(what):
@@ -197,7 +201,7 @@ def bad(what):
 
 
 def main():
-    only, jobs, builds = parse_arguments(sys.argv[1:])
+    only, jobs, cluster, builds = parse_arguments(sys.argv[1:])
     counts = {"passed": 0, "failed": 0}
 
     def report(name, ok, detail):
@@ -210,7 +214,7 @@ def main():
     # OpenMP threads that spin while they wait for work take the CPU from the other tests' programs
     # on a loaded 2-core machine (chapter 5: 1.3 s of CPU at 64 passes spinning, 0.05 s passive).
     os.environ.setdefault("OMP_WAIT_POLICY", "passive")
-    side_by_side, by_itself = plan(builds, only)
+    side_by_side, by_itself = plan(builds, only, cluster)
     run_all(side_by_side, jobs, report)
     run_all(by_itself, 1, report)
     print(f"{counts['passed']} passed, {counts['failed']} failed")
