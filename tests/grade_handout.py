@@ -413,7 +413,7 @@ def later_chapters_given_away(tree, chapters):
 def test_handout_of_chapter_1_gives_no_later_chapter_away(ctx):
     """make handout CHAPTERS=01_local (week 1 of a course that hands its chapters out in order): every file
     that holds a later chapter's exercise differs from the solution's, each such exercise is its stub, and
-    no file of the tree, of any kind, holds a later exercise's answer; kit/handout.json and the student's
+    no file of the tree, of any kind, holds a later exercise's answer; the handout's handout.json and the student's
     README name the later chapters as stubbed."""
     if "asan" in ctx.build:
         return
