@@ -68,7 +68,7 @@ int extend(const scene *s, path_vertex *p, int count, int cap, vec3 alpha, vec3 
         const material *m = material_of(s, h.surface);
         p[count] = (path_vertex){h.point, h.normal, alpha, m, AT_SURFACE, h.surface, count, is_specular(m)};
         vertex v = vertex_at(h.point, h.normal, v3_neg(w), m);
-        vec3 w_i;
+        vec3 w_i = {0}; /* set: a handout's stub of scatter returns zero without writing it */
         double pdf;
         vec3 weight = scatter(&v, sample_bsdf, g, &w_i, &pdf); /* f cos / p (R2) */
         if (flux)

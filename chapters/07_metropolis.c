@@ -118,7 +118,7 @@ static void path_tracer_sample(const mlt_state *m, const scene *s, rng *g, mlt_s
     bidir_state one_light = m->bidir;
     one_light.light_cap = 1;
     path_vertex y[MAX_VERTICES], z[MAX_VERTICES], path[MAX_PATH];
-    int pixel, light_pixel;
+    int pixel, light_pixel = 0; /* set: a handout's stubs return zero light without writing it */
     int t_count = eye_subpath(&one_light, s, &g[CAMERA_STREAM], z, one_light.eye_cap, true, &pixel, rays);
     int s_count = light_subpath(&one_light, s, &g[LIGHT_STREAM], y, rays, false);
     for (int t = 1; t <= t_count; t++)

@@ -12,6 +12,13 @@ its calibration and this script).  In the chosen chapters every function
 marked [exercise N.M] gets a stub body (kit/markers.py): it prints
 "file:line: TODO name is not implemented" once and returns zero, so the
 handout compiles without warnings and runs, with black or partial images.
+The chapters after the last chosen one have their exercises stubbed the same
+way (kit/grade.py later_chapters, as a grading stubs them): a course hands its
+chapters out in order, so a handout gives away no chapter not yet handed out.
+The chapters before it keep the solution: they are handed out already, the
+chosen chapters link them (chapter 2 shades with chapter 1's model, chapter 5
+with chapter 4's, chapter 7 with 4, 5 and 6) and their criteria run them
+(chapter 4's compare with chapter 3), so a correct answer must find them right.
 assignments/NN_name/ASSIGNMENT.md says what to write and how it is graded
 (from the markers of the stubbed text and kit/rubric.json); README.md is the
 student's (kit/student/README.md); `make grade` in the handout grades it, and
@@ -24,8 +31,9 @@ The tree is written next to OUT_DIR under a temporary name and renamed at the
 end: on any refusal (exit 2, "file:line: message") nothing is left.  It refuses
 an unknown chapter, an [exercise] tag that is not just above a function, and a
 handout in which a function of any file still holds one of the stubbed
-exercises' answers (kit/markers.py answers_in_tree: chapter 5 once carried
-copies of chapter 4's scattering in common/).
+exercises' answers, the later chapters' included (kit/markers.py
+answers_in_tree: chapter 5 once carried copies of chapter 4's scattering in
+common/).
 """
 import ast
 import json
@@ -37,6 +45,7 @@ import sys
 import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import grade  # noqa: E402  (later_chapters: what a grading stubs, a handout stubs too)
 import markers  # noqa: E402
 import rubric as rubric_module  # noqa: E402
 
@@ -244,7 +253,7 @@ def assignment_text(root, chapter, exercises, criteria, rub):
 
 # ---- README.md --------------------------------------------------------------------------------------
 
-def student_readme(root, chosen, names, stubbed):
+def student_readme(root, chosen, names, stubbed, later=()):
     with open(os.path.join(root, STUDENT_README)) as f:
         template = f.read()
     rows = []
@@ -252,11 +261,14 @@ def student_readme(root, chosen, names, stubbed):
         files = sorted({e.file for e in stubbed if names[e.lecture] == chapter})
         rows.append(f"| `{chapter}` | [assignments/{chapter}/ASSIGNMENT.md](assignments/{chapter}/ASSIGNMENT.md) "
                     f"| {', '.join(f'`{x}`' for x in files)} | `make grade CHAPTERS={chapter}` |")
-    others = sorted(set(names.values()) - set(chosen))
+    others = sorted(set(names.values()) - set(chosen) - set(later))
+    held_back = (f" The chapters after yours ({', '.join(f'`{c}`' for c in later)}) are stubs too, as yours are: "
+                 "each comes with its own assignment later." if later else "")
     return (template.replace("{{assignments}}", "\n".join(rows))
             .replace("{{chapters}}", " ".join(chosen))
             .replace("{{first_chapter}}", chosen[0])
-            .replace("{{other_chapters}}", ", ".join(f"`{c}`" for c in others) or "none"))
+            .replace("{{other_chapters}}", ", ".join(f"`{c}`" for c in others) or "none")
+            .replace("{{later_chapters}}", held_back))
 
 
 # ---- the tree ---------------------------------------------------------------------------------------
@@ -319,20 +331,23 @@ def build(out, chosen_args):
             raise Refused(f"chapters/{c}.c:1: chapter {c} has no [exercise N.M] markers")
     chosen = [c for c in names.values() if c in chosen]
     stubbed = [e for e in exercises if names.get(e.lecture) in chosen]
+    # Not yet handed out: stubbed as the chosen ones are, and no answer of theirs left anywhere either.
+    later = [c for c in grade.later_chapters(chosen) if c in marked]
+    held_back = [e for e in exercises if names.get(e.lecture) in later]
     files = tracked_files(ROOT)
 
     parent = os.path.dirname(out)
     os.makedirs(parent, exist_ok=True)
     tmp = tempfile.mkdtemp(prefix=f".{os.path.basename(out)}.partial-", dir=parent)
     try:
-        write_tree(tmp, files, stubbed)
+        write_tree(tmp, files, stubbed + held_back)
         if os.path.isfile(os.path.join(ROOT, CLASSROOM_WORKFLOW[0])):  # (a copy of the tree may lack the kit's)
             os.makedirs(os.path.join(tmp, os.path.dirname(CLASSROOM_WORKFLOW[1])), exist_ok=True)
             shutil.copy2(os.path.join(ROOT, CLASSROOM_WORKFLOW[0]), os.path.join(tmp, CLASSROOM_WORKFLOW[1]))
         os.makedirs(os.path.join(tmp, "kit", "heldout"), exist_ok=True)  # the instructor's are left out: say so
         with open(os.path.join(tmp, "kit", "heldout", "README.md"), "w") as f:
             f.write(HELDOUT_README)
-        check_no_answers(tmp, stubbed)
+        check_no_answers(tmp, stubbed + held_back)
         in_handout = stubbed_markers(tmp, stubbed)
         for chapter in chosen:
             ex = [e for e in in_handout if names[e.lecture] == chapter]
@@ -341,16 +356,18 @@ def build(out, chosen_args):
             with open(os.path.join(tmp, "assignments", chapter, "ASSIGNMENT.md"), "w") as f:
                 f.write(assignment_text(ROOT, chapter, ex, crit, rub))
         with open(os.path.join(tmp, "README.md"), "w") as f:
-            f.write(student_readme(ROOT, chosen, names, stubbed))
+            f.write(student_readme(ROOT, chosen, names, stubbed, later))
         with open(os.path.join(tmp, "kit", "handout.json"), "w") as f:
-            json.dump({"chapters": chosen, "stubbed": [f"{e.id} {e.file}:{e.name}" for e in stubbed]}, f, indent=1)
+            json.dump({"chapters": chosen, "stubbed": [f"{e.id} {e.file}:{e.name}" for e in stubbed],
+                       "later_chapters": later, "later_stubbed": [f"{e.id} {e.file}:{e.name}" for e in held_back]},
+                      f, indent=1)
         if os.path.isdir(out):
             os.rmdir(out)  # empty (checked in main)
         os.rename(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    return files, stubbed, chosen
+    return files, stubbed, chosen, held_back
 
 
 def main(argv):
@@ -363,10 +380,11 @@ def main(argv):
     if out == ROOT or out.startswith(ROOT + os.sep) and not out.startswith(os.path.join(ROOT, "out") + os.sep):
         fail(f"{argv[0]}: inside the project (use a directory outside it, or under out/)")
     try:
-        files, stubbed, chosen = build(out, chosen)
+        files, stubbed, chosen, held_back = build(out, chosen)
     except Refused as e:
         fail(str(e))
-    print(f"handout in {out}: {len(files)} files, {len(stubbed)} functions stubbed in {' '.join(chosen)}")
+    later = f"; the {len(held_back)} of the later chapters too" if held_back else ""
+    print(f"handout in {out}: {len(files)} files, {len(stubbed)} functions stubbed in {' '.join(chosen)}{later}")
 
 
 if __name__ == "__main__":

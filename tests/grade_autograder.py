@@ -23,6 +23,7 @@ from lib import ROOT
 sys.path.insert(0, os.path.join(ROOT, "kit"))
 import markers  # noqa: E402
 import rubric  # noqa: E402
+from grade_handout import later_chapters_given_away  # noqa: E402
 
 # The archive test checks that its runs leave no gi-autograder-* directory in /tmp, so no other
 # grading may be under way beside it (tests/run.py -j).
@@ -232,6 +233,21 @@ def test_gradescope_single_files_are_graded_by_their_names(ctx):
     assert results["score"] == 10 and passed == ["01_local: unit tests test_common",
                                                  "01_local: unit tests test_sampling_chi2"], passed
     assert all(name in results["output"] for name in ("reflected_fraction", "point_lights", "area_light"))
+
+
+def test_gradescope_archive_of_chapter_1_gives_no_later_chapter_away(ctx):
+    """make autograder CHAPTERS=01_local: the archive (kit/handout.py's tree with the instructor's kit) has
+    every file of a later chapter's exercises, none of them the solution's byte for byte, each such
+    exercise its stub, and no file of it, of any kind (the kit's included), holds a later exercise's
+    answer (tests/grade_handout.py later_chapters_given_away)."""
+    if "asan" in ctx.build:
+        return
+    archive = ctx.path("autograder.zip")
+    r = make("autograder", f"OUT={archive}", "CHAPTERS=01_local")
+    assert r.returncode == 0, r.stderr
+    source = unpack(archive, ctx.path("autograder"))
+    problems = later_chapters_given_away(source, "01_local")
+    assert not problems, "the chapter-1 archive gives later chapters away:\n" + "\n".join(problems)
 
 
 def test_handout_carries_the_classroom_self_check(ctx):

@@ -8,9 +8,11 @@ most of its statements) gives it away.  The handouts are built from the tracked 
 about 3 s each; they do not depend on the build under test, so under the sanitizer build the tests
 pass without running.
 """
+import ast
 import atexit
 import html
 import importlib.util
+import json
 import os
 import re
 import shutil
@@ -335,3 +337,216 @@ def test_student_decks_show_exercise_signatures_only(ctx):
 def glob_decks():
     return [os.path.join(ROOT, "slides", p) for p in os.listdir(os.path.join(ROOT, "slides"))
             if re.fullmatch(r"\d\d[a-z]?_\w+\.md", p)]
+
+
+# ---- chapters not handed out yet ----------------------------------------------------------------------
+#
+# A course hands its chapters out in order: the handout of a chapter stubs every later chapter's exercises
+# as it stubs its own (kit/handout.py, with kit/grade.py's later_chapters) and keeps the earlier chapters'
+# solutions (handed out already; the chosen chapters link them and their criteria run them).
+
+def later_exercises(chapters):
+    """The exercises of the chapters after every one of `chapters`."""
+    names = markers.chapter_names(ROOT)
+    last = max(chapters.split())
+    return [e for e in markers.all_exercises(ROOT) if names[e.lecture] > last]
+
+
+def tree_files(tree):
+    """Every file under tree (any kind: sources, documents, scripts, data), without build/ and .git/."""
+    files = []
+    for base, dirs, names in os.walk(tree):
+        dirs[:] = [d for d in dirs if d not in ("build", ".git", "__pycache__")]
+        files += [os.path.relpath(os.path.join(base, n), tree) for n in names]
+    return sorted(files)
+
+
+def answer_text_in_tree(tree, exercises, files):
+    """[(file, exercise id)] where a text file of any kind (not only .c, .h and .md, as kit/handout.py checks)
+    holds an exercise's answer: a function of it gives the answer away (kit/markers.py gives_away), or its
+    whole normalised text contains an answer long enough to mean something (markers.MIN_TOKENS_INSIDE)."""
+    answers = [(e, markers.exercise_tokens(e)) for e in exercises]
+    found = []
+    for rel in files:
+        try:
+            with open(os.path.join(tree, rel), encoding="utf-8") as f:
+                text = f.read()
+        except (OSError, UnicodeDecodeError):  # binary: images, archives
+            continue
+        pieces = markers.markdown_code(text, rel) if rel.endswith(".md") else markers.functions(text, rel)
+        whole = markers.normalised(markers.tokens(text))
+        for e, a in answers:
+            if any(markers.gives_away(p, a) for p in pieces) or (
+                    len(a) >= markers.MIN_TOKENS_INSIDE and markers.contains(whole, a)):
+                found.append((rel, e.id))
+    return found
+
+
+def later_chapters_given_away(tree, chapters):
+    """What a tree made for `chapters` gives away of the later chapters: each file of the solution that
+    holds a later exercise and is byte for byte the solution's in tree (or is missing: the chapter must
+    still build), each later exercise whose function in tree is not its stub, and answer_text_in_tree.
+    The same text search finds every later exercise in the solution's files (so it can fail)."""
+    later = later_exercises(chapters)
+    assert later, f"no chapter after {chapters}: nothing to check"
+    problems = []
+    for rel in sorted({e.file for e in later}):
+        mine = os.path.join(tree, rel)
+        if not os.path.isfile(mine):
+            problems.append(f"{rel}: missing (a later chapter's file the build needs)")
+            continue
+        with open(mine, "rb") as a, open(os.path.join(ROOT, rel), "rb") as b:
+            if a.read() == b.read():
+                problems.append(f"{rel}: the solution's, byte for byte")
+        stubs = {e.id: e for e in markers.parse_file(tree, rel)}
+        for e in later:
+            if e.file == rel and (e.id not in stubs or f'TODO_ONCE("{e.name}")' not in stubs[e.id].body):
+                problems.append(f"{rel}: exercise {e.id} {e.name} is not a stub")
+    problems += [f"{rel}: holds the answer of exercise {ex}" for rel, ex in answer_text_in_tree(tree, later,
+                                                                                               tree_files(tree))]
+    in_solution = {ex for _, ex in answer_text_in_tree(ROOT, later, sorted({e.file for e in later}))}
+    assert in_solution == {e.id for e in later}, \
+        f"the search misses exercises in the solution: {sorted({e.id for e in later} - in_solution)}"
+    return problems
+
+
+def test_handout_of_chapter_1_gives_no_later_chapter_away(ctx):
+    """make handout CHAPTERS=01_local (week 1 of a course that hands its chapters out in order): every file
+    that holds a later chapter's exercise differs from the solution's, each such exercise is its stub, and
+    no file of the tree, of any kind, holds a later exercise's answer; the handout's handout.json and the student's
+    README name the later chapters as stubbed."""
+    if "asan" in ctx.build:
+        return
+    code, stderr, out = handout("01_local")
+    assert code == 0, stderr
+    problems = later_chapters_given_away(out, "01_local")
+    assert not problems, "the chapter-1 handout gives later chapters away:\n" + "\n".join(problems)
+    with open(os.path.join(out, "kit", "handout.json")) as f:
+        record = json.load(f)
+    later = sorted(set(markers.chapter_names(ROOT).values()) - {"01_local"})
+    assert record["chapters"] == ["01_local"] and record["later_chapters"] == later, record
+    with open(os.path.join(out, "README.md")) as f:
+        readme = f.read()
+    assert all(f"`{c}`" in readme for c in later) and "stubs too" in readme, readme[:1500]
+
+
+def test_handout_of_chapter_2_keeps_chapter_1_and_stubs_the_later(ctx):
+    """make handout CHAPTERS=02_whitted (week 2): chapter 1, handed out already and linked by chapter 2
+    (its local model), is the solution's byte for byte; chapter 2's exercises and every later one's are
+    stubs and no later answer is in the tree."""
+    if "asan" in ctx.build:
+        return
+    code, stderr, out = handout("02_whitted")
+    assert code == 0, stderr
+    with open(os.path.join(out, "chapters", "01_local.c"), "rb") as a, \
+            open(os.path.join(ROOT, "chapters", "01_local.c"), "rb") as b:
+        assert a.read() == b.read(), "chapters/01_local.c: not the solution in the chapter-2 handout"
+    with open(os.path.join(out, "chapters", "02_whitted.c")) as f:
+        assert 'TODO_ONCE("trace")' in f.read()
+    problems = later_chapters_given_away(out, "02_whitted")
+    assert not problems, "the chapter-2 handout gives later chapters away:\n" + "\n".join(problems)
+
+
+def test_handout_of_chapter_1_builds_and_later_stubs_run(ctx):
+    """`make` in the chapter-1 handout builds every chapter, the viewer and the benchmark without a warning
+    (the later chapters with their stubs, linked with each other's: chapter 7 links 4, 5 and 6), and
+    chapter 7 and chapter 2 run on them (exit 0, finite pixels, each stub reached says TODO once, from
+    its own file or one the chapter links).  About a minute on 2 cores."""
+    if "asan" in ctx.build:
+        return
+    out = os.path.join(scratch_dir(), "handout")
+    r = subprocess.run([PY, os.path.join(ROOT, "kit", "handout.py"), out, "01_local"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    assert r.returncode == 0, r.stderr
+    r = subprocess.run(["make", "-j2", "--no-print-directory"], cwd=out, capture_output=True, text=True, timeout=900,
+                       stdin=subprocess.DEVNULL)
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr[-3000:]
+    import lib
+    linked = {"02_whitted": ("chapters/01_local.c", "chapters/02_whitted.c", "common/optics.h"),
+              "07_metropolis": ("chapters/04_pathtrace.c", "chapters/05_photonmap.c", "chapters/06_bidirectional.c",
+                                "chapters/07_metropolis.c")}
+    for chapter, args in (("02_whitted", []), ("07_metropolis", ["--method", "mmlt", "--bootstrap", "4096",
+                                                                   "--chains", "64"])):
+        pfm = ctx.path(f"{chapter}.pfm")
+        r = subprocess.run([os.path.join(out, "build", chapter), "scenes/cornell-spheres.scene", "--quiet", "--size",
+                            "8x8", "--spp", "2", *args, "--out", pfm], cwd=out, capture_output=True, text=True,
+                           timeout=300, stdin=subprocess.DEVNULL)
+        assert r.returncode == 0, f"{chapter}: exit {r.returncode}: {r.stderr[-2000:]}"
+        todo = [ln for ln in r.stderr.splitlines() if "TODO" in ln]
+        assert todo and len(todo) == len(set(todo)), f"{chapter}: {r.stderr}"
+        own = [ln for ln in todo if re.match(r"(%s):\d+: TODO \w+ is not implemented$" % "|".join(linked[chapter]),
+                                             ln)]
+        assert own == todo, f"{chapter}: a TODO from a file it does not link: {sorted(set(todo) - set(own))}"
+        assert lib.finite_image(lib.read_pfm(pfm)), f"{chapter}: NaN or infinite pixels from the stubs"
+
+
+def _grade_module(name, cache):
+    """{function name: (node, module)}, {constant name: str}, {alias: module} of tests/NAME.py (parsed once)."""
+    if name not in cache:
+        path = os.path.join(ROOT, "tests", name + ".py")
+        with open(path) as f:
+            tree = ast.parse(f.read(), path)
+        functions = {n.name: (n, name) for n in tree.body if isinstance(n, ast.FunctionDef)}
+        constants = {t.id: n.value.value for n in tree.body if isinstance(n, ast.Assign)
+                     and isinstance(n.value, ast.Constant) and isinstance(n.value.value, str)
+                     for t in n.targets if isinstance(t, ast.Name)}
+        aliases, imported = {}, {}
+        for n in tree.body:
+            if isinstance(n, ast.Import):
+                aliases.update({a.asname or a.name: a.name for a in n.names if a.name.startswith(("grade_", "lib"))})
+            elif isinstance(n, ast.ImportFrom) and (n.module or "").startswith(("grade_", "lib")):
+                imported.update({a.asname or a.name: (n.module, a.name) for a in n.names})
+        cache[name] = (functions, constants, aliases, imported)
+    return cache[name]
+
+
+def chapters_a_test_runs(module, test, chapters, cache):
+    """The chapters named by the strings (not the docstrings) that test (tests/MODULE.py) and every function it
+    calls in the grade modules and tests/lib.py hold: what its criterion runs (ctx.render("04_pathtrace", ...))."""
+    todo, seen, strings = [(module, test)], set(), set()
+    while todo:
+        where, name = todo.pop()
+        functions, constants, aliases, imported = _grade_module(where, cache)
+        if (where, name) in seen:
+            continue
+        seen.add((where, name))
+        if name in imported:
+            todo.append(imported[name])
+            continue
+        if name in constants:
+            strings.add(constants[name])
+            continue
+        if name not in functions:
+            continue
+        docstrings = {id(n.value) for n in ast.walk(functions[name][0]) if isinstance(n, ast.Expr)}  # not run
+        for node in ast.walk(functions[name][0]):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+                strings.add(node.value)
+            elif isinstance(node, ast.Name) and node.id != name:
+                todo.append((where, node.id))
+            elif isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name) and node.value.id in aliases:
+                todo.append((aliases[node.value.id], node.attr))
+    return sorted(c for c in chapters if any(c in s for s in strings))
+
+
+def test_no_criterion_runs_a_chapter_after_its_own(ctx):
+    """A handout, and the Gradescope archive built from it, stubs the chapters after the last one handed
+    out: a criterion that ran a later chapter would fail every correct submission there.  So no criterion
+    of kit/rubric.json runs a chapter after its own (by the strings its test and the functions it calls
+    hold); the same search finds chapter 4 in chapter 03c's comparison with path tracing, a test that is
+    no criterion (so it can fail)."""
+    if "asan" in ctx.build:
+        return
+    chapters = sorted(markers.chapter_names(ROOT).values())
+    cache = {}
+    assert "04_pathtrace" in chapters_a_test_runs("grade_03c_hierarchical",
+                                                  "test_hierarchical_agrees_with_uniform_and_path_tracing", chapters,
+                                                  cache), "the search does not see a chapter a test runs"
+    problems = []
+    for c in rubric.load(ROOT)["criteria"]:
+        if c["kind"] != "grade":
+            continue
+        later = [x for x in chapters_a_test_runs(c["module"], c["test"], chapters, cache) if x > c["chapter"]]
+        if later:
+            problems.append(f"{c['chapter']} '{c['name']}' ({c['module']}.{c['test']}) runs {', '.join(later)}")
+    assert not problems, "criteria that run a later chapter (stubbed in their handout):\n" + "\n".join(problems)

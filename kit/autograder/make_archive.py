@@ -25,7 +25,8 @@ run_autograder (copied to /autograder/run_autograder) once per submission, which
 
 Besides the two scripts and autograder.json (what run_autograder grades), the archive is what
 kit/grade.py needs and no more solution than the students have: the handout of these chapters
-(kit/handout.py: the project with the chapters' exercises stubbed; kit/grade.py lends its files
+(kit/handout.py: the project with the chapters' exercises stubbed, and those of every later chapter,
+not handed out yet; kit/grade.py lends its files
 to every graded tree and takes the exercise files from the submission) with the instructor's
 kit/ in place of the handout's: the rubric and the references, held-out ones included (the
 archive never reaches students); not the handout's handout.json, the mark of a student's
