@@ -20,6 +20,7 @@ import stat
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import lib
@@ -360,6 +361,10 @@ def test_caps_stop_fork_bombs_memory_and_huge_files(ctx):
     row = read_report(report_dir)["criteria"][0]
     assert not row["passed"], f"a run stopped by the memory cap cannot pass: {row}"
     assert "memory cap of 1024 MiB" in row["message"], f"the message must name the memory cap: {row['message']!r}"
+    assert row["limit"] == "memory", f"the report must record the memory cap as the limit met: {row}"
+    memory = read_report(report_dir)["memory"]
+    assert memory["cap_mib"] == 1024 and memory["peak_mib"] is not None and memory["peak_mib"] <= 1024, \
+        f"the whole grading's memory is capped at 1024 MiB: {memory}"
     forked, written = re.search(r"FORKED (\d+)", row["message"]), re.search(r"WRITTEN (\d+)", row["message"])
     assert forked and int(forked[1]) < 64, f"the process cap (64) must stop the fork bomb: {row['message']!r}"
     assert written and int(written[1]) <= 512 << 20, f"the file size cap (512 MiB) must stop the file: {row['message']!r}"
@@ -527,3 +532,138 @@ def test_no_sandbox_no_grading_unless_unsafe(ctx):
                        capture_output=True, text=True, env=env)
     assert r.returncode == 2 and "bubblewrap" in r.stderr and "UNSAFE=1" in r.stderr, \
         f"without bwrap the kit must refuse and say why: {r.returncode} {r.stderr!r}"
+
+
+def test_a_gradings_memory_cap_bounds_its_sandboxes_together(ctx):
+    """Two runs side by side in two sandboxes of one grading (each a cgroup of its own, as the build's
+    and each program's where no Session serves), each touching 1.5 GiB, each under its own 2 GiB cap:
+    the grading's cgroup (kit/sandbox.py GradingGroup, 2 GiB) bounds their sum, so one is stopped and
+    says memory, and the most the grading held at once (memory.peak) is at most 2 GiB."""
+    if "asan" in ctx.build:
+        return
+    sys.path.insert(0, os.path.join(ROOT, "kit"))
+    import sandbox
+    if sandbox.unavailable():
+        raise AssertionError(f"no sandbox here: {sandbox.unavailable()}")
+    tag = f"gi-sandbox-test-{os.getpid()}-{int(time.time())}"
+    saved = os.environ.get(sandbox.TAG_VARIABLE)
+    os.environ[sandbox.TAG_VARIABLE] = tag
+    scratch = tempfile.mkdtemp(prefix="gi-kit-tmemory-")
+    os.chown(scratch, sandbox.SANDBOX_UID, sandbox.SANDBOX_UID)
+    results = []
+    try:
+        group = sandbox.GradingGroup(tag, 2048)
+        box = sandbox.Sandbox([(scratch, True)], limits=sandbox.Limits(memory_mib=2048))
+        touch = ("import time\nb = bytearray(1536 << 20)\nb[::4096] = b'\\1' * len(range(0, len(b), 4096))\n"
+                 "time.sleep(3)\nprint('held 1.5 GiB')")
+        runs = [threading.Thread(target=lambda: results.append(box.run(["/usr/bin/python3", "-c", touch],
+                                                                       cwd=scratch, timeout=120)))
+                for _ in range(2)]
+        for t in runs:
+            t.start()
+        for t in runs:
+            t.join()
+        peak = group.peak_mib()
+    finally:
+        sandbox.remove_groups(tag)
+        shutil.rmtree(scratch, ignore_errors=True)
+        if saved is None:
+            os.environ.pop(sandbox.TAG_VARIABLE, None)
+        else:
+            os.environ[sandbox.TAG_VARIABLE] = saved
+    held = [r for r in results if "held 1.5 GiB" in r.stdout]
+    stopped = [r for r in results if r.limit == "memory"]
+    assert len(results) == 2 and len(held) <= 1, \
+        f"two runs of 1.5 GiB held at once under a 2 GiB grading cap: {[(r.stdout, r.stopped) for r in results]}"
+    assert stopped and all("memory" in r.stopped for r in stopped), \
+        f"the run the grading's cap stopped must say memory: {[(r.returncode, r.stopped, r.stderr[-300:]) for r in results]}"
+    assert peak is not None and peak <= 2048, f"the grading held {peak} MiB at once under its 2048 MiB cap"
+    assert not any(os.path.exists(os.path.join(sandbox.hierarchy(c), tag)) for c in ("pids", "memory", "cpuacct")), \
+        "the grading's cgroup was not removed"
+
+
+def test_parallel_runs_of_a_submission_share_the_gradings_memory_cap(ctx):
+    """A submission whose first two renders each touch 1.5 GiB, side by side (--jobs 2), graded with
+    --memory 2048: stopped by the grading's cap, its criterion fails saying memory, the report
+    records the limit met ("limit": "memory") and the grading's peak within the cap."""
+    if "asan" in ctx.build:
+        return
+    with open(SECRET) as f:
+        rub = json.load(f)
+    rub["criteria"] = [c for c in rub["criteria"] if c["name"] == "classic blinn vs reference"]
+    rubric = ctx.write("rubric-blinn.json", json.dumps(rub))
+    sub = submission(ctx, "memory", """
+    int first_two = 0; /* the criterion's first two renders (seeds 1000 and 1001), which run side by side */
+    for (int i = 1; i + 1 < argc; i++)
+        first_two |= !strcmp(argv[i], "--seed") && (!strcmp(argv[i + 1], "1000") || !strcmp(argv[i + 1], "1001"));
+    size_t n = first_two ? 1536UL << 20 : 0;
+    volatile char *m = n ? malloc(n) : NULL; /* volatile: the stores are not optimised away */
+    for (size_t j = 0; m && j < n; j += 4096)
+        m[j] = 1;
+    if (n)
+        sleep(2), fprintf(stderr, "HELD 1.5 GiB\\n");
+""")
+    report_dir = ctx.path("memory-report")
+    r = subprocess.run(GRADE + [sub, "--report", report_dir, "--chapters", "01_local", "--rubric", rubric,
+                                "--memory", "2048", "--jobs", "2"], cwd=ROOT, capture_output=True, text=True,
+                       timeout=900)
+    assert r.returncode == 0, f"grading: exit {r.returncode}: {r.stderr[-800:]}"
+    report = read_report(report_dir)
+    row = report["criteria"][0]
+    assert not row["passed"] and row["limit"] == "memory", f"the memory cap must stop it and be recorded: {row}"
+    assert "memory" in row["message"].splitlines()[0], f"the message must say memory: {row['message'][:600]!r}"
+    assert report["memory"]["cap_mib"] == 2048 and report["memory"]["peak_mib"] <= 2048, report["memory"]
+
+
+def test_the_fallbacks_memory_is_the_uids_sum(ctx):
+    """--sandbox user without a cgroup: RLIMIT_AS holds each process under the cap, not their sum; the
+    grader adds up the uid's resident memory and stops a run whose two processes, each under the cap
+    (400 MiB of 512), hold more together."""
+    if "asan" in ctx.build:
+        return
+    sys.path.insert(0, os.path.join(ROOT, "kit"))
+    import sandbox
+    if sandbox.fallback_unavailable():
+        raise AssertionError(f"no fallback sandbox here: {sandbox.fallback_unavailable()}")
+    two = ("import os, time\npid = os.fork()\nb = bytearray(400 << 20)\nb[::4096] = b'\\1' * len(range(0, len(b), 4096))\n"
+           "time.sleep(3)\nprint('held 400 MiB')\nos.waitpid(pid, 0) if pid else None")
+    saved = sandbox.CGROUP_V1
+    sandbox.CGROUP_V1 = ctx.path("no-cgroups")  # as in a container where no cgroup can be made
+    try:
+        box = sandbox.Sandbox([("/", False)], limits=sandbox.Limits(memory_mib=512), mode="user",
+                              uid=sandbox.user_for_grading())
+        r = box.run(["/usr/bin/python3", "-c", two], cwd="/", timeout=60)
+        alone = box.run(["/usr/bin/python3", "-c", two.replace("os.fork()", "0")], cwd="/", timeout=60)
+    finally:
+        sandbox.CGROUP_V1 = saved
+    assert r.limit == "memory" and "memory" in r.stopped and r.stdout.count("held") < 2, \
+        f"two processes of 400 MiB under a 512 MiB cap: {r.returncode} {r.stopped!r} {r.stdout!r}"
+    assert alone.returncode == 0 and alone.stdout.count("held") == 1 and not alone.stopped, \
+        f"one process of 400 MiB fits a 512 MiB cap: {alone.returncode} {alone.stopped!r} {alone.stderr[-300:]!r}"
+
+
+def test_gradings_that_fit_the_cores_and_the_memory(ctx):
+    """kit/grade_class.py's default --jobs: no more gradings than cores, no more than the free memory
+    holds at the cap each (with the judges' and the system's share), at least one; MemTotal where
+    a kernel has no MemAvailable; a lower cap of the grader's own cgroup counts."""
+    sys.path.insert(0, os.path.join(ROOT, "kit"))
+    import sandbox
+
+    def meminfo(total_gib, available_gib=None):
+        text = f"MemTotal:       {total_gib << 20} kB\nMemFree:        1000 kB\n"
+        return text + (f"MemAvailable:   {available_gib << 20} kB\n" if available_gib is not None else "")
+    cases = [(4096, meminfo(24, 23), 64, None), (4096, meminfo(24, 23), 2, None), (4096, meminfo(8, 3), 16, None),
+             (2048, meminfo(256, 250), 32, None), (4096, meminfo(32), 64, None), (4096, meminfo(64, 60), 64, 16384),
+             (512, meminfo(4, 4), 1, None)]
+    for cap, text, cores, limit in cases:
+        n = sandbox.gradings_that_fit(cap, meminfo=text, cores=cores, limit_mib=limit if limit else 1 << 40)
+        free = sandbox.meminfo_mib(text).get("MemAvailable", sandbox.meminfo_mib(text)["MemTotal"])
+        free = min(free, limit or free)
+        assert isinstance(n, int) and 1 <= n <= cores, f"cap {cap}, {cores} cores: {n} gradings"
+        assert n == 1 or n * cap <= free, f"cap {cap} MiB, {free} MiB free: {n} gradings do not fit"
+        assert n == cores or (n + 1) * (cap + sandbox.JUDGE_MIB) + sandbox.SYSTEM_MIB > free, \
+            f"cap {cap} MiB, {free} MiB free, {cores} cores: {n} gradings leave room for another"
+    assert sandbox.gradings_that_fit(4096, meminfo=meminfo(24, 23), cores=64, limit_mib=1 << 40) == 5
+    r = subprocess.run(GRADE + ["--gradings-that-fit", "--memory", "4096"], cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 0 and r.stdout.strip().isdigit() and \
+        1 <= int(r.stdout) <= len(os.sched_getaffinity(0)), f"kit/grade.py --gradings-that-fit: {r.stdout!r} {r.stderr!r}"
