@@ -682,9 +682,17 @@ def write_html(path, report, name):
                f"{h(report.get('submission_sha256', ''))} ({report.get('submission_files', '?')} files); "
                f"{report.get('seconds', '?')} s. Family-wise alpha {report['family_alpha']} over the statistical "
                f"criteria ({h(report['statistics'])}): a correct solution fails a grading by chance at most that "
-               f"often. Sandbox: {h(report.get('sandbox', ''))}.</p>")
+               f"often. Sandbox: {h(report.get('sandbox', ''))}.{memory_sentence(report.get('memory'))}</p>")
     with open(path, "w") as f:
         f.write("\n".join(out) + "\n")
+
+
+def memory_sentence(memory):
+    """The report page's words on the memory cap (report["memory"], memory_summary)."""
+    if not memory:
+        return ""
+    peak = f"; the most its programs held at once: {memory['peak_mib']:.0f} MiB" if memory.get("peak_mib") else ""
+    return f" Memory cap: {memory['cap_mib']} MiB for {html.escape(str(memory['scope']))}{peak}."
 
 
 SCRATCH_PREFIX = "gi-grade-"
@@ -729,15 +737,15 @@ def private_scratch(work, uid):
 def main(argv):
     end_on_signals()
     opts = parse_args(argv)
+    if opts["gradings_that_fit"]:
+        print(sandbox.gradings_that_fit(opts["memory"]))
+        return
     try:
         rub = rubric_module.load(ROOT, opts["rubric"])
     except ValueError as e:
         usage_error(str(e))
     if opts["make_reference"] or opts["make_heldout"]:
         make_reference(opts, rub)
-        return
-    if opts["gradings_that_fit"]:
-        print(sandbox.gradings_that_fit(opts["memory"]))
         return
     if opts["submission"] is None:
         usage_error("no SUBMISSION directory given")

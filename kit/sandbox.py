@@ -89,10 +89,10 @@ class Limits:
 STOPS_VARIABLE = "GI_SANDBOX_STOPS"  # a file (the grader's) where every run a cap stopped is noted: record_stop
 
 
-def memory_stop(memory_mib):
+def memory_stop(memory_mib, killed="the largest program killed"):
     """What a run the memory cap stopped says (the report a student reads)."""
     return (f"out of memory: the grading's memory cap of {memory_mib} MiB (all its programs together) was "
-            "reached and the largest program killed")
+            f"reached and {killed}")
 
 
 def limit_of(stopped, returncode=None):
@@ -504,7 +504,7 @@ class Sandbox:
                     elif group and group.cpu_seconds() > self.limits.cpu_seconds:
                         stopped = f"the sandbox's CPU time cap of {self.limits.cpu_seconds:.0f} s"
                     elif not group and self.mode == "user" and user_memory_mib(self.uid) > self.limits.memory_mib:
-                        stopped = memory_stop(self.limits.memory_mib)  # no cgroup: the uid's sum, looked at
+                        stopped = memory_stop(self.limits.memory_mib, "the run killed")  # no cgroup: the uid's sum
                     if stopped:  # bwrap's death ends the PID namespace; the cgroup catches the rest
                         os.killpg(p.pid, signal.SIGKILL)
                         _kill_all(group) if group else kill_user(self.uid)

@@ -536,9 +536,11 @@ def test_no_sandbox_no_grading_unless_unsafe(ctx):
 
 def test_a_gradings_memory_cap_bounds_its_sandboxes_together(ctx):
     """Two runs side by side in two sandboxes of one grading (each a cgroup of its own, as the build's
-    and each program's where no Session serves), each touching 1.5 GiB, each under its own 2 GiB cap:
-    the grading's cgroup (kit/sandbox.py GradingGroup, 2 GiB) bounds their sum, so one is stopped and
-    says memory, and the most the grading held at once (memory.peak) is at most 2 GiB."""
+    and each program's where no Session serves), each touching 768 MiB, each under its own 1 GiB cap:
+    the grading's cgroup (kit/sandbox.py GradingGroup, 1 GiB) bounds their sum, so one is stopped and
+    says memory, and the most the grading held at once (its peak) is at most 1 GiB.  (Small: touching
+    memory takes seconds a GiB on a loaded virtual machine; tests/cluster_memory.py grades 1.5 GiB
+    renders under 2 GiB.)"""
     if "asan" in ctx.build:
         return
     sys.path.insert(0, os.path.join(ROOT, "kit"))
@@ -552,10 +554,10 @@ def test_a_gradings_memory_cap_bounds_its_sandboxes_together(ctx):
     os.chown(scratch, sandbox.SANDBOX_UID, sandbox.SANDBOX_UID)
     results = []
     try:
-        group = sandbox.GradingGroup(tag, 2048)
-        box = sandbox.Sandbox([(scratch, True)], limits=sandbox.Limits(memory_mib=2048))
-        touch = ("import time\nb = bytearray(1536 << 20)\nb[::4096] = b'\\1' * len(range(0, len(b), 4096))\n"
-                 "time.sleep(3)\nprint('held 1.5 GiB')")
+        group = sandbox.GradingGroup(tag, 1024)
+        box = sandbox.Sandbox([(scratch, True)], limits=sandbox.Limits(memory_mib=1024))
+        touch = ("import time\nb = bytearray(768 << 20)\nb[::4096] = b'\\1' * len(range(0, len(b), 4096))\n"
+                 "time.sleep(3)\nprint('held 768 MiB')")
         runs = [threading.Thread(target=lambda: results.append(box.run(["/usr/bin/python3", "-c", touch],
                                                                        cwd=scratch, timeout=120)))
                 for _ in range(2)]
@@ -571,75 +573,42 @@ def test_a_gradings_memory_cap_bounds_its_sandboxes_together(ctx):
             os.environ.pop(sandbox.TAG_VARIABLE, None)
         else:
             os.environ[sandbox.TAG_VARIABLE] = saved
-    held = [r for r in results if "held 1.5 GiB" in r.stdout]
+    held = [r for r in results if "held 768 MiB" in r.stdout]
     stopped = [r for r in results if r.limit == "memory"]
     assert len(results) == 2 and len(held) <= 1, \
-        f"two runs of 1.5 GiB held at once under a 2 GiB grading cap: {[(r.stdout, r.stopped) for r in results]}"
+        f"two runs of 768 MiB held at once under a 1 GiB grading cap: {[(r.stdout, r.stopped) for r in results]}"
     assert stopped and all("memory" in r.stopped for r in stopped), \
         f"the run the grading's cap stopped must say memory: {[(r.returncode, r.stopped, r.stderr[-300:]) for r in results]}"
-    assert peak is not None and peak <= 2048, f"the grading held {peak} MiB at once under its 2048 MiB cap"
+    assert peak is not None and peak <= 1024, f"the grading held {peak} MiB at once under its 1024 MiB cap"
     assert not any(os.path.exists(os.path.join(sandbox.hierarchy(c), tag)) for c in ("pids", "memory", "cpuacct")), \
         "the grading's cgroup was not removed"
-
-
-def test_parallel_runs_of_a_submission_share_the_gradings_memory_cap(ctx):
-    """A submission whose first two renders each touch 1.5 GiB, side by side (--jobs 2), graded with
-    --memory 2048: stopped by the grading's cap, its criterion fails saying memory, the report
-    records the limit met ("limit": "memory") and the grading's peak within the cap."""
-    if "asan" in ctx.build:
-        return
-    with open(SECRET) as f:
-        rub = json.load(f)
-    rub["criteria"] = [c for c in rub["criteria"] if c["name"] == "classic blinn vs reference"]
-    rubric = ctx.write("rubric-blinn.json", json.dumps(rub))
-    sub = submission(ctx, "memory", """
-    int first_two = 0; /* the criterion's first two renders (seeds 1000 and 1001), which run side by side */
-    for (int i = 1; i + 1 < argc; i++)
-        first_two |= !strcmp(argv[i], "--seed") && (!strcmp(argv[i + 1], "1000") || !strcmp(argv[i + 1], "1001"));
-    size_t n = first_two ? 1536UL << 20 : 0;
-    volatile char *m = n ? malloc(n) : NULL; /* volatile: the stores are not optimised away */
-    for (size_t j = 0; m && j < n; j += 4096)
-        m[j] = 1;
-    if (n)
-        sleep(2), fprintf(stderr, "HELD 1.5 GiB\\n");
-""")
-    report_dir = ctx.path("memory-report")
-    r = subprocess.run(GRADE + [sub, "--report", report_dir, "--chapters", "01_local", "--rubric", rubric,
-                                "--memory", "2048", "--jobs", "2"], cwd=ROOT, capture_output=True, text=True,
-                       timeout=900)
-    assert r.returncode == 0, f"grading: exit {r.returncode}: {r.stderr[-800:]}"
-    report = read_report(report_dir)
-    row = report["criteria"][0]
-    assert not row["passed"] and row["limit"] == "memory", f"the memory cap must stop it and be recorded: {row}"
-    assert "memory" in row["message"].splitlines()[0], f"the message must say memory: {row['message'][:600]!r}"
-    assert report["memory"]["cap_mib"] == 2048 and report["memory"]["peak_mib"] <= 2048, report["memory"]
 
 
 def test_the_fallbacks_memory_is_the_uids_sum(ctx):
     """--sandbox user without a cgroup: RLIMIT_AS holds each process under the cap, not their sum; the
     grader adds up the uid's resident memory and stops a run whose two processes, each under the cap
-    (400 MiB of 512), hold more together."""
+    (200 MiB of 256), hold more together."""
     if "asan" in ctx.build:
         return
     sys.path.insert(0, os.path.join(ROOT, "kit"))
     import sandbox
     if sandbox.fallback_unavailable():
         raise AssertionError(f"no fallback sandbox here: {sandbox.fallback_unavailable()}")
-    two = ("import os, time\npid = os.fork()\nb = bytearray(400 << 20)\nb[::4096] = b'\\1' * len(range(0, len(b), 4096))\n"
-           "time.sleep(3)\nprint('held 400 MiB')\nos.waitpid(pid, 0) if pid else None")
+    two = ("import os, time\npid = os.fork()\nb = bytearray(200 << 20)\nb[::4096] = b'\\1' * len(range(0, len(b), 4096))\n"
+           "time.sleep(3)\nprint('held 200 MiB')\nos.waitpid(pid, 0) if pid else None")
     saved = sandbox.CGROUP_V1
     sandbox.CGROUP_V1 = ctx.path("no-cgroups")  # as in a container where no cgroup can be made
     try:
-        box = sandbox.Sandbox([("/", False)], limits=sandbox.Limits(memory_mib=512), mode="user",
+        box = sandbox.Sandbox([("/", False)], limits=sandbox.Limits(memory_mib=256), mode="user",
                               uid=sandbox.user_for_grading())
         r = box.run(["/usr/bin/python3", "-c", two], cwd="/", timeout=60)
         alone = box.run(["/usr/bin/python3", "-c", two.replace("os.fork()", "0")], cwd="/", timeout=60)
     finally:
         sandbox.CGROUP_V1 = saved
     assert r.limit == "memory" and "memory" in r.stopped and r.stdout.count("held") < 2, \
-        f"two processes of 400 MiB under a 512 MiB cap: {r.returncode} {r.stopped!r} {r.stdout!r}"
+        f"two processes of 200 MiB under a 256 MiB cap: {r.returncode} {r.stopped!r} {r.stdout!r}"
     assert alone.returncode == 0 and alone.stdout.count("held") == 1 and not alone.stopped, \
-        f"one process of 400 MiB fits a 512 MiB cap: {alone.returncode} {alone.stopped!r} {alone.stderr[-300:]!r}"
+        f"one process of 200 MiB fits a 256 MiB cap: {alone.returncode} {alone.stopped!r} {alone.stderr[-300:]!r}"
 
 
 def test_gradings_that_fit_the_cores_and_the_memory(ctx):
