@@ -789,6 +789,8 @@ def main(argv):
     date = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     digest, files = submission_hash(submission)
     remove_stale_scratch()
+    if not opts.get("unsafe", False):
+        sandbox.remove_stale_groups()  # a killed grading's (SIGKILL), empty
     work = tempfile.mkdtemp(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-")
     stops = os.path.join(work, "stops.jsonl")  # the runs a cap stopped (kit/sandbox.py record_stop)
     os.environ[sandbox.STOPS_VARIABLE] = stops

@@ -277,6 +277,41 @@ def remove_groups(tag):
     return len({os.path.basename(d) for d in found})
 
 
+def remove_stale_groups():
+    """Remove the grading groups (GradingGroup: gi-sandbox-PID-SECONDS) of gradings that were killed
+    (SIGKILL: no `finally`) and hold no process any more: their grader PID is no live kit/grade.py.
+    Groups that still hold a process are left alone (a grading this one cannot see)."""
+    top = hierarchy("memory")
+    try:
+        names = os.listdir(top)
+    except OSError:
+        return 0
+    removed = 0
+    for name in names:
+        parts = name.split("-")
+        if len(parts) != 4 or parts[:2] != ["gi", "sandbox"] or not parts[2].isdigit() or not parts[3].isdigit():
+            continue
+        try:
+            with open(f"/proc/{parts[2]}/cmdline", "rb") as f:
+                if b"grade.py" in f.read():
+                    continue
+        except OSError:
+            pass
+        dirs = [os.path.join(hierarchy(c), name) for c in ("pids", "memory", "cpuacct")]
+        busy = False
+        for d in dirs:
+            for sub, _, _ in os.walk(d):
+                try:
+                    with open(os.path.join(sub, "cgroup.procs")) as f:
+                        busy = busy or bool(f.read().split())
+                except OSError:
+                    continue
+        if not busy:
+            remove_groups(name)
+            removed += 1
+    return removed
+
+
 class GradingGroup:
     """The cgroup of one whole grading (named tag: kit/grade.py sets TAG_VARIABLE to it), with the memory
     cap of all its sandboxes together (swap included, where there is swap): every Cgroup made while

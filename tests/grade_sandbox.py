@@ -284,11 +284,16 @@ def test_the_fallback_sandbox_contains_the_hostile_submission(ctx):
 def test_a_killed_grading_leaves_no_scratch_to_read(ctx):
     """A grading's scratch directory (the tree it builds, its outputs) is the grader's and its sandbox
     uid's only while it runs; a grading ended by SIGTERM removes it, and one ended by SIGKILL (which
-    cannot be caught) leaves it to the next grading, which removes it before it starts."""
+    cannot be caught) leaves it to the next grading, which removes it before it starts; so with
+    the grading's cgroup (its memory cap), once no process is left in it."""
     if "asan" in ctx.build:
         return
     honest = submission(ctx, "scratch-honest")
     top = tempfile.gettempdir()
+    memory = "/sys/fs/cgroup/memory" if os.path.isdir("/sys/fs/cgroup/memory") else "/sys/fs/cgroup"
+
+    def grading_groups(pid):  # kit/sandbox.py GradingGroup: gi-sandbox-PID-SECONDS
+        return [n for n in os.listdir(memory) if n.startswith(f"gi-sandbox-{pid}-") and n.count("-") == 3]
 
     def start_and_wait(name):
         p = subprocess.Popen(GRADE + [honest, "--report", ctx.path(name), "--chapters", "01_local", "--rubric",
@@ -309,14 +314,19 @@ def test_a_killed_grading_leaves_no_scratch_to_read(ctx):
     os.killpg(p.pid, signal.SIGTERM)
     p.wait(timeout=60)
     assert not os.path.exists(work), f"a grading ended by SIGTERM left {work}"
+    assert not grading_groups(p.pid), f"a grading ended by SIGTERM left its cgroup {grading_groups(p.pid)}"
     p, killed_work = start_and_wait("killed")
+    killed = p.pid
+    assert grading_groups(killed), "a running grading has a cgroup of its own (its memory cap)"
     os.killpg(p.pid, signal.SIGKILL)
     p.wait(timeout=60)
     assert os.path.exists(killed_work), "SIGKILL cannot be caught: its scratch is left for the next grading"
+    time.sleep(1)  # its sandbox dies with it (bwrap --die-with-parent)
     p, work = start_and_wait("next")
     os.killpg(p.pid, signal.SIGTERM)
     p.wait(timeout=60)
     assert not os.path.exists(killed_work), f"the next grading did not remove the killed one's {killed_work}"
+    assert not grading_groups(killed), f"the next grading did not remove the killed one's {grading_groups(killed)}"
     assert not os.path.exists(work), f"a grading ended by SIGTERM left {work}"
 
 
