@@ -312,6 +312,16 @@ def remove_stale_groups():
     return removed
 
 
+def flat_v1_memory(directory):
+    """Whether a v1 memory cgroup leaves its children's memory out of its own (memory.use_hierarchy 0,
+    possible before Linux 5.16; the file is gone or always 1 since)."""
+    try:
+        with open(os.path.join(directory, "memory.use_hierarchy")) as f:
+            return f.read().strip() == "0"
+    except OSError:
+        return False
+
+
 class GradingGroup:
     """The cgroup of one whole grading (named tag: kit/grade.py sets TAG_VARIABLE to it), with the memory
     cap of all its sandboxes together (swap included, where there is swap): every Cgroup made while
@@ -326,7 +336,7 @@ class GradingGroup:
                 os.mkdir(d)
                 self.dirs = {"pids": d, "memory": d, "cpu": d}
                 self._write("memory.max", memory_mib << 20)
-                self._write("memory.swap.max", 0, optional=True)  # no swap: no such file
+                self._write("memory.swap.max", 0, optional=True)  # none without swap accounting
                 self._write("cgroup.subtree_control", "+pids +memory")
             else:
                 for controller in ("pids", "memory", "cpuacct"):
@@ -335,10 +345,9 @@ class GradingGroup:
                     self.dirs["cpu" if controller == "cpuacct" else controller] = d
                 self._write("memory.limit_in_bytes", memory_mib << 20)
                 self._write("memory.memsw.limit_in_bytes", memory_mib << 20, optional=True)  # swap accounting on
-                with open(os.path.join(self.dirs["memory"], "memory.use_hierarchy")) as f:
-                    if f.read().strip() != "1":  # the children's memory would not count here
-                        raise OSError(0, "the v1 memory hierarchy does not count a child's memory in its parent "
-                                         "(memory.use_hierarchy 0)")
+                if flat_v1_memory(self.dirs["memory"]):  # the children's memory would not count here
+                    raise OSError(0, "the v1 memory hierarchy does not count a child's memory in its parent "
+                                     "(memory.use_hierarchy 0)")
         except OSError:
             self.close()
             raise
