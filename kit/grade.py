@@ -3,6 +3,7 @@
 
 usage: kit/grade.py SUBMISSION [--report DIR] [--chapters "01_local ..."] [--seed N] [--jobs N]
                    [--statistical-only] [--timeout S] [--memory MIB] [--name NAME] [--unsafe]
+       kit/grade.py --gradings-that-fit [--memory MIB]   (how many gradings of a class this machine runs at once)
        kit/grade.py --make-reference [--jobs N] [--build DIR]   (instructor: render kit/reference/ with this
                       tree's build/ (or DIR): the statistics and the report's picture of each criterion; then
                       kit/heldout/ as --make-heldout does)
@@ -19,7 +20,11 @@ usage: kit/grade.py SUBMISSION [--report DIR] [--chapters "01_local ..."] [--see
   --jobs N            renders run at once and make -j (default 2)
   --statistical-only  only the criteria of kind compare, without their pictures (for calibration)
   --timeout S         per criterion, whole process group killed after S seconds (default 300)
-  --memory MIB        memory cap of each sandbox (all its processes together; default 4096)
+  --memory MIB        memory cap of the whole grading: every program of it, in all its sandboxes together
+                      (one cgroup; default 4096); a run killed by it fails its criterion, saying so
+  --gradings-that-fit print how many gradings of --memory MIB each (and one core each) this machine can run
+                      at once, from its free memory and cores (kit/grade_class.py's default --jobs; over
+                      ssh, the N of a login file's "N/host" line), and exit
   --rubric FILE       another rubric than kit/rubric.json (the kit's tests grade with small ones)
   --sandbox user      where user namespaces are blocked (a Docker container: Gradescope), the weaker
                       fallback of kit/sandbox.py: a uid of its own, per-user and per-process limits,
@@ -101,7 +106,7 @@ def parse_args(argv):
     opts = {"report": None, "chapters": None, "seed": 1, "jobs": 2, "statistical_only": False, "timeout": 300.0,
             "memory": 4096, "make_reference": False, "name": None, "submission": None, "unsafe": False,
             "rubric": None, "make_heldout": False, "public": False, "build": "build",
-            "sandbox": "bwrap"}
+            "sandbox": "bwrap", "gradings_that_fit": False}
     valued = {"--report": str, "--chapters": str, "--seed": int, "--jobs": int, "--timeout": float,
               "--memory": int, "--name": str, "--rubric": str, "--build": str, "--sandbox": str}
     i = 0
@@ -116,7 +121,7 @@ def parse_args(argv):
             opts["make_reference"] = True
         elif a == "--unsafe":
             opts["unsafe"] = True
-        elif a in ("--make-heldout", "--public"):
+        elif a in ("--make-heldout", "--public", "--gradings-that-fit"):
             opts[a[2:].replace("-", "_")] = True
         elif a in valued:
             if i + 1 >= len(argv):
@@ -359,6 +364,37 @@ def trusted_sites(test, work, timeout):
         return None
     code, out, _ = run_limited([exe], ROOT, timeout, 1024)
     return parse_sites(out) if code == 0 else None
+
+
+LIMIT_ORDER = ("memory", "time", "output")  # the report's "limit" of a criterion: the first of these a run met
+LIMIT_WORDS = {"memory": "memory", "time": "time", "output": "file size"}
+
+
+def limit_met(row, stops, build_error, opts):
+    """The cap that stopped a run of the failed criterion row ("memory", "time", "output"; None): from
+    the runs its sandboxes noted (stops: kit/sandbox.py record_stop), a build the sandbox stopped, or
+    the criterion's own time-out; the message is made to say so where it does not yet."""
+    if build_error and build_error.startswith("the build was stopped: "):
+        stops = stops + [sandbox.limit_of(build_error.split(": ", 1)[1])]
+    if row["message"].startswith("timed out after "):
+        stops = stops + ["time"]
+    limit = next((k for k in LIMIT_ORDER if k in stops), None)
+    if limit and LIMIT_WORDS[limit] not in row["message"].lower():
+        said = {"memory": sandbox.memory_stop(opts["memory"]), "time": "stopped by a time cap (time-out or CPU time)",
+                "output": "a file reached the file size cap (512 MiB)"}[limit]
+        row["message"] = f"{said}; {row['message']}" if row["message"] else said
+    return limit
+
+
+def memory_summary(opts, grading_group):
+    """The report's "memory": the cap, what it bounds, and the most the grading's programs held at once."""
+    if opts.get("unsafe", False):
+        return {"cap_mib": opts["memory"], "scope": "each process (--unsafe: RLIMIT_AS)", "peak_mib": None}
+    if grading_group is None:
+        return {"cap_mib": opts["memory"], "peak_mib": None,
+                "scope": "each process (RLIMIT_AS) and the grading's uid's resident memory, looked at every 0.1 s "
+                         "(--sandbox user without cgroups)"}
+    return {"cap_mib": opts["memory"], "scope": "the whole grading (one cgroup)", "peak_mib": grading_group.peak_mib()}
 
 
 def parse_sites(out):
@@ -646,9 +682,17 @@ def write_html(path, report, name):
                f"{h(report.get('submission_sha256', ''))} ({report.get('submission_files', '?')} files); "
                f"{report.get('seconds', '?')} s. Family-wise alpha {report['family_alpha']} over the statistical "
                f"criteria ({h(report['statistics'])}): a correct solution fails a grading by chance at most that "
-               f"often. Sandbox: {h(report.get('sandbox', ''))}.</p>")
+               f"often. Sandbox: {h(report.get('sandbox', ''))}.{memory_sentence(report.get('memory'))}</p>")
     with open(path, "w") as f:
         f.write("\n".join(out) + "\n")
+
+
+def memory_sentence(memory):
+    """The report page's words on the memory cap (report["memory"], memory_summary)."""
+    if not memory:
+        return ""
+    peak = f"; the most its programs held at once: {memory['peak_mib']:.0f} MiB" if memory.get("peak_mib") else ""
+    return f" Memory cap: {memory['cap_mib']} MiB for {html.escape(str(memory['scope']))}{peak}."
 
 
 SCRATCH_PREFIX = "gi-grade-"
@@ -693,6 +737,9 @@ def private_scratch(work, uid):
 def main(argv):
     end_on_signals()
     opts = parse_args(argv)
+    if opts["gradings_that_fit"]:
+        print(sandbox.gradings_that_fit(opts["memory"]))
+        return
     try:
         rub = rubric_module.load(ROOT, opts["rubric"])
     except ValueError as e:
@@ -742,8 +789,23 @@ def main(argv):
     date = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
     digest, files = submission_hash(submission)
     remove_stale_scratch()
+    if not opts.get("unsafe", False):
+        sandbox.remove_stale_groups()  # a killed grading's (SIGKILL), empty
     work = tempfile.mkdtemp(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-")
+    stops = os.path.join(work, "stops.jsonl")  # the runs a cap stopped (kit/sandbox.py record_stop)
+    os.environ[sandbox.STOPS_VARIABLE] = stops
     try:
+        grading_group = None  # the cgroup of the whole grading: its memory cap bounds all its sandboxes together
+        if not opts.get("unsafe", False):
+            try:
+                grading_group = sandbox.GradingGroup(tag, opts["memory"])
+            except OSError as e:
+                if opts["sandbox"] == "bwrap":
+                    print(f"kit/grade.py: no sandbox for the submission's code: cannot make the grading's cgroup "
+                          f"(its memory cap): {e.strerror or e}", file=sys.stderr)
+                    sys.exit(2)
+                # --sandbox user without cgroups: each process's address space and the uid's resident sum
+                # looked at every 0.1 s (kit/sandbox.py user_memory_mib)
         names = sorted(markers.chapter_names(ROOT).values())
         needed = set(chapters) | set(chapters_run_by(criteria, names))
         src, missing = prepare(submission, work, chapters, later_chapters(needed))
@@ -760,8 +822,9 @@ def main(argv):
         results, hung = [], {}
         for c in criteria:
             fresh_session(src, opts)
+            sandbox.recorded_stops(stops)  # from here on: this criterion's
             row = {"chapter": c["chapter"], "name": c["name"], "points": 0, "max": c["points"], "passed": False,
-                   "p_value": None, "message": "", "exercises": c["exercises"], "kind": c["kind"]}
+                   "p_value": None, "message": "", "exercises": c["exercises"], "kind": c["kind"], "limit": None}
             if c["kind"] == "grade":
                 row["test"] = f"tests/{c['module']}.py {c['test']}"
             if c["kind"] in ("compare", "surfaces"):
@@ -792,6 +855,7 @@ def main(argv):
                 row.update({k: r.get(k, []) for k in ("measured", "commands", "todos")})
                 if r.get("timed_out"):
                     hung[c["chapter"]] = c["name"]
+            row["limit"] = None if row["passed"] else limit_met(row, sandbox.recorded_stops(stops), error, opts)
             row["points"] = c["points"] if row["passed"] else 0
             row["seconds"] = round(time.time() - t0, 2)
             results.append(row)
@@ -811,6 +875,7 @@ def main(argv):
                   "statistics": "Welch's t per tile and channel and on the image mean, one-sided F on the noise, "
                                 "Holm within a criterion, Bonferroni over the compare criteria",
                   "build_errors": {c: built.get(f"build/{c}") for c in chapters if built.get(f"build/{c}")},
+                  "memory": memory_summary(opts, grading_group),
                   "seconds": round(time.time() - start, 1)}
         with open(os.path.join(report_dir, "report.json"), "w") as f:
             json.dump(report, f, indent=1)
@@ -821,7 +886,7 @@ def main(argv):
         if opts.get("session"):
             opts["session"].close()
         if not opts.get("unsafe", False):
-            sandbox.remove_groups(tag)
+            sandbox.remove_groups(tag)  # the grading's group (grading_group) and every sandbox's in it
         shutil.rmtree(work, ignore_errors=True)
 
 

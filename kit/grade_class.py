@@ -7,7 +7,8 @@ usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE] [--cha
   SUBMISSION   a student's directory; @LIST.txt: one directory per line (# comments)
   --report DIR class reports (default out/class): DIR/<student>/report.{json,html}, DIR/summary.{csv,html},
                DIR/criteria.csv, DIR/joblog.tsv (GNU parallel's log: exit status and time of every grading)
-  --jobs N     gradings at once (default: the number of cores); each grading uses one core
+  --jobs N     gradings at once (default: as many as this machine's cores and free memory hold, each grading
+               one core and its memory cap: kit/grade.py --gradings-that-fit)
   --sshloginfile FILE   spread the gradings over the machines in FILE (GNU parallel's format, e.g.
                "4/user@host"); every machine must see this project and the submissions at the same
                paths (a shared file system) and have the build packages installed
@@ -31,6 +32,8 @@ import sys
 
 KIT = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(KIT)
+sys.path.insert(0, KIT)
+import sandbox  # noqa: E402
 
 
 def fail(message):
@@ -99,7 +102,7 @@ def refusal(log):
 
 
 def main(argv):
-    report, jobs, login, extra, dirs = os.path.join(ROOT, "out", "class"), os.cpu_count() or 1, None, [], []
+    report, jobs, login, extra, dirs = os.path.join(ROOT, "out", "class"), None, None, [], []
     i = 0
     while i < len(argv):
         a = argv[i]
@@ -135,6 +138,7 @@ def main(argv):
         i += 1
     if not dirs:
         fail("no submissions given")
+    jobs = jobs or sandbox.gradings_that_fit(sandbox.Limits().memory_mib)  # each grading: one core, its cap
     if not shutil.which("parallel"):
         fail("GNU parallel is missing: sudo apt-get install -y parallel")
     # One report directory per student, named after the directory (numbered when two share a name).

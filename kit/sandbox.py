@@ -19,7 +19,9 @@ bubblewrap (Debian's `bwrap`):
   bwrap starts, so even the files it writes are not root's;
 - whole-sandbox caps in a cgroup of its own (process count, memory
   including its tmpfs and page cache, CPU time) and per-process ones
-  (file size, no core files);
+  (file size, no core files); the cgroup of every sandbox of one grading
+  is a child of the grading's own (GradingGroup), whose memory cap bounds
+  them all together: runs side by side in two sandboxes share one cap;
 - an empty environment but PATH, HOME=/tmp, LANG, OMP_NUM_THREADS and
   OMP_WAIT_POLICY=passive;
   stdin /dev/null; stdout and stderr go to files of its own, read back
@@ -34,6 +36,13 @@ but the grader is root, mode "user" is the weaker fallback: the programs run
 directly as uid 65534 with per-user and per-process limits (processes of the
 uid, address space, CPU time, file size), a cgroup where one can be made,
 an empty environment, and every process of the uid killed after the run.
+Its memory without a cgroup: RLIMIT_AS bounds each process's address space
+(mapped, not touched: a little more than its memory) at the cap, but not
+their sum (up to the process cap times as much) nor files in tmpfs; so
+the grader also adds up the resident memory of the grading's uid (its
+processes and its files at the top of /dev/shm) every 0.1 s and kills the
+run above the cap (user_memory_mib): the sum is bounded by the cap plus what
+the programs touch in 0.1 s.
 Without a network namespace, the network is shut by a seccomp filter
 (no_network_filter): the system calls socket, socketpair and io_uring_setup fail with EACCES,
 so no host listener, TCP or unix, can be reached; unshare(2) would need
@@ -64,6 +73,7 @@ SYSTEM_READ_ONLY = ("/usr", "/etc/alternatives", "/etc/ld.so.cache", "/etc/ld.so
 MERGED_USR_LINKS = ("bin", "sbin", "lib", "lib64", "lib32", "libx32")
 CGROUP_V1 = "/sys/fs/cgroup"
 OUTPUT_CAP = 1 << 20  # bytes of stdout / stderr kept
+SANDBOX_OOM_SCORE = 900  # oom_score_adj of a sandbox (its runs raise theirs to 1000: the runner is the last one killed)
 TAG_VARIABLE = "GI_SANDBOX_TAG"  # cgroups are named after it: one grading's, removed together (remove_groups)
 
 
@@ -76,24 +86,95 @@ class Limits:
         self.file_mib, self.tmp_mib = file_mib, tmp_mib
 
 
+STOPS_VARIABLE = "GI_SANDBOX_STOPS"  # a file (the grader's) where every run a cap stopped is noted: record_stop
+
+
+def memory_stop(memory_mib, killed="the largest program killed"):
+    """What a run the memory cap stopped says (the report a student reads)."""
+    return (f"out of memory: the grading's memory cap of {memory_mib} MiB (all its programs together) was "
+            f"reached and {killed}")
+
+
+def limit_of(stopped, returncode=None):
+    """Which cap a run met: "memory", "time" (time-out, CPU time), "output" (a file over the file size
+    cap: SIGXFSZ), or None."""
+    if "memory cap" in stopped:
+        return "memory"
+    if stopped.startswith("time-out") or "CPU time cap" in stopped:
+        return "time"
+    if returncode == -signal.SIGXFSZ or "file size cap" in stopped:
+        return "output"
+    return None
+
+
+def record_stop(result):
+    """Note a run a cap stopped in the file STOPS_VARIABLE names (kit/grade.py reads it after each
+    criterion: the report's "limit"); one JSON line each, appended."""
+    path = os.environ.get(STOPS_VARIABLE)
+    if not path or not result.limit:
+        return
+    try:
+        with open(path, "a") as f:
+            f.write(json.dumps({"limit": result.limit, "stopped": result.stopped[:300]}) + "\n")
+    except OSError:
+        pass
+
+
+def recorded_stops(path):
+    """The limits noted in path (record_stop), in order, and empty it."""
+    try:
+        with open(path, "r+") as f:
+            lines = f.read().splitlines()
+            f.truncate(0)
+    except OSError:
+        return []
+    found = []
+    for line in lines:
+        try:
+            found.append(json.loads(line)["limit"])
+        except (ValueError, KeyError, TypeError):
+            continue
+    return found
+
+
 class Result:
     def __init__(self, returncode, stdout, stderr, stopped):
         self.returncode = returncode  # None when the sandbox was stopped (time, CPU)
         self.stdout, self.stderr = stdout, stderr
         self.stopped = stopped        # "" or what stopped it: "time-out after 300 s", "CPU time cap 600 s"
+        self.limit = limit_of(stopped, returncode)  # the cap it met (limit_of) or None
+        if self.limit == "output" and not stopped:
+            self.stopped = "a file reached the file size cap (killed by SIGXFSZ)"
 
 
 # ---- cgroups: whole-sandbox caps ------------------------------------------------------------------
 
+def unified():
+    """Whether the cgroups are v2's (one hierarchy at CGROUP_V1) rather than v1's (one per controller)."""
+    return os.path.exists(os.path.join(CGROUP_V1, "cgroup.controllers")) and \
+        not os.path.isdir(os.path.join(CGROUP_V1, "pids"))
+
+
+def hierarchy(controller):
+    """Where controller's cgroups are: CGROUP_V1 itself (v2) or CGROUP_V1/controller (v1)."""
+    return CGROUP_V1 if unified() else os.path.join(CGROUP_V1, controller)
+
+
 class Cgroup:
-    """One cgroup per sandbox run, v2 (unified) or v1 (pids, memory, cpuacct hierarchies)."""
+    """One cgroup per sandbox run, v2 (unified) or v1 (pids, memory, cpuacct hierarchies); a child of
+    the grading's cgroup (GradingGroup: the one TAG_VARIABLE names) where it exists, so that the
+    grading's memory cap bounds every sandbox of the grading together."""
 
     def __init__(self, limits):
-        self.name = f"{os.environ.get(TAG_VARIABLE, 'gi-sandbox')}-{uuid.uuid4().hex[:12]}"
+        tag = os.environ.get(TAG_VARIABLE, "gi-sandbox")
+        self.name = f"{tag}-{uuid.uuid4().hex[:12]}"
         self.dirs = {}
-        v2 = os.path.join(CGROUP_V1, "cgroup.controllers")
-        if os.path.exists(v2) and not os.path.isdir(os.path.join(CGROUP_V1, "pids")):
-            d = os.path.join(CGROUP_V1, self.name)
+
+        def place(controller):
+            parent = os.path.join(hierarchy(controller), tag)
+            return os.path.join(parent if os.path.isdir(parent) else hierarchy(controller), self.name)
+        if unified():
+            d = place("memory")
             os.mkdir(d)
             self.dirs = {"pids": d, "memory": d, "cpu": d}
             self._write("pids", "pids.max", limits.processes)
@@ -101,7 +182,7 @@ class Cgroup:
             self._write("memory", "memory.swap.max", 0, optional=True)
         else:
             for controller in ("pids", "memory", "cpuacct"):
-                d = os.path.join(CGROUP_V1, controller, self.name)
+                d = place(controller)
                 os.mkdir(d)
                 self.dirs["cpu" if controller == "cpuacct" else controller] = d
             self._write("pids", "pids.max", limits.processes)
@@ -176,21 +257,183 @@ class Cgroup:
 
 
 def remove_groups(tag):
-    """Kill what is left in the cgroups named tag-* (a judge killed on its time-out leaves its
-    sandboxes' groups behind: their processes died with bwrap) and remove them."""
-    group = Cgroup.__new__(Cgroup)
-    names = set()
-    for top in (CGROUP_V1, *(os.path.join(CGROUP_V1, c) for c in ("pids", "memory", "cpuacct"))):
+    """Kill what is left in the cgroups of the grading tag (its GradingGroup with the sandboxes' groups
+    in it, and groups named tag-* beside it: a judge killed on its time-out leaves its sandboxes'
+    groups behind, their processes died with bwrap) and remove them, children first; how many."""
+    found = []
+    for controller in ("pids", "memory", "cpuacct"):
+        top = hierarchy(controller)
         try:
-            names |= {n for n in os.listdir(top) if n.startswith(tag + "-")}
+            names = sorted(os.listdir(top))
         except OSError:
             continue
-    for name in names:
-        group.dirs = {c: os.path.join(CGROUP_V1, *([c] if os.path.isdir(os.path.join(CGROUP_V1, c)) else []), name)
-                      for c in ("pids", "memory", "cpuacct")}
-        group.dirs = {k: d for k, d in group.dirs.items() if os.path.isdir(d)}
+        for name in names:
+            if (name == tag or name.startswith(tag + "-")) and os.path.isdir(os.path.join(top, name)):
+                found += [d for d, _, _ in os.walk(os.path.join(top, name), topdown=False) if d not in found]
+    group = Cgroup.__new__(Cgroup)
+    for d in found:
+        group.dirs = {"memory": d}
         group.kill_and_remove()
-    return len(names)
+    return len({os.path.basename(d) for d in found})
+
+
+def remove_stale_groups():
+    """Remove the grading groups (GradingGroup: gi-sandbox-PID-SECONDS) of gradings that were killed
+    (SIGKILL: no `finally`) and hold no process any more: their grader PID is no live kit/grade.py.
+    Groups that still hold a process are left alone (a grading this one cannot see)."""
+    top = hierarchy("memory")
+    try:
+        names = os.listdir(top)
+    except OSError:
+        return 0
+    removed = 0
+    for name in names:
+        parts = name.split("-")
+        if len(parts) != 4 or parts[:2] != ["gi", "sandbox"] or not parts[2].isdigit() or not parts[3].isdigit():
+            continue
+        try:
+            with open(f"/proc/{parts[2]}/cmdline", "rb") as f:
+                if b"grade.py" in f.read():
+                    continue
+        except OSError:
+            pass
+        dirs = [os.path.join(hierarchy(c), name) for c in ("pids", "memory", "cpuacct")]
+        busy = False
+        for d in dirs:
+            for sub, _, _ in os.walk(d):
+                try:
+                    with open(os.path.join(sub, "cgroup.procs")) as f:
+                        busy = busy or bool(f.read().split())
+                except OSError:
+                    continue
+        if not busy:
+            remove_groups(name)
+            removed += 1
+    return removed
+
+
+def flat_v1_memory(directory):
+    """Whether a v1 memory cgroup leaves its children's memory out of its own (memory.use_hierarchy 0,
+    possible before Linux 5.16; the file is gone or always 1 since)."""
+    try:
+        with open(os.path.join(directory, "memory.use_hierarchy")) as f:
+            return f.read().strip() == "0"
+    except OSError:
+        return False
+
+
+class GradingGroup:
+    """The cgroup of one whole grading (named tag: kit/grade.py sets TAG_VARIABLE to it), with the memory
+    cap of all its sandboxes together (swap included, where there is swap): every Cgroup made while
+    TAG_VARIABLE names it is its child (v1: in the pids, memory and cpuacct hierarchies; v2: one
+    group with the pids and memory controllers for its children).  It holds no process itself."""
+
+    def __init__(self, tag, memory_mib):
+        self.tag, self.memory_mib, self.dirs = tag, memory_mib, {}
+        try:
+            if unified():
+                d = os.path.join(CGROUP_V1, tag)
+                os.mkdir(d)
+                self.dirs = {"pids": d, "memory": d, "cpu": d}
+                self._write("memory.max", memory_mib << 20)
+                self._write("memory.swap.max", 0, optional=True)  # none without swap accounting
+                self._write("cgroup.subtree_control", "+pids +memory")
+            else:
+                for controller in ("pids", "memory", "cpuacct"):
+                    d = os.path.join(CGROUP_V1, controller, tag)
+                    os.mkdir(d)
+                    self.dirs["cpu" if controller == "cpuacct" else controller] = d
+                self._write("memory.limit_in_bytes", memory_mib << 20)
+                self._write("memory.memsw.limit_in_bytes", memory_mib << 20, optional=True)  # swap accounting on
+                if flat_v1_memory(self.dirs["memory"]):  # the children's memory would not count here
+                    raise OSError(0, "the v1 memory hierarchy does not count a child's memory in its parent "
+                                     "(memory.use_hierarchy 0)")
+        except OSError:
+            self.close()
+            raise
+
+    def _write(self, name, value, optional=False):
+        try:
+            with open(os.path.join(self.dirs["memory"], name), "w") as f:
+                f.write(str(value))
+        except OSError:
+            if not optional:
+                raise
+
+    def peak_mib(self):
+        """The most memory the grading's sandboxes held at once (MiB), or None where it is not kept."""
+        for name in ("memory.peak", "memory.max_usage_in_bytes"):
+            try:
+                with open(os.path.join(self.dirs.get("memory", ""), name)) as f:
+                    return round(int(f.read()) / (1 << 20), 1)
+            except (OSError, ValueError):
+                continue
+        return None
+
+    def close(self):
+        """Kill whatever is left in the grading's groups and remove them."""
+        remove_groups(self.tag)
+
+
+# ---- how many gradings a machine can run at once ---------------------------------------------------
+
+JUDGE_MIB = 256   # what a grading holds outside its cap: the grader and its judge (Python, the images read back)
+SYSTEM_MIB = 1024  # left to the machine itself
+
+
+def meminfo_mib(text):
+    """{"MemTotal": MiB, "MemAvailable": MiB, ...} of /proc/meminfo's text."""
+    found = {}
+    for line in text.splitlines():
+        words = line.replace(":", " ").split()
+        if len(words) >= 2 and words[1].isdigit():
+            found[words[0]] = int(words[1]) // 1024 if words[2:3] == ["kB"] else int(words[1]) >> 20
+    return found
+
+
+def own_memory_limit_mib():
+    """The memory cap of the cgroup this process runs in (a container's, a Slurm job's) or None."""
+    try:
+        with open("/proc/self/cgroup") as f:
+            lines = [line.rstrip("\n").split(":", 2) for line in f]
+    except OSError:
+        return None
+    for _, controllers, path in lines:
+        if unified() and controllers == "":
+            files = [os.path.join(CGROUP_V1, path.lstrip("/"), "memory.max")]
+        elif "memory" in controllers.split(","):
+            files = [os.path.join(CGROUP_V1, "memory", path.lstrip("/"), "memory.limit_in_bytes")]
+        else:
+            continue
+        for name in files:
+            try:
+                with open(name) as f:
+                    text = f.read().strip()
+            except OSError:
+                continue
+            if text.isdigit() and int(text) < 1 << 60:  # "max" or v1's "unlimited" (about 2^63)
+                return int(text) >> 20
+    return None
+
+
+def gradings_that_fit(memory_mib_per_grading, meminfo=None, cores=None, limit_mib=None):
+    """How many gradings this machine can run at once, each on one core (kit/grade.py --jobs 1) and
+    with memory_mib_per_grading as its cap (--memory): no more than the cores this process may use
+    (os.sched_getaffinity), and no more than fit in the memory available now (MemAvailable of
+    /proc/meminfo, MemTotal where the kernel has no MemAvailable; less where this process's cgroup
+    caps it lower) less SYSTEM_MIB, each grading counted at its cap plus JUDGE_MIB.  At least 1.
+    meminfo (the file's text), cores and limit_mib stand in for the machine's (the tests)."""
+    if meminfo is None:
+        with open("/proc/meminfo") as f:
+            meminfo = f.read()
+    info = meminfo_mib(meminfo)
+    available = info.get("MemAvailable", info.get("MemTotal", 0))
+    limit_mib = own_memory_limit_mib() if limit_mib is None else limit_mib
+    if limit_mib is not None:
+        available = min(available, limit_mib)
+    cores = len(os.sched_getaffinity(0)) if cores is None else cores
+    by_memory = (available - SYSTEM_MIB) // (memory_mib_per_grading + JUDGE_MIB)
+    return max(1, min(cores, by_memory))
 
 
 # ---- can a sandbox start here? -------------------------------------------------------------------
@@ -262,6 +505,7 @@ class Sandbox:
             import resource
             if cgroup:
                 cgroup.join()
+            set_oom_score(SANDBOX_OOM_SCORE)
             resource.setrlimit(resource.RLIMIT_FSIZE, (limits.file_mib << 20, limits.file_mib << 20))
             resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
             resource.setrlimit(resource.RLIMIT_NOFILE, (256, 256))
@@ -303,6 +547,8 @@ class Sandbox:
                         stopped = f"time-out after {timeout:.0f} s"
                     elif group and group.cpu_seconds() > self.limits.cpu_seconds:
                         stopped = f"the sandbox's CPU time cap of {self.limits.cpu_seconds:.0f} s"
+                    elif not group and self.mode == "user" and user_memory_mib(self.uid) > self.limits.memory_mib:
+                        stopped = memory_stop(self.limits.memory_mib, "the run killed")  # no cgroup: the uid's sum
                     if stopped:  # bwrap's death ends the PID namespace; the cgroup catches the rest
                         os.killpg(p.pid, signal.SIGKILL)
                         _kill_all(group) if group else kill_user(self.uid)
@@ -313,7 +559,7 @@ class Sandbox:
                     stopped = stopped or (f"{left} processes outlived the run (killed)" if left else "")
                     remove_files_of(self.uid)
                 if not stopped and group and group.out_of_memory():
-                    stopped = f"the sandbox's memory cap of {self.limits.memory_mib} MiB"
+                    stopped = memory_stop(self.limits.memory_mib)
                 for _ in range(100 if group else 0):  # the PID namespace's processes die with bwrap, a moment later
                     if not group.processes():
                         break
@@ -324,7 +570,9 @@ class Sandbox:
                         _kill_all(group)
                 stdout, stderr = _tail(out), _tail(err)
             code = None if stopped and p.returncode in (-signal.SIGKILL, None) else p.returncode
-            return Result(code, stdout, stderr, stopped)
+            result = Result(code, stdout, stderr, stopped)
+            record_stop(result)
+            return result
         finally:
             if own_group and group:
                 group.kill_and_remove()
@@ -478,10 +726,13 @@ class Client:
         stopped = str(answer.get("stopped", ""))[:300]
         if stopped == "time-out":
             stopped = f"time-out after {timeout:.0f} s"
-        if self.group.out_of_memory_count() > oom_before:
-            stopped = stopped or f"the sandbox's memory cap of {self.spec['memory_mib']} MiB"
-        result = Result(code if isinstance(code, int) and not isinstance(code, bool) else None,
-                        self._read(rid, ".out", OUTPUT_CAP), self._read(rid, ".err", OUTPUT_CAP), stopped)
+        code = code if isinstance(code, int) and not isinstance(code, bool) else None
+        if self.group.out_of_memory_count() > oom_before and code != 0:
+            # a run that ended well was not the one killed (two runs of a criterion share the sandbox)
+            memory = memory_stop(self.spec["memory_mib"])
+            stopped = f"{memory} ({stopped})" if stopped else memory
+        result = Result(code, self._read(rid, ".out", OUTPUT_CAP), self._read(rid, ".err", OUTPUT_CAP), stopped)
+        record_stop(result)
         self._forget(rid)
         return result
 
@@ -512,6 +763,41 @@ def kill_user(uid):
             break
         time.sleep(0.02)
     return killed
+
+
+def set_oom_score(score):
+    """The calling process's (and its future children's) oom_score_adj: above 0, the out-of-memory killer,
+    the machine's or a cgroup's, takes it before the grader's and others' processes of the same size."""
+    try:
+        with open("/proc/self/oom_score_adj", "w") as f:
+            f.write(str(score))
+    except OSError:
+        pass
+
+
+def user_memory_mib(uid, shared=("/dev/shm",)):
+    """The memory uid holds (MiB): the resident memory of its processes (pages shared between them
+    counted in each: more, never less) and its files at the top of shared (a tmpfs: memory too)."""
+    pages = 0
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            if os.stat(f"/proc/{pid}").st_uid != uid:
+                continue
+            with open(f"/proc/{pid}/statm") as f:
+                pages += int(f.read().split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+    total = pages * os.sysconf("SC_PAGE_SIZE")
+    for place in shared:
+        try:
+            with os.scandir(place) as entries:
+                for e in entries:
+                    info = e.stat(follow_symlinks=False)
+                    if info.st_uid == uid:
+                        total += info.st_blocks * 512
+        except OSError:
+            continue
+    return total / (1 << 20)
 
 
 def user_for_grading():

@@ -94,6 +94,17 @@ def kill_leftovers(active_pids):
     return found
 
 
+def first_to_kill():
+    """In a run, before it starts: the out-of-memory killer takes it (oom_score_adj 1000, the most) before
+    the runner (kit/sandbox.py SANDBOX_OOM_SCORE), so a grading over its memory cap loses a run, which
+    says so, not its sandbox."""
+    try:
+        with open("/proc/self/oom_score_adj", "w") as f:
+            f.write("1000")
+    except OSError:
+        pass
+
+
 def kill_group(pid):
     try:
         os.killpg(pid, signal.SIGKILL)
@@ -152,7 +163,7 @@ class Runner:
         try:
             with open(base + ".out", "wb") as out, open(base + ".err", "wb") as err:
                 p = subprocess.Popen(request["argv"], cwd=request["cwd"], stdin=subprocess.DEVNULL, stdout=out,
-                                     stderr=err, start_new_session=True)
+                                     stderr=err, start_new_session=True, preexec_fn=first_to_kill)
         except OSError as e:
             self.finish(rid, 127, "", f"cannot start {program}: {e.strerror}\n")
             return

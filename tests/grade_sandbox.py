@@ -20,6 +20,7 @@ import stat
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 
 import lib
@@ -283,11 +284,16 @@ def test_the_fallback_sandbox_contains_the_hostile_submission(ctx):
 def test_a_killed_grading_leaves_no_scratch_to_read(ctx):
     """A grading's scratch directory (the tree it builds, its outputs) is the grader's and its sandbox
     uid's only while it runs; a grading ended by SIGTERM removes it, and one ended by SIGKILL (which
-    cannot be caught) leaves it to the next grading, which removes it before it starts."""
+    cannot be caught) leaves it to the next grading, which removes it before it starts; so with
+    the grading's cgroup (its memory cap), once no process is left in it."""
     if "asan" in ctx.build:
         return
     honest = submission(ctx, "scratch-honest")
     top = tempfile.gettempdir()
+    memory = "/sys/fs/cgroup/memory" if os.path.isdir("/sys/fs/cgroup/memory") else "/sys/fs/cgroup"
+
+    def grading_groups(pid):  # kit/sandbox.py GradingGroup: gi-sandbox-PID-SECONDS
+        return [n for n in os.listdir(memory) if n.startswith(f"gi-sandbox-{pid}-") and n.count("-") == 3]
 
     def start_and_wait(name):
         p = subprocess.Popen(GRADE + [honest, "--report", ctx.path(name), "--chapters", "01_local", "--rubric",
@@ -308,14 +314,19 @@ def test_a_killed_grading_leaves_no_scratch_to_read(ctx):
     os.killpg(p.pid, signal.SIGTERM)
     p.wait(timeout=60)
     assert not os.path.exists(work), f"a grading ended by SIGTERM left {work}"
+    assert not grading_groups(p.pid), f"a grading ended by SIGTERM left its cgroup {grading_groups(p.pid)}"
     p, killed_work = start_and_wait("killed")
+    killed = p.pid
+    assert grading_groups(killed), "a running grading has a cgroup of its own (its memory cap)"
     os.killpg(p.pid, signal.SIGKILL)
     p.wait(timeout=60)
     assert os.path.exists(killed_work), "SIGKILL cannot be caught: its scratch is left for the next grading"
+    time.sleep(1)  # its sandbox dies with it (bwrap --die-with-parent)
     p, work = start_and_wait("next")
     os.killpg(p.pid, signal.SIGTERM)
     p.wait(timeout=60)
     assert not os.path.exists(killed_work), f"the next grading did not remove the killed one's {killed_work}"
+    assert not grading_groups(killed), f"the next grading did not remove the killed one's {grading_groups(killed)}"
     assert not os.path.exists(work), f"a grading ended by SIGTERM left {work}"
 
 
@@ -360,6 +371,10 @@ def test_caps_stop_fork_bombs_memory_and_huge_files(ctx):
     row = read_report(report_dir)["criteria"][0]
     assert not row["passed"], f"a run stopped by the memory cap cannot pass: {row}"
     assert "memory cap of 1024 MiB" in row["message"], f"the message must name the memory cap: {row['message']!r}"
+    assert row["limit"] == "memory", f"the report must record the memory cap as the limit met: {row}"
+    memory = read_report(report_dir)["memory"]
+    assert memory["cap_mib"] == 1024 and memory["peak_mib"] is not None and memory["peak_mib"] <= 1024, \
+        f"the whole grading's memory is capped at 1024 MiB: {memory}"
     forked, written = re.search(r"FORKED (\d+)", row["message"]), re.search(r"WRITTEN (\d+)", row["message"])
     assert forked and int(forked[1]) < 64, f"the process cap (64) must stop the fork bomb: {row['message']!r}"
     assert written and int(written[1]) <= 512 << 20, f"the file size cap (512 MiB) must stop the file: {row['message']!r}"
@@ -527,3 +542,107 @@ def test_no_sandbox_no_grading_unless_unsafe(ctx):
                        capture_output=True, text=True, env=env)
     assert r.returncode == 2 and "bubblewrap" in r.stderr and "UNSAFE=1" in r.stderr, \
         f"without bwrap the kit must refuse and say why: {r.returncode} {r.stderr!r}"
+
+
+def test_a_gradings_memory_cap_bounds_its_sandboxes_together(ctx):
+    """Two runs side by side in two sandboxes of one grading (each a cgroup of its own, as the build's
+    and each program's where no Session serves), each touching 768 MiB, each under its own 1 GiB cap:
+    the grading's cgroup (kit/sandbox.py GradingGroup, 1 GiB) bounds their sum, so one is stopped and
+    says memory, and the most the grading held at once (its peak) is at most 1 GiB.  (Small: touching
+    memory takes seconds a GiB on a loaded virtual machine; tests/cluster_memory.py grades 1.5 GiB
+    renders under 2 GiB.)"""
+    if "asan" in ctx.build:
+        return
+    sys.path.insert(0, os.path.join(ROOT, "kit"))
+    import sandbox
+    if sandbox.unavailable():
+        raise AssertionError(f"no sandbox here: {sandbox.unavailable()}")
+    tag = f"gi-sandbox-test-{os.getpid()}-{int(time.time())}"
+    saved = os.environ.get(sandbox.TAG_VARIABLE)
+    os.environ[sandbox.TAG_VARIABLE] = tag
+    scratch = tempfile.mkdtemp(prefix="gi-kit-tmemory-")
+    os.chown(scratch, sandbox.SANDBOX_UID, sandbox.SANDBOX_UID)
+    results = []
+    try:
+        group = sandbox.GradingGroup(tag, 1024)
+        box = sandbox.Sandbox([(scratch, True)], limits=sandbox.Limits(memory_mib=1024))
+        touch = ("import time\nb = bytearray(768 << 20)\nb[::4096] = b'\\1' * len(range(0, len(b), 4096))\n"
+                 "time.sleep(3)\nprint('held 768 MiB')")
+        runs = [threading.Thread(target=lambda: results.append(box.run(["/usr/bin/python3", "-c", touch],
+                                                                       cwd=scratch, timeout=120)))
+                for _ in range(2)]
+        for t in runs:
+            t.start()
+        for t in runs:
+            t.join()
+        peak = group.peak_mib()
+    finally:
+        sandbox.remove_groups(tag)
+        shutil.rmtree(scratch, ignore_errors=True)
+        if saved is None:
+            os.environ.pop(sandbox.TAG_VARIABLE, None)
+        else:
+            os.environ[sandbox.TAG_VARIABLE] = saved
+    held = [r for r in results if "held 768 MiB" in r.stdout]
+    stopped = [r for r in results if r.limit == "memory"]
+    assert len(results) == 2 and len(held) <= 1, \
+        f"two runs of 768 MiB held at once under a 1 GiB grading cap: {[(r.stdout, r.stopped) for r in results]}"
+    assert stopped and all("memory" in r.stopped for r in stopped), \
+        f"the run the grading's cap stopped must say memory: {[(r.returncode, r.stopped, r.stderr[-300:]) for r in results]}"
+    assert peak is not None and peak <= 1024, f"the grading held {peak} MiB at once under its 1024 MiB cap"
+    assert not any(os.path.exists(os.path.join(sandbox.hierarchy(c), tag)) for c in ("pids", "memory", "cpuacct")), \
+        "the grading's cgroup was not removed"
+
+
+def test_the_fallbacks_memory_is_the_uids_sum(ctx):
+    """--sandbox user without a cgroup: RLIMIT_AS holds each process under the cap, not their sum; the
+    grader adds up the uid's resident memory and stops a run whose two processes, each under the cap
+    (200 MiB of 256), hold more together."""
+    if "asan" in ctx.build:
+        return
+    sys.path.insert(0, os.path.join(ROOT, "kit"))
+    import sandbox
+    if sandbox.fallback_unavailable():
+        raise AssertionError(f"no fallback sandbox here: {sandbox.fallback_unavailable()}")
+    two = ("import os, time\npid = os.fork()\nb = bytearray(200 << 20)\nb[::4096] = b'\\1' * len(range(0, len(b), 4096))\n"
+           "time.sleep(3)\nprint('held 200 MiB')\nos.waitpid(pid, 0) if pid else None")
+    saved = sandbox.CGROUP_V1
+    sandbox.CGROUP_V1 = ctx.path("no-cgroups")  # as in a container where no cgroup can be made
+    try:
+        box = sandbox.Sandbox([("/", False)], limits=sandbox.Limits(memory_mib=256), mode="user",
+                              uid=sandbox.user_for_grading())
+        r = box.run(["/usr/bin/python3", "-c", two], cwd="/", timeout=60)
+        alone = box.run(["/usr/bin/python3", "-c", two.replace("os.fork()", "0")], cwd="/", timeout=60)
+    finally:
+        sandbox.CGROUP_V1 = saved
+    assert r.limit == "memory" and "memory" in r.stopped and r.stdout.count("held") < 2, \
+        f"two processes of 200 MiB under a 256 MiB cap: {r.returncode} {r.stopped!r} {r.stdout!r}"
+    assert alone.returncode == 0 and alone.stdout.count("held") == 1 and not alone.stopped, \
+        f"one process of 200 MiB fits a 256 MiB cap: {alone.returncode} {alone.stopped!r} {alone.stderr[-300:]!r}"
+
+
+def test_gradings_that_fit_the_cores_and_the_memory(ctx):
+    """kit/grade_class.py's default --jobs: no more gradings than cores, no more than the free memory
+    holds at the cap each (with the judges' and the system's share), at least one; MemTotal where
+    a kernel has no MemAvailable; a lower cap of the grader's own cgroup counts."""
+    sys.path.insert(0, os.path.join(ROOT, "kit"))
+    import sandbox
+
+    def meminfo(total_gib, available_gib=None):
+        text = f"MemTotal:       {total_gib << 20} kB\nMemFree:        1000 kB\n"
+        return text + (f"MemAvailable:   {available_gib << 20} kB\n" if available_gib is not None else "")
+    cases = [(4096, meminfo(24, 23), 64, None), (4096, meminfo(24, 23), 2, None), (4096, meminfo(8, 3), 16, None),
+             (2048, meminfo(256, 250), 32, None), (4096, meminfo(32), 64, None), (4096, meminfo(64, 60), 64, 16384),
+             (512, meminfo(4, 4), 1, None)]
+    for cap, text, cores, limit in cases:
+        n = sandbox.gradings_that_fit(cap, meminfo=text, cores=cores, limit_mib=limit if limit else 1 << 40)
+        free = sandbox.meminfo_mib(text).get("MemAvailable", sandbox.meminfo_mib(text)["MemTotal"])
+        free = min(free, limit or free)
+        assert isinstance(n, int) and 1 <= n <= cores, f"cap {cap}, {cores} cores: {n} gradings"
+        assert n == 1 or n * cap <= free, f"cap {cap} MiB, {free} MiB free: {n} gradings do not fit"
+        assert n == cores or (n + 1) * (cap + sandbox.JUDGE_MIB) + sandbox.SYSTEM_MIB > free, \
+            f"cap {cap} MiB, {free} MiB free, {cores} cores: {n} gradings leave room for another"
+    assert sandbox.gradings_that_fit(4096, meminfo=meminfo(24, 23), cores=64, limit_mib=1 << 40) == 5
+    r = subprocess.run(GRADE + ["--gradings-that-fit", "--memory", "4096"], cwd=ROOT, capture_output=True, text=True)
+    assert r.returncode == 0 and r.stdout.strip().isdigit() and \
+        1 <= int(r.stdout) <= len(os.sched_getaffinity(0)), f"kit/grade.py --gradings-that-fit: {r.stdout!r} {r.stderr!r}"
