@@ -274,3 +274,28 @@ def test_gradescope_falls_back_to_a_separate_user_without_bubblewrap(ctx):
     assert not any(t["output"].startswith("not graded: ") for t in results["tests"]), results["output"]
     units = sum(c["points"] for c in criteria if c["kind"] == "unit")
     assert results["score"] == units, f"the handout as it is scores its unit tests' {units}: {results['score']}"
+
+
+def test_gradescope_refuses_where_no_sandbox_starts(ctx):
+    """Where neither bubblewrap (here: no bwrap on PATH) nor the fallback can start (here: root without
+    CAP_SETUID and CAP_SETGID, dropped from the bounding set by setpriv, as a container may withhold
+    them), run_autograder runs none of the submission's code: it says so in its output and in
+    results.json, every criterion 0 and not graded.  tests/cluster_gradescope.py shows it in Docker."""
+    if "asan" in ctx.build:
+        return
+    if os.geteuid() != 0:
+        raise AssertionError("as root: run_autograder runs as root on Gradescope")
+    root = chapter_1_autograder(ctx)
+    r = make("handout", f"OUT={os.path.join(root, 'submission')}", "CHAPTERS=01_local")
+    assert r.returncode == 0, r.stderr
+    env = dict(os.environ, AUTOGRADER_ROOT=root, PATH="/nonexistent")
+    r = subprocess.run(["/usr/bin/setpriv", "--bounding-set", "-setuid,-setgid", sys.executable,
+                        os.path.join(root, "run_autograder")], cwd=root, env=env, capture_output=True, text=True,
+                       timeout=300, stdin=subprocess.DEVNULL)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "REFUSED to grade" in r.stdout and "no CAP_SETUID" in r.stdout, r.stdout[-3000:]
+    assert "grading: " not in r.stdout, f"it started kit/grade.py: {r.stdout[-3000:]}"
+    criteria = [c for c in rubric.load(ROOT)["criteria"] if c["chapter"] == "01_local"]
+    results = check_results(os.path.join(root, "results", "results.json"), criteria)
+    assert results["score"] == 0 and "refuses to run the submission's code" in results["output"], results["output"]
+    assert all(t["output"].startswith("not graded: no sandbox can start") for t in results["tests"])
