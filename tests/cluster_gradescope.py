@@ -27,8 +27,8 @@ where it will run, as far as this machine can show it:
    python3-yaml), its steps run as a runner would: `actions/checkout` is a fresh git clone of the
    student's pushed commit, each `run:` step runs with bash -eo pipefail (as root; `sudo` is a shim
    that runs the command) in the debian root with network, `if: always()` kept, and
-   `actions/upload-artifact` checks the path it would upload.  Imitated: the runner (Ubuntu 24.04
-   on GitHub's machines).  The current design: the workflow is the student's own self-check, in
+   `actions/upload-artifact` checks the path it would upload.  Imitated: the runner (Ubuntu 24.04 on
+   GitHub's machines; git is added, as its image has it).  The current design: the workflow is the student's own self-check, in
    the student's repository, so a push CAN change it and the grader files it runs; the test shows
    that such a push changes the self-check's summary only, and that the grade (Gradescope's
    archive, which takes only the exercise files from a submission) of that same commit is not changed.
@@ -50,7 +50,6 @@ import json
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 import tarfile
@@ -359,7 +358,8 @@ def gradescope_image(ctx, base):
     image = Layer(ctx, "image", [base])
     autograder.unpack(archive(ctx), image.path("autograder"))
     start = time.time()
-    r = image.enter(["/bin/sh", "-c", "cd /autograder/source && ./setup.sh"], network=True, apt_cache=apt_cache())
+    with Lock():  # apt's lock of the shared cache of packages is held by a process of another namespace
+        r = image.enter(["/bin/sh", "-c", "cd /autograder/source && ./setup.sh"], network=True, apt_cache=apt_cache())
     assert r.returncode == 0, f"setup.sh: {r.stdout[-3000:]}{r.stderr[-3000:]}"
     print(f"     setup.sh in the debian root: {time.time() - start:.0f} s", flush=True)
     return image, r.stdout
@@ -408,6 +408,7 @@ class Docker:
         assert shutil.which("dockerd") or shutil.which("docker"), "no docker: make deps-cluster installs docker.io"
         self.client = "/usr/bin/docker" if os.path.exists("/usr/bin/docker") else shutil.which("docker")
         self.env, self.daemon, self.log = dict(os.environ), None, ctx.path("dockerd.log")
+        self.exec_root = ctx.path("docker-exec")
         if self("info", timeout=60).returncode == 0:
             return
         sock = ctx.path("docker.sock")
@@ -416,7 +417,7 @@ class Docker:
             with open(self.log, "a") as log:
                 self.daemon = subprocess.Popen(
                     ["dockerd", "--data-root", os.path.join(CACHE, f"docker-{driver}"), "--storage-driver", driver,
-                     "--exec-root", ctx.path("docker-exec"), "--pidfile", ctx.path("dockerd.pid"), "-H", "unix://" + sock,
+                     "--exec-root", self.exec_root, "--pidfile", ctx.path("dockerd.pid"), "-H", "unix://" + sock,
                      "--bridge=none", "--iptables=false", "--ip6tables=false", "--ip-forward=false", "--ip-masq=false"],
                     stdout=log, stderr=log, stdin=subprocess.DEVNULL, start_new_session=True)
             deadline = time.monotonic() + 90
@@ -445,6 +446,10 @@ class Docker:
             except subprocess.TimeoutExpired:
                 self.daemon.kill()
                 self.daemon.wait()
+            with open("/proc/self/mountinfo") as f:  # dockerd leaves its network namespace's file mounted
+                left = [line.split()[4] for line in f if line.split()[4].startswith(self.exec_root + "/")]
+            for path in reversed(left):
+                run(["umount", "-l", path], timeout=60)
         self.daemon = None
 
 
@@ -488,7 +493,8 @@ def docker_image(ctx, docker, base_tag):
     try:
         docker_cp_in(docker, container, top, "autograder")
         start = time.time()
-        r = docker("start", "-a", container, timeout=1800)
+        with Lock():  # see gradescope_image
+            r = docker("start", "-a", container, timeout=1800)
         output = (r.stdout + r.stderr).decode(errors="replace")
         assert r.returncode == 0, f"setup.sh in docker: {output[-3000:]}"
         print(f"     setup.sh in docker: {time.time() - start:.0f} s", flush=True)
@@ -521,7 +527,7 @@ def grade_in_docker(ctx, docker, image, name, tree, *options):
         results = results_of(os.path.join(out, "results.json"), name)
         changes = [line.split(None, 1)[1] for line in docker.ok("diff", container).splitlines() if " " in line]
         changed = [p for p in changes if p.startswith(("/autograder/source/", "/autograder/run_autograder"))
-                   and "__pycache__" not in p]
+                   and "__pycache__" not in p and not any(q.startswith(p + "/") for q in changes)]  # a folder: its files
         assert not changed, f"{name}: the grading changed the grader's files: {changed[:10]}"
     finally:
         docker("rm", "-f", container)
@@ -595,6 +601,10 @@ def run_workflow(ctx, image, base, remote, name):
     with open(layer.path("usr/local/bin/sudo"), "w") as f:
         f.write(SUDO_SHIM)
     os.chmod(layer.path("usr/local/bin/sudo"), 0o755)
+    with Lock():  # GitHub's runner image has git (kit/grade.py lists a repository's files with it)
+        r = layer.enter(["/bin/sh", "-c", "apt-get install -y -q --no-install-recommends git"], network=True,
+                        apt_cache=apt_cache())
+    assert r.returncode == 0, f"the runner's git: {r.stdout[-2000:]}{r.stderr[-2000:]}"
     with open(os.path.join(workspace, ".github", "workflows", "classroom.yml")) as f:
         workflow = yaml.safe_load(f)
     on = workflow.get("on", workflow.get(True))  # YAML 1.1 reads the key `on` as true
@@ -621,7 +631,7 @@ def run_workflow(ctx, image, base, remote, name):
         r = layer.enter(["/usr/bin/env", "CI=true", "GITHUB_ACTIONS=true", f"GITHUB_WORKSPACE={WORKSPACE}",
                          "GITHUB_STEP_SUMMARY=/home/runner/summary.md", "/bin/sh", "-c",
                          f"cd {WORKSPACE} && exec bash --noprofile --norc -eo pipefail /home/runner/step-{i}.sh"],
-                        network=True, apt_cache=apt_cache(), timeout=60 * job.get("timeout-minutes", 360))
+                        network=True, timeout=60 * job.get("timeout-minutes", 360))
         outcomes.append((label, "success" if r.returncode == 0 else f"failure: {r.stdout[-1500:]}{r.stderr[-1500:]}"))
         failed = failed or r.returncode != 0
     summary_path = layer.path("home/runner/summary.md")
