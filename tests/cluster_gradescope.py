@@ -18,7 +18,7 @@ where it will run, as far as this machine can show it:
    (its own socket; --bridge=none --iptables=false --ip-forward=false --ip-masq=false: it changes no
    network of this machine), the root imported as an image (docker import), setup.sh in a container
    with --network host (its apt-get), committed, and each submission in a container of that image
-   with Docker's default seccomp profile and default capabilities, no --privileged, --network none.
+   with Docker's default seccomp profile and default capabilities, not privileged, --network none.
    There bubblewrap cannot start (Docker's profile refuses the user namespace, /sys/fs/cgroup is
    read-only), so run_autograder grades with the fallback (kit/grade.py --sandbox user).  A container
    with --cap-drop SETUID --cap-drop SETGID has neither sandbox: run_autograder must refuse there,
@@ -26,7 +26,7 @@ where it will run, as far as this machine can show it:
 3. The handout's GitHub Classroom workflow (.github/workflows/classroom.yml, parsed with Debian's
    python3-yaml), its steps run as a runner would: `actions/checkout` is a fresh git clone of the
    student's pushed commit, each `run:` step runs with bash -eo pipefail (as root; `sudo` is a shim
-   that runs the command) in the debian root with network, `if: always()` kept, and
+   that runs the command) in the debian root with network, the steps to run always kept, and
    `actions/upload-artifact` checks the path it would upload.  Imitated: the runner (Ubuntu 24.04 on
    GitHub's machines; git is added, as its image has it).  The current design: the workflow is the student's own self-check, in
    the student's repository, so a push CAN change it and the grader files it runs; the test shows

@@ -6,7 +6,9 @@ in a scratch directory (AUTOGRADER_ROOT), runs setup.sh --dry-run (no apt-get) a
 on a chapter-1 handout with exercise 1.2 solved, and checks results.json against every field of
 Gradescope's "Autograder Specifications" (gradescope-autograders.readthedocs.io/en/latest/specs/).
 About 90 s on 2 cores (two gradings of chapter 1); under the sanitizer build they pass without
-running (the kit builds its own binaries, whatever BUILD is).
+running (the kit builds its own binaries, whatever BUILD is).  The refusal where no sandbox starts is
+checked here cheaply (setpriv drops CAP_SETUID); tests/cluster_gradescope.py runs the archive in a
+Debian 12 root and in Docker, and the Classroom workflow's steps (make test-cluster).
 """
 import json
 import math
