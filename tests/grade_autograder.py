@@ -6,7 +6,9 @@ in a scratch directory (AUTOGRADER_ROOT), runs setup.sh --dry-run (no apt-get) a
 on a chapter-1 handout with exercise 1.2 solved, and checks results.json against every field of
 Gradescope's "Autograder Specifications" (gradescope-autograders.readthedocs.io/en/latest/specs/).
 About 90 s on 2 cores (two gradings of chapter 1); under the sanitizer build they pass without
-running (the kit builds its own binaries, whatever BUILD is).
+running (the kit builds its own binaries, whatever BUILD is).  The refusal where no sandbox starts is
+checked here cheaply (setpriv drops CAP_SETUID); tests/cluster_gradescope.py runs the archive in a
+Debian 12 root and in Docker, and the Classroom workflow's steps (make test-cluster).
 """
 import json
 import math
@@ -290,3 +292,28 @@ def test_gradescope_falls_back_to_a_separate_user_without_bubblewrap(ctx):
     assert not any(t["output"].startswith("not graded: ") for t in results["tests"]), results["output"]
     units = sum(c["points"] for c in criteria if c["kind"] == "unit")
     assert results["score"] == units, f"the handout as it is scores its unit tests' {units}: {results['score']}"
+
+
+def test_gradescope_refuses_where_no_sandbox_starts(ctx):
+    """Where neither bubblewrap (here: no bwrap on PATH) nor the fallback can start (here: root without
+    CAP_SETUID and CAP_SETGID, dropped from the bounding set by setpriv, as a container may withhold
+    them), run_autograder runs none of the submission's code: it says so in its output and in
+    results.json, every criterion 0 and not graded.  tests/cluster_gradescope.py shows it in Docker."""
+    if "asan" in ctx.build:
+        return
+    if os.geteuid() != 0:
+        raise AssertionError("as root: run_autograder runs as root on Gradescope")
+    root = chapter_1_autograder(ctx)
+    r = make("handout", f"OUT={os.path.join(root, 'submission')}", "CHAPTERS=01_local")
+    assert r.returncode == 0, r.stderr
+    env = dict(os.environ, AUTOGRADER_ROOT=root, PATH="/nonexistent")
+    r = subprocess.run(["/usr/bin/setpriv", "--bounding-set", "-setuid,-setgid", sys.executable,
+                        os.path.join(root, "run_autograder")], cwd=root, env=env, capture_output=True, text=True,
+                       timeout=300, stdin=subprocess.DEVNULL)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert "REFUSED to grade" in r.stdout and "no CAP_SETUID" in r.stdout, r.stdout[-3000:]
+    assert "grading: " not in r.stdout, f"it started kit/grade.py: {r.stdout[-3000:]}"
+    criteria = [c for c in rubric.load(ROOT)["criteria"] if c["chapter"] == "01_local"]
+    results = check_results(os.path.join(root, "results", "results.json"), criteria)
+    assert results["score"] == 0 and "refuses to run the submission's code" in results["output"], results["output"]
+    assert all(t["output"].startswith("not graded: no sandbox can start") for t in results["tests"])

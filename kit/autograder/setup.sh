@@ -43,11 +43,18 @@ chmod 0755 "$SOURCE/run_autograder" "$SOURCE/setup.sh"
 if [ "$dry_run" = 0 ]; then
   reason=$(/usr/bin/python3 -c 'import sys; sys.path.insert(0, sys.argv[1]); import sandbox
 print(sandbox.unavailable() or "")' "$SOURCE/kit")
-  if [ -n "$reason" ]; then
-    echo "setup.sh: WARNING: bubblewrap's sandbox cannot start in this image: $reason" >&2
-    echo "setup.sh: run_autograder grades with the fallback, a separate user (kit/grade.py --sandbox user)" >&2
-  else
+  if [ -z "$reason" ]; then
     echo "setup.sh: the sandbox starts: submissions will be graded inside it"
+  else
+    echo "setup.sh: WARNING: bubblewrap's sandbox cannot start in this image: $reason" >&2
+    fallback=$(/usr/bin/python3 -c 'import sys; sys.path.insert(0, sys.argv[1]); import sandbox
+print(sandbox.fallback_unavailable() or "")' "$SOURCE/kit")
+    if [ -z "$fallback" ]; then
+      echo "setup.sh: run_autograder grades with the fallback, a separate user (kit/grade.py --sandbox user)" >&2
+    else
+      echo "setup.sh: WARNING: nor can the fallback (a separate user): $fallback; run_autograder will refuse" \
+           "to grade here (every criterion 0, with the reason)" >&2
+    fi
   fi
 fi
 echo "setup.sh: done"
