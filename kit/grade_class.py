@@ -47,6 +47,7 @@ import os
 import re
 import shlex
 import shutil
+import signal
 import subprocess
 import sys
 
@@ -232,7 +233,7 @@ LIMITS = [("time", re.compile(r"timed out after|time-out after")),
           ("memory", re.compile(r"memory cap of \d+")),
           ("CPU time", re.compile(r"CPU time cap of")),
           ("processes", re.compile(r"processes outlived the run|Resource temporarily unavailable")),
-          ("file size", re.compile(r"SIGXFSZ|File too large"))]
+          ("file size", re.compile(r"SIGXFSZ|File too large|exited -%d\b" % signal.SIGXFSZ))]
 
 
 def limits_hit(r):

@@ -283,7 +283,7 @@ CRITERIA = ("point light pixel is R1", "point light probe inverse square cosine"
 CLASS_OPTIONS = ["--chapters", "01_local", "--seed", "7", "--timeout", "40", "--memory", "1024"]
 # C run before main in every run of the chapter (kit/grade.py runs the submission's programs in its sandbox)
 HANG = "for (volatile int i = 0;; i++) continue;"
-SEGFAULT = "if (argc > 1) *(volatile int *)0 = 0;"
+SEGFAULT = "raise(SIGSEGV);"
 MEMORY = "volatile char *m = malloc(3L << 30); for (long j = 0; m && j < (3L << 30); j += 4096) m[j] = 1;"
 OUTPUT = ("signal(SIGXFSZ, SIG_DFL); static char block[1 << 20]; memset(block, 'x', sizeof block);"
           "for (int i = 0; i < 600; i++) if (fwrite(block, 1, sizeof block, stdout) != sizeof block) break;")
@@ -316,7 +316,7 @@ def build_class(ctx, top, victim):
     """The class: {student: kind} with the submissions in top/<student>.  The solution (8 times), a
     plain chapter-1 handout (6), handouts with one exercise solved (6), the mutants that apply to
     chapter 1 alone, and buggy or hostile ones: a hang, a crash, 3 GiB of memory, 600 MiB of output,
-    a compile error, tests/grade_sandbox.py's hostile submission (its classmate `victim`), an empty
+    a compile error, the sandbox tests' hostile submission (its classmate `victim`), an empty
     directory, and three the kit refuses (a FIFO, a link out, a missing directory)."""
     import grade_sandbox
     sys.path.insert(0, os.path.join(ROOT, "kit"))
