@@ -11,7 +11,9 @@ usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE [--ssh 
                DIR/joblog.tsv (GNU parallel's log: exit status and time of every grading), DIR/.attempts/
                (a record of every attempt at a grading: which machine, when, how it ended).  A class
                graded again into the same DIR replaces its students' reports.
-  --jobs N     gradings at once (default: the number of cores); each grading uses one core
+  --jobs N     gradings at once (default: the number of cores); each grading uses one core.  With
+               --sshloginfile: gradings at once on each machine (default: its number in the login file,
+               "4/user@host", else its number of cores)
   --sshloginfile FILE   spread the gradings over the machines in FILE (GNU parallel's format, e.g.
                "4/user@host"; ":" is this machine); every machine must see the submissions and DIR at
                the same paths (a shared file system), the project (this one, or --remote-root) and have
@@ -68,7 +70,7 @@ def fail(message):
 # ---- options and the students ---------------------------------------------------------------------
 
 def parse_args(argv):
-    opts = {"report": os.path.join(ROOT, "out", "class"), "jobs": os.cpu_count() or 1, "sshloginfile": None,
+    opts = {"report": os.path.join(ROOT, "out", "class"), "jobs": None, "sshloginfile": None,
             "ssh": None, "remote_root": None, "retries": None, "grade": [], "dirs": []}
     i = 0
     while i < len(argv):
@@ -115,6 +117,8 @@ def parse_args(argv):
         fail("no submissions given")
     if (opts["ssh"] or opts["remote_root"]) and not opts["sshloginfile"]:
         fail("--ssh and --remote-root need --sshloginfile")
+    if opts["jobs"] is None:  # GNU parallel's --jobs is per machine: 100 % of each one's cores (or its number)
+        opts["jobs"] = "100%" if opts["sshloginfile"] else os.cpu_count() or 1
     if opts["retries"] is None:
         opts["retries"] = 3 if opts["sshloginfile"] else 1
     return opts
@@ -141,9 +145,15 @@ def job_command(opts):
             *opts["grade"]]
 
 
-def clear_reports(report, names):
-    """What an earlier grading of these students left in report (their reports, logs, attempts)."""
-    for n in names:
+def clear_reports(report, table):
+    """What an earlier grading of these students left in report (their reports, logs, attempts); never
+    a submission (a report directory that holds the submissions under their own names)."""
+    submitted = [os.path.realpath(d) for d, _ in table]
+    for _, n in table:
+        target = os.path.realpath(os.path.join(report, n))
+        if any(d == target or d.startswith(target + os.sep) for d in submitted):
+            fail(f"--report {report}: {n}/ there is a submission, not a report: another --report DIR")
+    for _, n in table:
         for path in (os.path.join(report, n), os.path.join(report, ".attempts", n)):
             if os.path.isdir(path) and not os.path.islink(path):
                 shutil.rmtree(path)
@@ -473,7 +483,7 @@ def main(argv, engine="parallel"):
     report = opts["report"]
     try:
         os.makedirs(report, exist_ok=True)
-        clear_reports(report, [n for _, n in table])
+        clear_reports(report, table)
     except OSError as e:
         fail(f"--report {report}: {e.strerror}")
     path = os.path.join(report, "submissions.tsv")

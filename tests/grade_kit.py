@@ -360,3 +360,8 @@ def test_class_summary_plots_limits_and_retries(ctx):
     slowest = page.split("Slowest gradings")[1].split("</table>")[0]
     assert re.findall(r"<tr><td>(\w)</td>", slowest) == ["g", "f", "e", "d", "c"], slowest
     assert "<img src='scores.svg'" in page and "<img src='criteria.svg'" in page
+    # a class graded again into the same directory replaces its reports, never a submission kept there
+    inside = ctx.path("class/h")
+    os.makedirs(os.path.join(inside, "chapters"))
+    r = kit("kit/grade_class.py", "--report", report, inside, timeout=60)
+    assert r.returncode == 2 and "is a submission" in r.stderr and os.path.isdir(inside), r.stderr
