@@ -8,8 +8,8 @@ usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE [--ssh 
   SUBMISSION   a student's directory; @LIST.txt: one directory per line (# comments)
   --report DIR class reports (default out/class): DIR/<student>/report.{json,html}, DIR/<student>.log,
                DIR/summary.{csv,html} with its plots DIR/scores.svg and DIR/criteria.svg, DIR/criteria.csv,
-               DIR/joblog.tsv (GNU parallel's log: exit status and time of every grading), DIR/.attempts/
-               (a record of every attempt at a grading: which machine, when, how it ended).  A class
+               DIR/joblog.tsv (GNU parallel's log: exit status, time and machine of each grading's last
+               attempt), DIR/.attempts/ (a record and log of every attempt: which machine, when, how it ended).  A class
                graded again into the same DIR replaces its students' reports.
   --jobs N     gradings at once (default: the number of cores); each grading uses one core.  With
                --sshloginfile: gradings at once on each machine (default: its number in the login file,

@@ -365,3 +365,11 @@ def test_class_summary_plots_limits_and_retries(ctx):
     os.makedirs(os.path.join(inside, "chapters"))
     r = kit("kit/grade_class.py", "--report", report, inside, timeout=60)
     assert r.returncode == 2 and "is a submission" in r.stderr and os.path.isdir(inside), r.stderr
+    # a grading that fails (here: a rubric that is not there, so grade.py stops at once) is not a
+    # verdict: GNU parallel's --resume-failed pass tries it once more, and the summary says so
+    r = kit("kit/grade_class.py", "--report", ctx.path("failing"), "--jobs", "1", "--rubric", ctx.path("none.json"),
+            ctx.path("class/h"), timeout=120)
+    assert r.returncode == 0, r.stderr
+    with open(ctx.path("failing/summary.csv")) as f:
+        row = next(csv.DictReader(f))
+    assert row["status"] == "not graded (exit status 2; see h.log)" and len(row["attempts"].split("+")) == 2, row
