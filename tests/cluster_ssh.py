@@ -447,6 +447,24 @@ def check_joblog(report, rows):
     assert len(ok) == len(set(ok)), f"a student graded twice in the joblog: {sorted(ok)}"
 
 
+def check_slots(report, names):
+    """No host ran two gradings at once (the login file gives each one slot): its attempts' times do not
+    overlap (a lost attempt, which never ended, counts till the next one of that host starts)."""
+    spans = {}
+    top = os.path.join(report, ".attempts")
+    for student in os.listdir(top):
+        for f in os.listdir(os.path.join(top, student)):
+            if f.endswith(".json"):
+                with open(os.path.join(top, student, f)) as fh:
+                    a = json.load(fh)
+                spans.setdefault(a["host"], []).append((a["started"], a["ended"], student))
+    assert set(spans) <= set(names), f"attempts on {sorted(spans)}, not only on {names}"
+    for host, attempts in spans.items():
+        attempts.sort(key=lambda a: a[0])
+        for (s0, e0, n0), (s1, _, n1) in zip(attempts, attempts[1:]):
+            assert e0 is not None and e0 <= s1, f"{host} graded {n0} and {n1} at once"
+
+
 # ---- the test --------------------------------------------------------------------------------------
 
 def grade_class_command(report, rubric, *extra):
@@ -478,13 +496,14 @@ def test_class_over_ssh_survives_a_lost_host_and_scores_as_one_machine(ctx):
             p = subprocess.Popen(grade_class_command(ssh_report, rubric, "--sshloginfile", logins, "--ssh",
                                                      f"ssh -F {cluster.ssh_config}", "--remote-root", cluster.grader,
                                                      "@" + listing), stdout=log, stderr=subprocess.STDOUT,
-                                 stdin=subprocess.DEVNULL)
+                                 stdin=subprocess.DEVNULL, start_new_session=True)
         try:
             lost, lost_at = wait_and_lose(cluster, p, ssh_report, len(kinds))
             p.wait(timeout=3600)
-        finally:
+        finally:  # on a failure: grade_class.py, GNU parallel and its ssh clients
             if p.poll() is None:
-                p.kill()
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
         ssh_seconds = time.time() - up
         with open(ctx.path("ssh-class.log")) as f:
             assert p.returncode == 0, f"grade_class.py over ssh: exit {p.returncode}: {f.read()[-3000:]}"
@@ -492,6 +511,7 @@ def test_class_over_ssh_survives_a_lost_host_and_scores_as_one_machine(ctx):
         check_reports(ssh_report, kinds, rows)
         check_joblog(ssh_report, rows)
         check_plots(ssh_report, rows)
+        check_slots(ssh_report, cluster.names)
         hosts = {row["host"] for row in rows.values()}
         assert hosts == set(cluster.names), f"graded by {hosts}, not by both hosts"
         for name in lost:
@@ -522,7 +542,7 @@ def test_class_over_ssh_survives_a_lost_host_and_scores_as_one_machine(ctx):
 
 
 def wait_and_lose(cluster, p, report, size):
-    """Once about a third of the class has reports and the first host is grading (an attempt of its that
+    """Once about two thirds of the class have reports and the first host is grading (an attempt of its that
     started over 3 s ago), lose that host; (students it was grading, seconds since the start)."""
     start = time.time()
     while time.time() - start < 1800:
@@ -531,7 +551,7 @@ def wait_and_lose(cluster, p, report, size):
         done = sum(1 for n in os.listdir(report) if os.path.exists(os.path.join(report, n, "report.json"))) \
             if os.path.isdir(report) else 0
         running = running_on(report, cluster.names[0], older_than=3)
-        if done >= size // 3 and running:
+        if done >= size * 2 // 3 and running:
             cluster.lose(0)
             time.sleep(1)
             return sorted(running), time.time() - start
