@@ -278,7 +278,9 @@ def test_bad_arguments_exit_2(ctx):
     for args in (["kit/grade.py", ctx.path("no-such-dir")], ["kit/grade.py", os.path.join(ROOT, "README.md")],
                  ["kit/grade.py", ".", "--chapters", "99_nothing"], ["kit/grade.py", ".", "--seed", "x"],
                  ["kit/grade.py"], ["kit/handout.py", ctx.path("h"), "99_nothing"],
-                 ["kit/grade_class.py"]):
+                 ["kit/grade_class.py"], ["kit/grade_class.py", ".", "--retries", "0"],
+                 ["kit/grade_class.py", ".", "--remote-root", "/x"],
+                 ["kit/grade_class.py", ".", "--sshloginfile", ctx.path("none")]):
         r = kit(*args, timeout=60)
         assert r.returncode == 2 and r.stderr.strip() and "Traceback" not in r.stderr, (args, r.returncode, r.stderr)
 
@@ -301,3 +303,73 @@ def test_class_grading_quotes_chapters_paths_and_uses_sshlogins(ctx):
     assert solution["status"] == "graded" and solution["01_local"] == "100" and solution["02_whitted"] == "100", rows
     assert student["status"] == "graded" and student["total"] == "0", student
     assert gone["status"] == f"not graded: {ctx.path('gone')}: missing", gone
+
+
+def test_class_summary_plots_limits_and_retries(ctx):
+    """kit/grade_class.py's summary on reports made by hand (no grading): the histogram's bars hold the
+    totals (one bar per tenth of the maximum, heights proportional), the criteria's bars their pass
+    counts, the slowest gradings, the submissions that hit a limit, the machine that graded each and
+    the retried ones (an attempt lost on one machine, the report from another); a student without a
+    report is "not graded" with the engine's exit status."""
+    import grade_class
+    report = ctx.path("class")
+    totals = {"a": 0, "b": 10, "c": 10, "d": 45, "e": 44, "f": 45, "g": 5}
+    table = []
+    for k, (name, total) in enumerate(sorted(totals.items())):
+        criteria = [{"chapter": "01_local", "name": "first", "points": 10 if total >= 10 else 0, "max": 10,
+                     "passed": total >= 10, "p_value": None, "message": "ok" if total >= 10 else "wrong"},
+                    {"chapter": "01_local", "name": "second", "points": total - (10 if total >= 10 else 0), "max": 35,
+                     "passed": total == 45, "p_value": None,
+                     "message": "ok" if total == 45 else "stopped by the grader's sandbox: the sandbox's memory cap "
+                     "of 1024 MiB" if name == "g" else "timed out after 40 s (its programs killed)" if name == "a"
+                     else "off"}]
+        os.makedirs(os.path.join(report, name))
+        with open(os.path.join(report, name, "report.json"), "w") as f:
+            json.dump({"total": total, "max": 45, "criteria": criteria, "seed": 1, "date": "2026-01-01",
+                       "submission_sha256": "0" * 64, "seconds": 10 + k}, f)
+        os.makedirs(os.path.join(report, ".attempts", name))
+        records = [{"host": "h2", "started": 5, "ended": 9, "exit": 0, "placed": True}]
+        if name == "c":  # lost with its machine h1, graded by h2
+            records.insert(0, {"host": "h1", "started": 1, "ended": None, "exit": None, "placed": False})
+        for i, rec in enumerate(records):
+            with open(os.path.join(report, ".attempts", name, f"{rec['host']}-{i}.json"), "w") as f:
+                json.dump(rec, f)
+        table.append((ctx.path(name), name))
+    table.append((ctx.path("z"), "z"))  # no report: its grading failed
+    rows = {r["student"]: r for r in grade_class.summarize(report, table, {"z": {"exit": "255", "seconds": "3",
+                                                                                  "host": "h1"}})}
+    assert rows["c"]["attempts"] == ["h1", "h2"] and rows["c"]["host"] == "h2" and rows["c"]["lost"] == 1
+    assert rows["z"]["status"] == "not graded (exit status 255; see z.log)", rows["z"]
+    assert rows["a"]["limits"] == [("second", "time")] and rows["g"]["limits"] == [("second", "memory")]
+    assert not rows["d"]["limits"]
+    with open(os.path.join(report, "scores.svg")) as f:
+        bars = re.findall(r"data-count='(\d+)' x='[^']*' y='[^']*' width='[^']*' height='([^']*)'", f.read())
+    # bins of 4.5 points: 0 in the first, 5 in the second, 10 and 10 in the third, 44, 45, 45 in the last
+    assert [int(c) for c, _ in bars] == [1, 1, 2, 0, 0, 0, 0, 0, 0, 3], bars
+    heights = [float(h) for _, h in bars]
+    assert heights[9] == max(heights) and abs(heights[2] - 2 * heights[0]) < 0.02 and heights[3] == 0, heights
+    with open(os.path.join(report, "criteria.svg")) as f:
+        rates = re.findall(r"data-passed='(\d+)' data-graded='(\d+)'", f.read())
+    assert rates == [("5", "7"), ("2", "7")], rates
+    with open(os.path.join(report, "summary.csv")) as f:
+        csv_rows = {row["student"]: row for row in csv.DictReader(f)}
+    assert csv_rows["c"]["attempts"] == "h1+h2" and csv_rows["g"]["limits"] == "second: memory"
+    with open(os.path.join(report, "summary.html")) as f:
+        page = f.read()
+    assert "<td>c</td><td>h1 + h2</td><td>1</td><td>h2</td>" in page, "the retried grading is not listed"
+    slowest = page.split("Slowest gradings")[1].split("</table>")[0]
+    assert re.findall(r"<tr><td>(\w)</td>", slowest) == ["g", "f", "e", "d", "c"], slowest
+    assert "<img src='scores.svg'" in page and "<img src='criteria.svg'" in page
+    # a class graded again into the same directory replaces its reports, never a submission kept there
+    inside = ctx.path("class/h")
+    os.makedirs(os.path.join(inside, "chapters"))
+    r = kit("kit/grade_class.py", "--report", report, inside, timeout=60)
+    assert r.returncode == 2 and "is a submission" in r.stderr and os.path.isdir(inside), r.stderr
+    # a grading that fails (here: a rubric that is not there, so grade.py stops at once) is not a
+    # verdict: GNU parallel's --resume-failed pass tries it once more, and the summary says so
+    r = kit("kit/grade_class.py", "--report", ctx.path("failing"), "--jobs", "1", "--rubric", ctx.path("none.json"),
+            ctx.path("class/h"), timeout=120)
+    assert r.returncode == 0, r.stderr
+    with open(ctx.path("failing/summary.csv")) as f:
+        row = next(csv.DictReader(f))
+    assert row["status"] == "not graded (exit status 2; see h.log)" and len(row["attempts"].split("+")) == 2, row
