@@ -252,9 +252,15 @@ LIMITS = [("time", re.compile(r"timed out after|time-out after")),
 
 
 def limits_hit(r):
-    """[(criterion, limit)] for the report r's criteria whose runs hit a limit."""
+    """[(criterion, limit)] for the report r's criteria whose runs hit a limit: the grader's own record
+    (criterion["limit"]: "memory", "time" or "output", written by kit/grade.py from the sandbox's log of the
+    runs it stopped) where it names one; else read from the message (older reports, and the caps the record
+    does not tell apart: CPU time, processes, a run that wrote on past the file size cap)."""
     found = []
     for c in r["criteria"]:
+        if c.get("limit"):
+            found.append((c["name"], {"output": "file size"}.get(c["limit"], c["limit"])))
+            continue
         for limit, pattern in LIMITS:
             if pattern.search(c.get("message", "")):
                 found.append((c["name"], limit))
