@@ -1,8 +1,8 @@
 #!/usr/bin/python3
 """Grade a class: many submissions in parallel with GNU parallel, then a summary (CSV and HTML).
 
-usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE] [--chapters "A B"] [--seed N]
-                          SUBMISSION... | @LIST.txt
+usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE | --slurm] [--chapters "A B"] [--seed N]
+                          [--rubric FILE] SUBMISSION... | @LIST.txt
 
   SUBMISSION   a student's directory; @LIST.txt: one directory per line (# comments)
   --report DIR class reports (default out/class): DIR/<student>/report.{json,html}, DIR/summary.{csv,html},
@@ -11,6 +11,10 @@ usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE] [--cha
   --sshloginfile FILE   spread the gradings over the machines in FILE (GNU parallel's format, e.g.
                "4/user@host"); every machine must see this project and the submissions at the same
                paths (a shared file system) and have the build packages installed
+  --chapters, --seed, --rubric   passed to kit/grade.py (--rubric FILE: another rubric than kit/rubric.json)
+  --slurm      grade on a Slurm cluster instead: one job array, a task per submission, a task that ends
+               without a report (node lost, killed) submitted once more; summary.csv's column "retried" names
+               them (kit/slurm_engine.py; --jobs N: at most N tasks at once)
 
 A grading that fails (crash of the grader, a killed machine) leaves a row
 "not graded" with its exit status; the other students' reports are kept.
@@ -100,13 +104,17 @@ def refusal(log):
 
 def main(argv):
     report, jobs, login, extra, dirs = os.path.join(ROOT, "out", "class"), os.cpu_count() or 1, None, [], []
+    slurm, slurm_jobs = False, None
     i = 0
     while i < len(argv):
         a = argv[i]
         if a in ("-h", "--help"):
             print(__doc__.strip())
             return
-        if a in ("--report", "--jobs", "--sshloginfile", "--chapters", "--seed"):
+        if a == "--slurm":
+            slurm, i = True, i + 1
+            continue
+        if a in ("--report", "--jobs", "--sshloginfile", "--chapters", "--seed", "--rubric"):
             if i + 1 >= len(argv):
                 fail(f"{a} needs a value")
             v = argv[i + 1]
@@ -115,7 +123,7 @@ def main(argv):
             elif a == "--jobs":
                 if not v.isdigit() or int(v) < 1:
                     fail(f"--jobs {v}: not a positive integer")
-                jobs = int(v)
+                jobs = slurm_jobs = int(v)
             elif a == "--sshloginfile":
                 login = v
             else:
@@ -135,7 +143,9 @@ def main(argv):
         i += 1
     if not dirs:
         fail("no submissions given")
-    if not shutil.which("parallel"):
+    if slurm and login:
+        fail("--slurm and --sshloginfile: one or the other")
+    if not slurm and not shutil.which("parallel"):
         fail("GNU parallel is missing: sudo apt-get install -y parallel")
     # One report directory per student, named after the directory (numbered when two share a name).
     names, seen = [], {}
@@ -160,7 +170,11 @@ def main(argv):
     words = [shlex.quote(w) for w in words] + ["{1}", "--report", shlex.quote(report) + "/{2}", "--name", "{2}",
                                                "--jobs", "1", *map(shlex.quote, extra)]
     cmd += words + [">", shlex.quote(report) + "/{2}.log", "2>&1", "::::", table]
-    subprocess.run(cmd)
+    if slurm:
+        import slurm_engine
+        slurm_engine.grade_class(report, [python, os.path.join(KIT, "grade.py")], extra, slurm_jobs)
+    else:
+        subprocess.run(cmd)
     status = {}
     try:
         with open(os.path.join(report, "joblog.tsv")) as f:
@@ -217,6 +231,8 @@ def main(argv):
     out += criteria_table(rows, criterion_names)
     with open(os.path.join(report, "summary.html"), "w") as f:
         f.write("\n".join(out) + "\n")
+    if slurm:
+        slurm_engine.note_retries(report)
     graded = sum(1 for r in rows if r["status"] == "graded")
     print(f"{graded} of {len(rows)} submissions graded; summary: {os.path.join(report, 'summary.html')}")
 
