@@ -7,7 +7,7 @@ slurmd), one CPU each (a 2-core machine grades two submissions at once); slurm.c
 and logs are in its scratch directory, the ports free ones it picks, and it stops every daemon and every
 process they started when it ends, passed or not.  proctrack/linuxproc and task/none: no cgroup plugin.
 
-The class: 42 submissions of chapter 1 (solutions, the tests/mutants patches of chapter 1 that its rubric
+The class: 42 submissions of chapter 1 (solutions, the kit's mutant patches of chapter 1 that its rubric
 catches, handout stubs, one a whole handout tree, code that does not compile or crashes, a hostile one that
 tries to write a classmate's report and kill its grader) and a directory that does not exist, graded with a
 five-criterion rubric (kit/grade.py --rubric) and seed 7.  While the array runs, node n2 is lost: its
@@ -474,3 +474,14 @@ def test_class_on_slurm_survives_a_lost_node(ctx):
     for victim in victims:
         with open(victim) as f:
             assert not f.read().endswith("{}"), victim
+
+
+def test_slurm_bad_input_exits_2(ctx):
+    """--slurm with --sshloginfile, and --slurm where Slurm's commands are missing: exit 2, one clear line."""
+    os.makedirs(ctx.path("a"))
+    cases = [(["--slurm", "--sshloginfile", ctx.write("logins", ":\n")], {}, "one or the other"),
+             (["--slurm"], {"PATH": ctx.path("empty")}, "sbatch is missing")]
+    for args, env, said in cases:
+        r = run([PY, GRADE_CLASS, *args, ctx.path("a"), "--report", ctx.path("r")], env=dict(os.environ, **env),
+                timeout=60)
+        assert r.returncode == 2 and said in r.stderr and "Traceback" not in r.stderr, (args, r.returncode, r.stderr)
