@@ -298,12 +298,13 @@ def make_class(ctx, victim_reports):
     def add(name, kind, text=None, directory=None):
         dirs.append(directory or submission(top, name, text))
         kinds[name] = kind
-    for i in range(24):
+    for i in range(25):
         add(f"solution{i:02d}", "solution", solution + f"\n/* student {i}: my own solution */\n")
-    # chapter 1's mutants that the five criteria catch (05, the area light's pdf, only the compare criteria do)
+    # chapter 1's mutants that the five criteria catch (05, the area light's pdf, and 06, Phong's normalisation,
+    # only the compare criteria do)
     mutants = sorted(p for p in os.listdir(os.path.join(ROOT, "tests", "mutants")) if p[:2] in
-                     ("01", "02", "03", "04", "06", "07", "08"))
-    assert len(mutants) == 7, mutants
+                     ("01", "02", "03", "04", "07", "08"))
+    assert len(mutants) == 6, mutants
     for p in mutants:
         d = submission(top, "mutant" + p[:2], solution)
         r = run(["patch", "-p1", "-s", "-i", os.path.join(ROOT, "tests", "mutants", p)], cwd=d, timeout=60)
@@ -468,7 +469,7 @@ def test_class_on_slurm_survives_a_lost_node(ctx):
     for s, kind in kinds.items():
         if kind == "solution":
             assert totals[s] == top, f"{s}: {totals[s]} of {top}"
-        else:
+        elif kind != "hostile":  # a hostile one is chapter 1's solution: its attacks fail, its points stand
             assert totals[s] < top, f"{s} ({kind}): full marks"
     # the hostile submissions reached no classmate's report (both gradings read it above as JSON)
     for victim in victims:
