@@ -16,8 +16,8 @@ shutdown); slurmctld declares it down (SlurmdTimeout 10 s) and ends its tasks NO
 (ReturnToService=2).  Checked: every submission ends with exactly one report, the killed gradings among
 those retried (summary.csv's "retried" column, summary.html), the missing directory "not graded" and not
 retried, every report made in the sandbox, and each student's report.json (total and points per criterion)
-the same as when GNU parallel grades the same class here with the same seed.  13 to 25 min on this 2-core
-machine while other work loaded it (load average 5 to 10; Slurm's grading 9.5 to 15 min with the lost node,
+the same as when GNU parallel grades the same class here with the same seed.  11 to 25 min on this 2-core
+machine while other work loaded it (load average 3 to 10; Slurm's grading 7 to 15 min with the lost node,
 GNU parallel's 4 to 10 min), most of it building chapter 1 in each sandbox.
 """
 import csv
