@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """Grade a class: many submissions in parallel with GNU parallel, then a summary (CSV and HTML).
 
-usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE [--ssh CMD] [--remote-root DIR]]
+usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE [--ssh CMD] [--remote-root DIR] | --slurm]
                           [--retries N] [--chapters "A B"] [--seed N] [kit/grade.py options]
                           SUBMISSION... | @LIST.txt
 
@@ -28,6 +28,9 @@ usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE [--ssh 
                --sshloginfile, else 1); then a last pass (GNU parallel's --resume-failed) regrades what
                still failed once more
   --chapters, --seed, --rubric, --timeout, --memory, --sandbox, --unsafe, --public   as kit/grade.py's
+  --slurm      grade on a Slurm cluster instead: one job array, a task per submission, a task that ends
+               without a report (node lost, killed) submitted once more; summary.csv's column "retried" names
+               them (kit/slurm_engine.py; --jobs N: at most N tasks at once)
 
 A grading that fails leaves a row "not graded" with its exit status; a submission the kit refuses a row
 "not graded: <reason>"; the other students' reports are kept.  Every grading runs kit/grade_job.py,
@@ -74,13 +77,17 @@ def fail(message):
 
 def parse_args(argv):
     opts = {"report": os.path.join(ROOT, "out", "class"), "jobs": None, "sshloginfile": None,
-            "ssh": None, "remote_root": None, "retries": None, "grade": [], "dirs": []}
+            "ssh": None, "remote_root": None, "retries": None, "grade": [], "dirs": [], "slurm": False}
     i = 0
     while i < len(argv):
         a = argv[i]
         if a in ("-h", "--help"):
             print(__doc__.strip())
             sys.exit(0)
+        if a == "--slurm":
+            opts["slurm"] = True
+            i += 1
+            continue
         if a in GRADE_FLAGS:
             opts["grade"].append(a)
             i += 1
@@ -118,8 +125,11 @@ def parse_args(argv):
         i += 1
     if not opts["dirs"]:
         fail("no submissions given")
+    if opts["slurm"] and opts["sshloginfile"]:
+        fail("--slurm and --sshloginfile: one or the other")
     if (opts["ssh"] or opts["remote_root"]) and not opts["sshloginfile"]:
         fail("--ssh and --remote-root need --sshloginfile")
+    opts["jobs_given"] = opts["jobs"] is not None
     if opts["jobs"] is None:  # GNU parallel's --jobs is per machine: 100 % of each one's cores (or its number)
         memory = opts["grade"][opts["grade"].index("--memory") + 1] if "--memory" in opts["grade"] else None
         cap = int(memory) if memory and memory.isdigit() else sandbox.Limits().memory_mib
@@ -208,7 +218,31 @@ def run_parallel(table, opts):
     return status
 
 
-ENGINES = {"parallel": run_parallel}
+# ---- the engine: Slurm (kit/slurm_engine.py) -------------------------------------------------------
+
+def run_slurm(table, opts):
+    """Grade the students of `table` as a Slurm job array (kit/slurm_engine.py); {student: {"exit",
+    "signal", "seconds", "host"}} from the joblog it writes in GNU parallel's format (kit/grade.py's
+    command words, the student after --name)."""
+    import slurm_engine
+    python = "/usr/bin/python3" if os.path.exists("/usr/bin/python3") else sys.executable
+    jobs = opts["jobs"] if opts["jobs_given"] else None
+    opts["slurm_retried"] = slurm_engine.grade_class(opts["report"], [python, os.path.join(KIT, "grade.py")],
+                                                     opts["grade"], jobs)
+    status = {}
+    try:
+        with open(os.path.join(opts["report"], "joblog.tsv")) as f:
+            for row in list(csv.reader(f, delimiter="\t"))[1:]:
+                words = shlex.split(row[-1])
+                if "--name" in words:
+                    status[words[words.index("--name") + 1]] = {"exit": row[6].strip(), "signal": row[7].strip(),
+                                                                "seconds": row[3].strip(), "host": row[1].strip()}
+    except OSError:
+        pass
+    return status
+
+
+ENGINES = {"parallel": run_parallel, "slurm": run_slurm}
 
 
 # ---- what each grading left: the summary (whatever engine graded) ------------------------------
@@ -501,11 +535,16 @@ def main(argv, engine="parallel"):
     with open(path, "w") as f:
         for d, n in table:
             f.write(f"{d}\t{n}\n")
+    engine = "slurm" if opts["slurm"] else engine
     status = ENGINES[engine](path, opts)
     remove_unfinished_attempts(report, [n for _, n in table])
     rows = summarize(report, table, status)
-    graded = sum(1 for r in rows if r["status"] == "graded")
     retried = sum(1 for r in rows if len(r["attempts"]) > 1)
+    if engine == "slurm":
+        import slurm_engine
+        slurm_engine.note_retries(report)
+        retried = len(opts["slurm_retried"] or {})
+    graded = sum(1 for r in rows if r["status"] == "graded")
     print(f"{graded} of {len(rows)} submissions graded ({retried} retried); summary: "
           f"{os.path.join(report, 'summary.html')}")
 
