@@ -147,8 +147,7 @@ test-plain: all tests
 # The class-scale tests (tests/cluster_*.py): a class graded over ssh on hosts in network namespaces, on a
 # single-machine Slurm, and the Gradescope layout; too long for `make test`, so .ci/run runs them after it.
 # CLUSTER_PACKAGES is what they need beyond grading's packages (the cluster test files add theirs here).
-CLUSTER_PACKAGES := iproute2 debootstrap docker.io python3-yaml git openssh-server openssh-client patch
-CLUSTER_PACKAGES := iproute2 slurm-wlm munge
+CLUSTER_PACKAGES := iproute2 debootstrap docker.io python3-yaml git openssh-server openssh-client patch slurm-wlm munge
 .PHONY: test-cluster deps-cluster
 deps-cluster:
 	$(call install_packages,$(BUILD_PACKAGES) $(GRADE_PACKAGES) $(CLUSTER_PACKAGES))
