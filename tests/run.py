@@ -5,8 +5,8 @@ usage: tests/run.py [-k TEXT] [-j N] [--cluster] BUILD_DIR [BUILD_DIR ...]   (e.
 
   -k TEXT     run only the grading tests whose full name contains TEXT
               (BUILD:grade_MODULE:test_NAME); the C unit tests are skipped
-  --cluster   run the class-scale tests tests/cluster_*.py instead (`make test-cluster`: hosts over
-              ssh, Slurm, the Gradescope container; long, so not part of `make test`); no C unit tests
+  --cluster   run the class-scale tests instead (the instructor's tests named "cluster_" here: hosts over
+              ssh, Slurm, the Gradescope container; `make test-cluster`; long, so not part of `make test`)
   -j N        run N tests at a time (default: one more than the CPUs this process may use, at most 4)
   -h, --help  this text
 
