@@ -203,11 +203,14 @@ def check_submission(submission):
 
 
 def project_files(root):
-    """The project's files, relative to root: git's list where root is a repository, else every
-    file (a handout need not be one)."""
+    """The project's files, relative to root: git's list where root is a repository and git runs,
+    else every file (a handout need not be one)."""
     if os.path.isdir(os.path.join(root, ".git")):
-        r = subprocess.run(["git", "ls-files", "-z"], cwd=root, capture_output=True)
-        if r.returncode == 0:
+        try:
+            r = subprocess.run(["git", "ls-files", "-z"], cwd=root, capture_output=True)
+        except OSError:  # no git on this machine (a runner image without it): every file, below
+            r = None
+        if r is not None and r.returncode == 0:
             return [f for f in r.stdout.decode().split("\0") if f and os.path.isfile(os.path.join(root, f))]
     found = []
     for top, dirs, files in os.walk(root):

@@ -28,10 +28,12 @@ where it will run, as far as this machine can show it:
    student's pushed commit, each `run:` step runs with bash -eo pipefail (as root; `sudo` is a shim
    that runs the command) in the debian root with network, the steps to run always kept, and
    `actions/upload-artifact` checks the path it would upload.  Imitated: the runner (Ubuntu 24.04 on
-   GitHub's machines; git is added, as its image has it).  The current design: the workflow is the student's own self-check, in
-   the student's repository, so a push CAN change it and the grader files it runs; the test shows
-   that such a push changes the self-check's summary only, and that the grade (Gradescope's
-   archive, which takes only the exercise files from a submission) of that same commit is not changed.
+   GitHub's machines; git is added, as its image has it).  The bare repository the student pushes to
+   has the pre-receive hook of kit/autograder/classroom_guard.py, reading the push ruleset it writes
+   for the handout (what GitHub enforces as an organisation ruleset): a push that changes the grader
+   files or the workflow, to main or to another branch, is refused and moves no ref, so the
+   workflow that runs is the handout's; Gradescope's archive grades the pushed commit as the
+   self-check did.
 
 Each submission: the solution scores the maximum, the plain handout its unit tests' points, and a
 hostile one (the handout with a constructor that forges results.json now and later, writes the
@@ -648,19 +650,26 @@ def self_check_score(summary):
 def test_classroom_workflow_and_a_students_push(ctx):
     """Module, part 3: the handout's workflow, run as a runner would on a student's push, grades the
     pushed tree (exercise 1.2 solved: that exercise's criteria and the unit tests) and keeps the report;
-    a push that changes the grader files (kit/grade.py) or the workflow itself changes the self-check's
-    summary (it is the student's own, by design), and not the grade: Gradescope's archive grades that
-    same commit as it grades the honest one."""
+    the repository's push ruleset (kit/autograder/classroom_guard.py, here its pre-receive hook)
+    refuses a push that changes the grader files (kit/grade.py) or the workflow, so the workflow that
+    runs is the handout's; and Gradescope's archive grades the pushed commit as the self-check did."""
     require_root_and_tools()
     base = debian_root()
     image, _ = gradescope_image(ctx, base)
     remote = ctx.path("classroom.git")
     git("init", "-q", "--bare", remote, cwd=ctx.scratch)
     instructor = handout(ctx, "classroom-handout")
+    guard = os.path.join(lib.ROOT, "kit", "autograder", "classroom_guard.py")
+    rules = ctx.path("ruleset.json")
+    r = run([guard, "ruleset", instructor, "--repos", "classroom", "--out", rules], timeout=60)
+    assert r.returncode == 0, r.stderr
     git("init", "-q", cwd=instructor)
     git("add", "-A", cwd=instructor)
     git("commit", "-q", "-m", "the handout", cwd=instructor)
     git("push", "-q", remote, "HEAD:main", cwd=instructor)
+    with open(os.path.join(remote, "hooks", "pre-receive"), "w") as f:
+        f.write(f"#!/bin/sh\nexec {guard} hook {rules}\n")
+    os.chmod(os.path.join(remote, "hooks", "pre-receive"), 0o755)
     student = ctx.path("student")
     git("clone", "-q", remote, student, cwd=ctx.scratch)
     expected = sum(c["points"] for c in criteria() if all(e == "1.2" for e in c["exercises"]))
@@ -670,20 +679,16 @@ def test_classroom_workflow_and_a_students_push(ctx):
     autograder.solve(student, f"chapters/{CHAPTER}.c", "point_lights")
     git("commit", "-q", "-am", "point lights", cwd=student)
     git("push", "-q", "origin", "HEAD:main", cwd=student)
+    honest = git("rev-parse", "HEAD", cwd=student)
     outcomes, summary, artifacts, workspace = run_workflow(ctx, image, base, remote, "run-honest")
     assert all(o == "success" for _, o in outcomes), outcomes
     assert self_check_score(summary) == (expected, 100), summary
     assert artifacts == {"grade-report": True} and os.path.exists(os.path.join(workspace, "out/grade/report.html"))
 
-    # 2. The grader files changed (kit/grade.py writes a perfect report): the self-check says 100.
+    # 2. The grader files changed (kit/grade.py writes a perfect report), then the workflow too: refused.
     with open(os.path.join(student, "kit", "grade.py"), "w") as f:
         f.write(FORGED_GRADER)
     git("commit", "-q", "-am", "a better grader", cwd=student)
-    git("push", "-q", "origin", "HEAD:main", cwd=student)
-    outcomes, summary, _, _ = run_workflow(ctx, image, base, remote, "run-grader-changed")
-    assert self_check_score(summary) == (100, 100), summary
-
-    # 3. The workflow changed too: the push runs the student's workflow (it says 100 without grading).
     path = os.path.join(student, ".github", "workflows", "classroom.yml")
     with open(path) as f:
         text = f.read()
@@ -692,11 +697,13 @@ def test_classroom_workflow_and_a_students_push(ctx):
         f.write(text.replace("make grade UNSAFE=1", "mkdir -p out/grade && echo "
                              "'{\"total\":100,\"max\":100,\"criteria\":[]}' > out/grade/report.json"))
     git("commit", "-q", "-am", "a better workflow", cwd=student)
-    git("push", "-q", "origin", "HEAD:main", cwd=student)
-    outcomes, summary, _, _ = run_workflow(ctx, image, base, remote, "run-workflow-changed")
-    assert self_check_score(summary) == (100, 100), summary
+    for ref in ("main", "a-branch"):
+        r = run(["git", "push", "origin", f"HEAD:refs/heads/{ref}"], cwd=student, timeout=120)
+        assert r.returncode != 0 and "only the instructor may change" in r.stderr, f"pushed to {ref}: {r.stderr}"
+    heads = run(["git", "ls-remote", "--heads", remote], cwd=student, timeout=60).stdout.split()
+    assert heads == [honest, "refs/heads/main"], f"a refused push moved a ref: {heads}"
 
-    # The grade of that last push: Gradescope's archive on the pushed commit (a GitHub upload).
+    # The grade of what was pushed: Gradescope's archive on the pushed commit (a GitHub upload).
     pushed = ctx.path("pushed")
     git("clone", "-q", remote, pushed, cwd=ctx.scratch)
     results, _ = grade_in_layer(ctx, image, base, "classroom-grade", pushed)
