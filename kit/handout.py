@@ -53,7 +53,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 INSTRUCTOR_ONLY = ("tests/mutants/", "tests/grade_kit.py", "tests/grade_handout.py", "kit/handout.py",
                    "kit/calibrate.py", "kit/README.md", "kit/CALIBRATION.md", "kit/student/", ".ci/",
                    "kit/autograder/", "tests/grade_autograder.py", "tests/grade_matrix.py",
-                   "tests/grade_sandbox.py", "kit/heldout/", "tests/grade_heldout.py", "tests/cluster_")
+                   "tests/grade_sandbox.py", "tests/grade_classroom.py", "kit/heldout/", "tests/grade_heldout.py", "tests/cluster_")
 # The student's self-check on push (GitHub Classroom): kept in the kit, so that it runs in the
 # handout's repository only, not in the instructor's.
 CLASSROOM_WORKFLOW = (os.path.join("kit", "autograder", "classroom.yml"), os.path.join(".github", "workflows",

@@ -14,7 +14,7 @@ ruleset: writes FILE, a GitHub *push ruleset* (REST API "Create an organization 
   the files of the stubbed exercises), or adding a top-level file (a GNUmakefile would win over
   the Makefile).  PATTERN names the assignment's repositories (GitHub Classroom names them
   ASSIGNMENT-USERNAME: e.g. 'ch1-*').  Organisation admins (the instructor) may bypass it.
-  Apply it with `gh api --method POST orgs/ORG/rulesets --input FILE`.  Push rulesets apply to
+  Send it to POST /orgs/ORG/rulesets (`gh api` can send FILE as the request body).  Push rulesets apply to
   every branch and tag, so a branch with its own workflow is refused too.
 hook: the same rule for a git server of your own (and the tests): install as
   hooks/pre-receive (`exec kit/autograder/classroom_guard.py hook RULESET`).  Every commit a push
