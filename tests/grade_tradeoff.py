@@ -64,6 +64,7 @@ SLOPE_HALF_WIDTH_QUICK = 0.2
 Z = 4.0
 
 _runs = {}  # build -> (out dir, rows, references): the pipeline runs once per build
+RUN_IN_SEQUENCE = True  # (tests/run.py) in one worker, so that they share _runs: else each worker ran the pipeline
 
 
 def _pipeline(ctx):

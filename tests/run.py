@@ -1,13 +1,14 @@
 #!/usr/bin/python3
 """The test runner behind `make test`.
 
-usage: tests/run.py [-k TEXT] [-j N] [--cluster] BUILD_DIR [BUILD_DIR ...]   (e.g. build build/asan)
+usage: tests/run.py [-k TEXT] [-j N] [--cluster] [--save-durations] BUILD_DIR [BUILD_DIR ...]   (e.g. build build/asan)
 
   -k TEXT     run only the grading tests whose full name contains TEXT
               (BUILD:grade_MODULE:test_NAME); the C unit tests are skipped
   --cluster   run the class-scale tests instead (the instructor's tests named "cluster_" here: hosts over
               ssh, Slurm, the Gradescope container; `make test-cluster`; long, so not part of `make test`)
   -j N        run N tests at a time (default: one more than the CPUs this process may use, at most 4)
+  --save-durations  write each grading test's time into tests/durations.json (the order of the next runs)
   -h, --help  this text
 
 For every build directory it runs
@@ -15,7 +16,8 @@ For every build directory it runs
   2. the grading tests tests/grade_*.py    (functions test_*(ctx))
 and ends with the line "N passed, N failed".  Exit status 1 if anything failed.
 
-Tests run side by side (-j): most of them wait on one-threaded work (a Python check, a compiler, a
+Tests run longest first (tests/durations.json: the seconds each took when last saved, 5 for a
+test not there), so that no worker is left with a long one at the end.  Tests run side by side (-j): most of them wait on one-threaded work (a Python check, a compiler, a
 sandbox, a short render) part of the time: two at a time kept a 2-core machine 1.6 cores busy on
 average (a fresh clone's `make test`: 26.6 CPU minutes in 16.5), so one more than the CPUs run at
 once.  Every test has its own scratch directory.  A module says what else it needs:
@@ -28,8 +30,10 @@ once.  Every test has its own scratch directory.  A module says what else it nee
 """
 import glob
 import importlib.util
+import json
 import multiprocessing
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -123,9 +127,38 @@ def plan(builds, only, cluster):
                 else:
                     alone.append([task])
     by_itself = {m.__name__ for m in modules if getattr(m, "RUN_ALONE", False)}
-    # the long sequences first, so that no worker is left with one at the end
     side_by_side = [s for name, s in in_sequence.items() if s and name not in by_itself] + alone
+    known = saved_durations()
+    side_by_side.sort(key=lambda sequence: -sum(known.get(task_name(task), UNKNOWN_SECONDS) for task in sequence))
     return side_by_side, [s for name, s in in_sequence.items() if s and name in by_itself]
+
+
+DURATIONS = os.path.join(lib.ROOT, "tests", "durations.json")
+UNKNOWN_SECONDS = 5.0
+
+
+def task_name(task):
+    function, build, *arguments = task
+    if function is run_unit_test:
+        return f"{build}:{os.path.basename(arguments[0])}"
+    return f"{build}:{arguments[0].__name__}:{arguments[1]}"
+
+
+def saved_durations():
+    try:
+        with open(DURATIONS) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return {}
+
+
+def save_durations(measured):
+    """Merge this run's times (seconds, one decimal) into tests/durations.json."""
+    durations = dict(saved_durations(), **measured)
+    with open(DURATIONS + ".partial", "w") as f:
+        json.dump(dict(sorted(durations.items())), f, indent=0)
+        f.write("\n")
+    os.replace(DURATIONS + ".partial", DURATIONS)
 
 
 def run_sequence(sequence):
@@ -178,11 +211,11 @@ def parse_arguments(args):
         print(__doc__.strip())
         sys.exit(0)
     options = {"-k": None, "-j": str(min(4, len(os.sched_getaffinity(0)) + 1))}
-    rest, cluster = [], False
+    rest, flags = [], set()
     while args:
         word = args.pop(0)
-        if word == "--cluster":
-            cluster = True
+        if word in ("--cluster", "--save-durations"):
+            flags.add(word)
         elif word in options:
             if not args:
                 bad(f"{word} without a value")
@@ -193,7 +226,7 @@ def parse_arguments(args):
             rest.append(word)
     if not options["-j"].isdigit() or not 1 <= int(options["-j"]) <= 64:
         bad(f"-j {options['-j']} (a number of tests at a time, 1 to 64)")
-    return options["-k"], int(options["-j"]), cluster, rest or ["build"]
+    return options["-k"], int(options["-j"]), flags, rest or ["build"]
 
 
 def bad(what):
@@ -202,11 +235,16 @@ def bad(what):
 
 
 def main():
-    only, jobs, cluster, builds = parse_arguments(sys.argv[1:])
+    only, jobs, flags, builds = parse_arguments(sys.argv[1:])
+    cluster = "--cluster" in flags
     counts = {"passed": 0, "failed": 0}
+    measured = {}
 
     def report(name, ok, detail):
         counts["passed" if ok else "failed"] += 1
+        seconds = re.fullmatch(r"([0-9.]+) s", detail or "")
+        if seconds:
+            measured[name] = float(seconds.group(1))
         if ok:
             print(f"ok   {name}" + (f"  ({detail})" if detail else ""), flush=True)
         else:
@@ -218,6 +256,8 @@ def main():
     side_by_side, by_itself = plan(builds, only, cluster)
     run_all(side_by_side, jobs, report)
     run_all(by_itself, 1, report)
+    if "--save-durations" in flags:
+        save_durations(measured)
     print(f"{counts['passed']} passed, {counts['failed']} failed")
     sys.exit(1 if counts["failed"] else 0)
 
