@@ -185,7 +185,8 @@ def test_weights_add_to_one_and_densities_match_sampling(ctx):
             ("scenes/cornell-spheres.scene", ["--bounces", "0:5", "--check", 1500]),
             ("scenes/cornell-spheres.scene", ["--bounces", "0:5", "--check", 1500, "--method", "bdpt"]),
             ("scenes/cornell.scene", ["--bounces", "0:5", "--check", 1500, "--method", "light"]),
-            ("scenes/gap.scene", ["--check", 80, "--seed", 2])]
+            ("scenes/gap.scene", ["--check", 200, "--seed", 2])]  # its joins compared per path vary widely: at
+    # --check 80 the kit's calibration saw 920 and 948 of them for two grading seeds in 29 (below the 1000 asked)
     for scene, args in runs:
         _, stats = ctx.render(CHAPTER, scene, "--size", "16x16", "--spp", 1, *args, name="check")
         check = stats["check"]
@@ -305,7 +306,9 @@ def test_each_strategy_alone_is_unbiased(ctx):
     combined standard errors (7 strategies, 12 tile means each), each below 6 % of the image's mean.
     And k = 2 for (0, 3), (1, 2), (2, 1) against --bounces 1:1."""
     scene = ctx.write("stage.scene", STAGE)
-    every = ((3, ((0, 4), (1, 3), (2, 2), (3, 1)), (256, 8, 8, 8)), (2, ((0, 3), (1, 2), (2, 1)), (64, 8, 8)))
+    # (2, 2) at 16 samples a pixel: at 8 its standard error passed the 6 % guard for 2 grading seeds in 29 (the
+    # kit's calibration: 2 % and 9 % over it).
+    every = ((3, ((0, 4), (1, 3), (2, 2), (3, 1)), (256, 8, 16, 8)), (2, ((0, 3), (1, 2), (2, 1)), (64, 8, 8)))
     if sanitizers_run_once(ctx, scene, [(CHAPTER, ["--bounces", f"{k - 1}:{k - 1}", "--strategy", f"{s},{t}"])
                                         for k, strategies, _ in every for s, t in strategies]):
         return
