@@ -24,7 +24,7 @@ CHAPTER = "07_metropolis"
 RENDERS = 32  # seeds behind every image mean: 31 degrees of freedom
 # Per render: b from 65536 paths and the large steps.  With 4096 the chains rarely start on cornell-spheres' caustic
 # paths: over 256 renders its caustic tile read 12 % dark (z = -4.7, skew 14 from seed to seed) and the other tiles
-# 1.7 % bright; with 65536, within 0.5 % (|z| < 2.8) (the kit's calibration, kit/CALIBRATION.md).
+# 1.7 % bright; with 65536, within 0.5 % (|z| < 2.8) (the kit's calibration).
 SMALL = ["--bootstrap", 65536, "--chains", 64]
 
 # Two lit regions: a floor split by a wall, a light over each half that the wall hides from the other half.  A chain

@@ -28,7 +28,8 @@ def test_classroom_push_may_change_only_the_exercise_files(ctx):
     holding the handout, accepts a push of the exercise file and refuses pushes that change the
     grader (kit/grade.py) or the workflow (each also on a new branch, and undone by a later commit), a
     second workflow, the Makefile (deleted), a grading test, a shared header of the chapter, or add a
-    GNUmakefile or kit/json.py (either would run instead of the grader's); a refused push moves no ref."""
+    GNUmakefile or a module in kit/ named as a standard one (either would run instead of the grader's); a
+    refused push moves no ref."""
     if "asan" in ctx.build:
         return
     handout = ctx.path("handout")
