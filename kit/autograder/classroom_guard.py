@@ -33,6 +33,9 @@ import re
 import subprocess
 import sys
 
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+import grade  # noqa: E402  (project_files: a handout's files, as grading lists them)
+
 EMPTY_TREE = "4b825dc642cb6eb9a5e52e3a46e6b2b1d5e4f3cb"  # git's well-known empty tree: a root commit's parent
 # Org admins (the instructor) may push anything: GitHub's actor for the organisation admin role.
 INSTRUCTOR_BYPASS = [{"actor_id": 1, "actor_type": "OrganizationAdmin", "bypass_mode": "always"}]
@@ -54,21 +57,13 @@ def exercise_files(handout):
     return sorted({entry.split(" ", 1)[1].rsplit(":", 1)[0] for entry in stubbed})
 
 
-def handout_files(handout):
-    found = []
-    for top, dirs, files in os.walk(handout):
-        dirs[:] = sorted(d for d in dirs if d != ".git")
-        found += [os.path.relpath(os.path.join(top, f), handout) for f in sorted(files)]
-    return found
-
-
 def restricted_paths(handout):
     """Every path a push may not touch: each top-level directory without an exercise file as a whole
     (new files in it included), each other file by name, any new top-level file."""
     open_files = set(exercise_files(handout))
     open_dirs = {f.split("/")[0] for f in open_files if "/" in f}
     patterns = {"*", ".*"}  # top-level files, old and new (fnmatch's `*` skips a leading dot on GitHub)
-    for f in handout_files(handout):
+    for f in grade.project_files(handout):
         top = f.split("/")[0]
         if f in open_files or "/" not in f:
             continue  # (top-level files: `*` and `.*`)
