@@ -41,6 +41,11 @@ What a deck may contain besides Markdown (headings, paragraphs, lists,
 
 Renders are cached in WORK/cache by a hash of the executable, the scene file
 and the arguments, so a second build only re-renders what changed.
+
+--draft renders every figure with an eighth of its samples (DRAFT_OPTIONS): the
+decks, their checks and the browser's are the same, only the pictures noisier
+and the plots' error axes off.  The tests build drafts (make test's time);
+`make slides` never does.
 """
 import argparse
 import hashlib
@@ -61,6 +66,20 @@ import pfm  # noqa: E402  (tests/pfm.py: the one PFM reader of the Python tools)
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SLIDES = os.path.join(ROOT, "slides")
 LABEL_RANGE = range(1, 11)  # the lecture's equations are R1 .. R10
+
+
+DRAFT_OPTIONS = ("--spp", "--photons", "--time")  # the work a render does, divided by DRAFT_FACTOR
+DRAFT_FACTOR = 8
+
+
+def drafted(args):
+    """ARGS with the samples of DRAFT_OPTIONS divided by DRAFT_FACTOR (at least one)."""
+    out = list(args)
+    for i in range(len(out) - 1):
+        if out[i] in DRAFT_OPTIONS:
+            value = float(out[i + 1]) / DRAFT_FACTOR
+            out[i + 1] = f"{value:g}" if out[i] == "--time" else str(max(1, int(value)))
+    return out
 
 
 class BuildError(Exception):
@@ -335,8 +354,8 @@ def rms_difference(path_a, path_b):
 class Renderer:
     """Runs the chapters; caches every render by what determines it."""
 
-    def __init__(self, build, work, log):
-        self.build, self.cache, self.log = build, os.path.join(work, "cache"), log
+    def __init__(self, build, work, log, draft=False):
+        self.build, self.cache, self.log, self.draft = build, os.path.join(work, "cache"), log, draft
         os.makedirs(self.cache, exist_ok=True)
         self.fresh = 0
         self.seconds = 0.0
@@ -351,6 +370,7 @@ class Renderer:
 
     def render(self, where, chapter, args):
         """Render build/CHAPTER ARGS; return {'png','pfm','json'} paths."""
+        args = drafted(args) if self.draft else args
         exe = os.path.join(ROOT, self.build, chapter)
         if not re.fullmatch(r"\d\d[a-z]?_\w+", chapter):
             fail(where, f"'{chapter}' is not a chapter name (like 04_pathtrace)")
@@ -916,7 +936,7 @@ class Context:
         self.out = os.path.abspath(args.out)
         self.work = os.path.abspath(args.work)
         self.markup = Markup()
-        self.renderer = Renderer(args.build, self.work, self.log)
+        self.renderer = Renderer(args.build, self.work, self.log, draft=args.draft)
         self.published = {}
         self.plots_done = set()
         self.facts = {}
@@ -1015,6 +1035,8 @@ def main():
     parser.add_argument("--out", default=os.path.join(ROOT, "out", "slides"))
     parser.add_argument("--work", default=os.path.join(ROOT, "build", "slides"))
     parser.add_argument("--no-pdf", action="store_true", help="HTML only")
+    parser.add_argument("--draft", action="store_true",
+                        help=f"figures at 1/{DRAFT_FACTOR} of their samples (the tests' quick build)")
     parser.add_argument("--tradeoff-dir", default=os.path.join(ROOT, "out"),
                         help="where `make tradeoff` wrote tradeoff.csv and its plots (default out)")
     parser.add_argument("--only", help="build only the deck whose name contains this")

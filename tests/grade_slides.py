@@ -1,9 +1,10 @@
 """Grading of the lecture decks: slides/*.md -> out/slides/*.html.
 
 What is checked:
-  - the decks build (slides/build.py, figures rendered by the chapters of the
-    plain build, cached in build/slides/cache) and every figure on them is a
-    render by the current executables (out/slides/figures.json);
+  - the decks build (slides/build.py --draft into build/slides/draft: every
+    figure at an eighth of its samples, rendered by the chapters of the plain
+    build, cached in build/slides/cache) and every figure on them is a render
+    by the current executables (figures.json);
   - slides and code cannot drift: a deck naming a function that does not
     exist, code citing an equation the deck does not state, and a label that
     is not one the notes define each fail the build with deck:line;
@@ -13,7 +14,7 @@ What is checked:
     every deck offline: no console or page errors, no request that is not
     file:, KaTeX present and no .katex-error, every image loaded, no slide
     taller or wider than the slide; screenshots of a title and an equation
-    slide per deck go to out/slides/screenshots/ for a person to look at.
+    slide per deck go to build/slides/draft/screenshots/ for a person to look at.
 
 The decks are built once, in the pass over the plain build; the pass over
 build/asan reuses them (sanitizer builds would only make the renders slower).
@@ -32,12 +33,12 @@ import lib
 from lib import ROOT
 
 PYTHON = sys.executable or "/usr/bin/python3"
-OUT = os.path.join(ROOT, "out", "slides")
 WORK = os.path.join(ROOT, "build", "slides")
+OUT = os.path.join(WORK, "draft")  # not out/slides: `make slides` builds those at full quality
 DECKS = ["01_local", "02_whitted", "03a_rendering_equation", "03b_radiosity", "03c_hierarchical", "04_pathtrace", "05_photonmap",
          "06_bidirectional", "07_metropolis", "08_tradeoff"]
 PLAIN = "build"
-# out/slides and build/slides are shared: the plain pass builds the decks, the sanitizer pass reuses them.
+# build/slides is shared: the plain pass builds the decks, the sanitizer pass reuses them.
 RUN_IN_SEQUENCE = True
 
 
@@ -62,7 +63,8 @@ def _build_decks(ctx):
     if reuse:
         return
     chapters = PLAIN if os.path.exists(os.path.join(ROOT, PLAIN, "04_pathtrace")) else ctx.build
-    result = subprocess.run([PYTHON, os.path.join(ROOT, "slides", "build.py"), "--build", chapters, "--no-pdf"],
+    result = subprocess.run([PYTHON, os.path.join(ROOT, "slides", "build.py"), "--build", chapters, "--no-pdf",
+                             "--draft", "--out", OUT],
                             cwd=ROOT, capture_output=True, text=True, timeout=900, stdin=subprocess.DEVNULL)
     assert result.returncode == 0, f"slides/build.py failed:\n{result.stderr[-3000:]}"
     os.makedirs(WORK, exist_ok=True)

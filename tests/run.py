@@ -21,12 +21,13 @@ test not there), so that no worker is left with a long one at the end.  Tests ru
 sandbox, a short render) part of the time: two at a time kept a 2-core machine 1.6 cores busy on
 average (a fresh clone's `make test`: 26.6 CPU minutes in 16.5), so one more than the CPUs run at
 once.  Every test has its own scratch directory.  A module says what else it needs:
-  RUN_IN_SEQUENCE = True  its tests share files outside their scratch (the decks in out/slides that
+  RUN_IN_SEQUENCE = True  its tests share files outside their scratch (the decks in build/slides that
                           the sanitizer pass reuses): over all build directories they run one after
                           another in one worker, in the order given;
-  RUN_ALONE = True        its tests check what the whole machine holds afterwards (no temporary
+  RUN_ALONE = {names}     (or True: all of them) these tests check what the whole machine holds afterwards (no temporary
                           directory, cgroup or process left by a grading, the instructor's tree
-                          unchanged): they run last, one at a time, with nothing beside them.
+                          unchanged, the sandbox uid's memory): they run last, one at a time, with
+                          nothing beside them; the module's other tests run side by side.
 """
 import glob
 import importlib.util
@@ -109,28 +110,29 @@ def plan(builds, only, cluster):
     """The work as (side by side, alone): lists of sequences, each a list of (function, build,
     *arguments) run in order."""
     modules = load_modules("cluster_" if cluster else "grade_")
-    in_sequence = {m.__name__: [] for m in modules
-                   if getattr(m, "RUN_IN_SEQUENCE", False) or getattr(m, "RUN_ALONE", False)}
-    alone = []
+    in_sequence = {m.__name__: [] for m in modules if getattr(m, "RUN_IN_SEQUENCE", False)}
+    by_itself, single = [], []
     for build in builds:
         if not only and not cluster:
             for exe in sorted(glob.glob(os.path.join(lib.ROOT, build, "tests", "test_*"))):
                 if not exe.endswith(".d") and os.access(exe, os.X_OK):
-                    alone.append([(run_unit_test, build, exe)])
+                    single.append([(run_unit_test, build, exe)])
         for module in modules:
             for name in sorted(n for n in dir(module) if n.startswith("test_")):
                 if only and only not in f"{build}:{module.__name__}:{name}":
                     continue
                 task = (run_grading_test, build, module, name)
-                if module.__name__ in in_sequence:
+                alone = getattr(module, "RUN_ALONE", ())
+                if alone is True or name in alone:
+                    by_itself.append([task])
+                elif module.__name__ in in_sequence:
                     in_sequence[module.__name__].append(task)
                 else:
-                    alone.append([task])
-    by_itself = {m.__name__ for m in modules if getattr(m, "RUN_ALONE", False)}
-    side_by_side = [s for name, s in in_sequence.items() if s and name not in by_itself] + alone
+                    single.append([task])
+    side_by_side = [s for s in in_sequence.values() if s] + single
     known = saved_durations()
     side_by_side.sort(key=lambda sequence: -sum(known.get(task_name(task), UNKNOWN_SECONDS) for task in sequence))
-    return side_by_side, [s for name, s in in_sequence.items() if s and name in by_itself]
+    return side_by_side, by_itself
 
 
 DURATIONS = os.path.join(lib.ROOT, "tests", "durations.json")
