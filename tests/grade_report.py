@@ -21,6 +21,7 @@ import subprocess
 import sys
 import tempfile
 
+import lib
 from lib import ROOT
 
 sys.path.insert(0, os.path.join(ROOT, "kit"))
@@ -64,6 +65,8 @@ def write_back(tree, written, mistake=None):
 
 
 def test_report_names_stubs_and_says_which_way_each_criterion_is_off(ctx):
+    if lib.sanitizer_build(ctx):
+        return  # kit/grade.py builds the handout itself, whatever the build: the same run in both passes
     tree = handout(os.path.join(tempfile.mkdtemp(prefix="gi-report-"), "student"))
     with open(os.path.join(tree, "kit", "handout.json")) as f:
         stubbed = {s.split(":")[-1] for s in json.load(f)["stubbed"]}

@@ -445,6 +445,8 @@ def test_the_graded_tree_lends_no_later_chapter_solution(ctx):
     """What the sandbox can read is the graded tree: for chapter 1 it holds no answer of a later
     chapter (a submission could print one into its report), but chapter 4's grading lends chapter
     3's solution, which its criteria compare with."""
+    if "asan" in ctx.build:
+        return  # the kit's Python alone, whatever the build: the same check in both passes
     sys.path.insert(0, os.path.join(ROOT, "kit"))
     import grade as kit_grade
     import markers
