@@ -134,7 +134,7 @@ demo: deps-demo
 	    $(patsubst $(BUILD)/%,$(DEMO_BUILD)/%,$(CHAPTER_PROGRAMS)) $(DEMO_BUILD)/viewer
 	viewer/demo.sh $(DEMO_BUILD)
 
-# Both trees build as many jobs at a time as there are CPUs; the tests run two more (tests/run.py -j).
+# Both trees build as many jobs at a time as there are CPUs; the tests run one more (tests/run.py -j).
 CPUS := $(shell nproc 2>/dev/null || echo 2)
 test: deps
 	$(MAKE) --no-print-directory -j$(CPUS) all tests

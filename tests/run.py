@@ -7,7 +7,7 @@ usage: tests/run.py [-k TEXT] [-j N] [--cluster] [--save-durations] BUILD_DIR [B
               (BUILD:grade_MODULE:test_NAME); the C unit tests are skipped
   --cluster   run the class-scale tests instead (the instructor's tests named "cluster_" here: hosts over
               ssh, Slurm, the Gradescope container; `make test-cluster`; long, so not part of `make test`)
-  -j N        run N tests at a time (default: two more than the CPUs this process may use, at most 6)
+  -j N        run N tests at a time (default: one more than the CPUs this process may use, at most 4)
   --save-durations  write each grading test's time into tests/durations.json (the order of the next runs)
   -h, --help  this text
 
@@ -18,9 +18,9 @@ and ends with the line "N passed, N failed".  Exit status 1 if anything failed.
 
 Tests run longest first (tests/durations.json: the seconds each took when last saved, 5 for a
 test not there), so that no worker is left with a long one at the end.  Tests run side by side (-j): most of them wait on one-threaded work (a Python check, a compiler, a
-sandbox, a short render) part of the time: three at a time kept a 2-core machine only 1.66 cores
-busy on average (a fresh clone's `make test`: 25.7 CPU minutes in 15.5), so two more than the CPUs
-run at once.  Every test has its own scratch directory.  A module says what else it needs:
+sandbox, a short render) part of the time: two at a time kept a 2-core machine 1.6 cores busy on
+average (a fresh clone's `make test`: 26.6 CPU minutes in 16.5), so one more than the CPUs run at
+once.  Every test has its own scratch directory.  A module says what else it needs:
   RUN_IN_SEQUENCE = True  its tests share files outside their scratch (the decks in build/slides that
                           the sanitizer pass reuses): over all build directories they run one after
                           another in one worker, in the order given;
@@ -212,7 +212,7 @@ def parse_arguments(args):
     if "-h" in args or "--help" in args:
         print(__doc__.strip())
         sys.exit(0)
-    options = {"-k": None, "-j": str(min(6, len(os.sched_getaffinity(0)) + 2))}
+    options = {"-k": None, "-j": str(min(4, len(os.sched_getaffinity(0)) + 1))}
     rest, flags = [], set()
     while args:
         word = args.pop(0)
