@@ -78,8 +78,8 @@ def test_hierarchical_agrees_with_uniform_and_path_tracing(ctx):
         return
     common = ["--size", "8x8", "--tol", 1e-7, "--iterations", 10000]
     runs = {}
-    for key, args in {"h2": [*HIER, "--levels", 5, "--eps", 2e-2], "h1": [*HIER, "--levels", 5, "--eps", 1e-2], "u50": ["--patch-size", 50],
-                      "u25": ["--patch-size", 25]}.items():
+    for key, args in {"h2": [*HIER, "--levels", 5, "--eps", 2e-2], "h1": [*HIER, "--levels", 5, "--eps", 1e-2],
+                      "u50": ["--patch-size", 50], "u25": ["--patch-size", 25]}.items():
         chapter = UNIFORM if key[0] == "u" else CHAPTER
         _, runs[key] = ctx.render(chapter, "scenes/cornell.scene", *common, *args, name=key)
     _, traced = ctx.render("04_pathtrace", "scenes/cornell.scene", "--size", "8x8", "--spp", 1,
@@ -181,8 +181,8 @@ def test_hierarchical_floor_under_a_box_carries_no_light(ctx):
     to 0.5).  Flat shading: each face carries its leaf's radiance.  --levels 6: leaves
     of 9 mm on the floor, fine enough for strips 20 mm wide, at a third of the time."""
     ply = ctx.path("h.ply")
-    ctx.render(CHAPTER, "scenes/cornell.scene", "--size", "8x8", *HIER, "--eps", 8e-2, "--levels", 6, "--shading", "flat",
-               "--out", ply, name="buried")
+    ctx.render(CHAPTER, "scenes/cornell.scene", "--size", "8x8", *HIER, "--eps", 8e-2, "--levels", 6,
+               "--shading", "flat", "--out", ply, name="buried")
     vertices, faces = read_ply(ply)
     footprint = [(130, 65), (82, 225), (240, 272), (290, 114)]  # the short box's base (x, z), scenes/cornell.scene
     buried, beside = [], []

@@ -504,7 +504,7 @@ def radiosity_surfaces(ctx, scene, patch_sizes=None):
     converged (--tol 1e-7): the reference other chapters' surface means are
     compared with, with its discretisation error from two patch sizes, h and h / 2:
     50 and 25 mm, and under the sanitizers 100 and 50 (a sixteenth of the work; the
-    bound below holds for any h and grows with it)."""
+    same bound for that pair, looser: there the test checks memory, not accuracy)."""
     import os as _os
     assert _os.path.exists(_os.path.join(ROOT, ctx.build, "03_radiosity")), \
         "build/03_radiosity is missing (chapter 3 reports the 'surfaces' key)"

@@ -24,10 +24,10 @@ once.  Every test has its own scratch directory.  A module says what else it nee
   RUN_IN_SEQUENCE = True  its tests share files outside their scratch (the decks in build/slides that
                           the sanitizer pass reuses): over all build directories they run one after
                           another in one worker, in the order given;
-  RUN_ALONE = {names}     (or True: all of them) these tests check what the whole machine holds afterwards (no temporary
-                          directory, cgroup or process left by a grading, the instructor's tree
-                          unchanged, the sandbox uid's memory): they run last, one at a time, with
-                          nothing beside them; the module's other tests run side by side.
+  RUN_ALONE = {names}     (or True: every test of the module) these tests check what the whole
+                          machine holds afterwards (no temporary directory, cgroup or process left
+                          by a grading, the instructor's tree unchanged): they run last, one at a
+                          time, with nothing beside them; the module's other tests run side by side.
 """
 import glob
 import importlib.util
