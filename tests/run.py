@@ -14,7 +14,9 @@ usage: tests/run.py [-k TEXT] [-j N] [--cluster] [--save-durations] BUILD_DIR [B
 For every build directory it runs
   1. the C unit tests build/tests/test_*  (lines "ok   name" / "FAIL name: ...")
   2. the grading tests tests/grade_*.py    (functions test_*(ctx))
-and ends with the line "N passed, N failed".  Exit status 1 if anything failed.
+and ends with the line "N passed, N failed".  Exit status 1 if anything failed.  A grading test's
+"ok" line gives its wall time and its CPU seconds (its programs' and sandboxes' included): what it costs
+make test's budget, which its wall time, stretched by whatever ran beside it, does not say.
 
 Tests run longest first (tests/durations.json: the seconds each took when last saved, 5 for a
 test not there), so that no worker is left with a long one at the end.  Tests run side by side (-j): most of them wait on one-threaded work (a Python check, a compiler, a
