@@ -28,9 +28,10 @@ usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE [--ssh 
                --sshloginfile, else 1); then a last pass (GNU parallel's --resume-failed) regrades what
                still failed once more
   --chapters, --seed, --rubric, --timeout, --memory, --sandbox, --unsafe, --public   as kit/grade.py's
-  --slurm      grade on a Slurm cluster instead: one job array, a task per submission, a task that ends
-               without a report (node lost, killed) submitted once more; summary.csv's column "retried" names
-               them (kit/slurm_engine.py; --jobs N: at most N tasks at once)
+  --slurm      grade on a Slurm cluster instead: one job array, a task per submission (several arrays where the
+               class is larger than the cluster's MaxArraySize), a task that ends without a report (node lost,
+               killed) submitted once more; summary.csv's column "retried" names them (kit/slurm_engine.py;
+               --jobs N: at most N tasks at once, each array then waiting for the one before it)
 
 A grading that fails leaves a row "not graded" with its exit status; a submission the kit refuses a row
 "not graded: <reason>"; the other students' reports are kept.  Every grading runs kit/grade_job.py,

@@ -4,6 +4,8 @@
 kit/grade_class.py writes DIR/submissions.tsv (directory, student) and calls grade_class(); this module
   1. submits the class as a job array (sbatch --array=0-N, --no-requeue): task i grades line i with
      kit/grade.py (--name STUDENT --jobs 1 and the class's --chapters/--seed), as GNU parallel's path does;
+     a class larger than the cluster's MaxArraySize goes as several arrays, and with --jobs N (each array's
+     %N) each waits for the one before it (--dependency=afterany), so that N caps the class;
   2. waits for the array by polling squeue (a task Slurm holds after a failed launch is cancelled, so
      that it counts as failed rather than waiting for ever);
   3. submits once more, as a second array, every submission whose task left no report: a node lost mid-class
@@ -117,7 +119,9 @@ def prepare(report, command, extra):
 
 def submit(report, script, indices, round_number, jobs, array_limit):
     """Submit the table lines `indices` as job arrays (more than one when the class is larger than the
-    cluster's MaxArraySize); [(job id, list file)]."""
+    cluster's MaxArraySize); [(job id, list file)].  An array's %N caps only its own tasks, so with a cap
+    each array waits for the one before it (afterany: however its tasks ended): the class never runs more
+    than `jobs` gradings at once."""
     top = state_dir(report)
     submitted = []
     chunk = max(1, array_limit - 1)
@@ -127,7 +131,8 @@ def submit(report, script, indices, round_number, jobs, array_limit):
         with open(os.path.join(top, listing), "w") as f:
             f.write("".join(f"{i}\n" for i in part))
         array = f"0-{len(part) - 1}" + (f"%{jobs}" if jobs else "")
-        r = slurm("sbatch", "--parsable", f"--array={array}", "--no-requeue", "--job-name=grade-class",
+        after = [f"--dependency=afterany:{submitted[-1][0]}"] if jobs and submitted else []
+        r = slurm("sbatch", "--parsable", f"--array={array}", *after, "--no-requeue", "--job-name=grade-class",
                   f"--output={os.path.join(top, 'logs', '%A_%a.out')}", script, listing)
         job = r.stdout.strip().split(";")[0]
         if not job.isdigit():

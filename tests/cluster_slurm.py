@@ -15,7 +15,8 @@ slurmd, the slurmstepd of its tasks and everything they started are killed (a po
 shutdown); slurmctld declares it down (SlurmdTimeout 10 s) and ends its tasks NODE_FAIL; n2 then comes back
 (ReturnToService=2).  Checked: every submission ends with exactly one report, the killed gradings among
 those retried (summary.csv's "retried" column, summary.html), the missing directory "not graded" and not
-retried, every report made in the sandbox, and each student's report.json (total and points per criterion)
+retried, every report made in the sandbox, the class sent as three job arrays (the cluster's MaxArraySize
+is 16) chained by --jobs 2, and each student's report.json (total and points per criterion)
 the same as when GNU parallel grades the same class here with the same seed.  11 to 25 min on this 2-core
 machine while other work loaded it (load average 3 to 10; Slurm's grading 7 to 15 min with the lost node,
 GNU parallel's 4 to 10 min), most of it building chapter 1 in each sandbox.
@@ -44,6 +45,9 @@ RUBRIC_CRITERIA = ("point light pixel is R1", "point light probe inverse square 
 SEED = "7"
 NODES = ("n1", "n2")
 CLASS_TIMEOUT = 2400   # seconds, one grading of the class (Slurm or GNU parallel)
+# The cluster's MaxArraySize (Slurm's default 1001): an array's indices stay below it, so the class of 43 goes as
+# arrays of 15, 15 and 13, which --jobs 2 chains (each waits for the one before it).
+MAX_ARRAY_SIZE = 16
 DAEMON_TIMEOUT = 60    # a daemon up, a node declared down, a daemon stopped
 
 # Its two gradings of a class fill both cores, and it kills processes of its own cluster: nothing beside it.
@@ -101,7 +105,7 @@ class Cluster:
             "AccountingStorageType=accounting_storage/none", "JobCompType=jobcomp/none",
             "SelectType=select/cons_tres", "SelectTypeParameters=CR_Core", "MpiDefault=none", "SwitchType=switch/none",
             "ReturnToService=2", "SlurmdTimeout=10", "SlurmctldTimeout=10", "MinJobAge=3600", "InactiveLimit=0",
-            "KillWait=5",
+            "KillWait=5", f"MaxArraySize={MAX_ARRAY_SIZE}",
             *(f"NodeName={n} NodeHostname={host} NodeAddr=127.0.0.1 Port={p} CPUs=1 RealMemory=4000 State=UNKNOWN"
               for n, p in zip(NODES, nodes)),
             f"PartitionName=grade Nodes={','.join(NODES)} Default=YES MaxTime=INFINITE State=UP",
@@ -365,7 +369,7 @@ def grade_on_slurm_losing_a_node(cluster, listing, rubric, report, kinds, out):
     start = time.time()
     with open(out, "w") as log:
         p = subprocess.Popen([PY, GRADE_CLASS, "--slurm", "@" + listing, "--report", report, "--chapters", "01_local",
-                              "--seed", SEED, "--rubric", rubric], stdout=log, stderr=subprocess.STDOUT,
+                              "--seed", SEED, "--rubric", rubric, "--jobs", "2"], stdout=log, stderr=subprocess.STDOUT,
                              stdin=subprocess.DEVNULL, env=cluster.env, cwd=ROOT)
     killed, graders = set(), set()
     try:
@@ -392,6 +396,31 @@ def grade_on_slurm_losing_a_node(cluster, listing, rubric, report, kinds, out):
                 p.kill()
                 p.wait()
     return p.returncode, killed, graders, time.time() - start
+
+
+def expect_chained_arrays(report, lines, output):
+    """The first round went as ceil(lines / (MAX_ARRAY_SIZE - 1)) arrays, each within MaxArraySize, and each
+    array's tasks started after every task of the array before it had ended (--jobs 2 caps the class, and
+    an array's %2 caps only its own tasks)."""
+    top = os.path.join(report, ".slurm")
+    chunk = MAX_ARRAY_SIZE - 1
+    listings = sorted((n for n in os.listdir(top) if n.startswith("round0-")), key=lambda n: int(n[7:-4]))
+    assert len(listings) == -(-lines // chunk) >= 3, f"round 0 went as {listings} for {lines} lines"
+    assert "as job arrays" in output, output[-2000:]
+    with open(os.path.join(top, "attempts.json")) as f:
+        attempts = json.load(f)
+    by_array = {}
+    for listing in listings:
+        with open(os.path.join(top, listing)) as f:
+            indices = [int(x) for x in f.read().split()]
+        assert 0 < len(indices) < MAX_ARRAY_SIZE, (listing, indices)
+        firsts = [a for a in attempts if a["index"] in indices and a["start"] is not None]
+        job = min(int(a["task"].split("_")[0]) for a in firsts)  # round 0's job of these lines: the first
+        by_array[listing] = [a for a in firsts if a["task"].startswith(f"{job}_")]
+    for earlier, later in zip(listings, listings[1:]):
+        ended = max(a["start"] + a["seconds"] for a in by_array[earlier] if a["seconds"] is not None)
+        began = min(a["start"] for a in by_array[later])
+        assert began >= ended - 1.0, f"{later} began {ended - began:.1f} s before {earlier} had ended"
 
 
 def test_class_on_slurm_survives_a_lost_node(ctx):
@@ -432,6 +461,7 @@ def test_class_on_slurm_survives_a_lost_node(ctx):
         assert len(installed) == 1, f"{s}: reports installed by {installed}"
     nodes = {a["node"] for a in records}
     assert nodes == set(NODES), f"the tasks ran on {nodes}"
+    expect_chained_arrays(slurm_report, len(kinds) + 1, output)
 
     # the retried: the gradings killed with n2, named NODE_FAIL in summary.csv's "retried" column and summary.html
     rows = read_summary(slurm_report)
