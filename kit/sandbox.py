@@ -499,7 +499,7 @@ class Sandbox:
         return cmd + list(argv)
 
     def _preexec(self, cgroup):
-        limits = self.limits
+        limits, grader = self.limits, os.getpid()
 
         def start():
             import resource
@@ -518,6 +518,7 @@ class Sandbox:
                 os.setgroups([])
                 os.setgid(self.uid)
                 os.setuid(self.uid)
+            die_with(grader)
             if self.mode == "user":  # no network namespace: no sockets at all
                 install_no_network_filter()
         return start
@@ -765,6 +766,16 @@ def kill_user(uid):
     return killed
 
 
+def die_with(grader):
+    """In the child about to exec the sandbox: SIGKILL when the grader dies.  bwrap's --die-with-parent
+    starts only once bwrap runs; a grader killed between the fork and that moment would leave the
+    sandbox running on (an orphan, its build or render to the end), so the child asks for the signal
+    itself (after setuid, which clears it; exec keeps it) and gives up if the grader is already gone."""
+    libc = ctypes.CDLL(None, use_errno=True)
+    if libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0 or os.getppid() != grader:
+        os._exit(1)
+
+
 def set_oom_score(score):
     """The calling process's (and its future children's) oom_score_adj: above 0, the out-of-memory killer,
     the machine's or a cgroup's, takes it before the grader's and others' processes of the same size."""
@@ -838,6 +849,7 @@ AUDIT_ARCH_X86_64 = 0xC000003E
 X32_SYSCALL_BIT = 0x40000000
 NO_NETWORK_SYSCALLS = (41, 53, 425)  # socket, socketpair, io_uring_setup
 PR_SET_NO_NEW_PRIVS, PR_SET_SECCOMP, SECCOMP_MODE_FILTER = 38, 22, 2
+PR_SET_PDEATHSIG = 1
 SECCOMP_RET_KILL_PROCESS, SECCOMP_RET_ERRNO, SECCOMP_RET_ALLOW = 0x80000000, 0x00050000, 0x7FFF0000
 EACCES = 13
 
