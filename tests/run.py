@@ -7,7 +7,8 @@ usage: tests/run.py [-k TEXT] [-j N] [--cluster] [--save-durations] BUILD_DIR [B
               (BUILD:grade_MODULE:test_NAME); the C unit tests are skipped
   --cluster   run the class-scale tests instead (the instructor's tests named "cluster_" here: hosts over
               ssh, Slurm, the Gradescope container; `make test-cluster`; long, so not part of `make test`)
-  -j N        run N tests at a time (default: one more than the CPUs this process may use, at most 4)
+  -j N        run N tests at a time (default: one more than the CPUs this process may use, at most 4,
+              and up to two more while the machine leaves a core idle)
   --save-durations  write each grading test's time into tests/durations.json (the order of the next runs)
   -h, --help  this text
 
@@ -21,8 +22,10 @@ make test's budget, which its wall time, stretched by whatever ran beside it, do
 Tests run longest first (tests/durations.json: the seconds each took when last saved, 5 for a
 test not there), so that no worker is left with a long one at the end.  Tests run side by side (-j): most of them wait on one-threaded work (a Python check, a compiler, a
 sandbox, a short render) part of the time: two at a time kept a 2-core machine 1.6 cores busy on
-average (a fresh clone's `make test`: 26.6 CPU minutes in 16.5), so one more than the CPUs run at
-once.  Every test has its own scratch directory.  A module says what else it needs:
+average (a fresh clone's `make test`: 26.6 CPU minutes in 16.5), and so did three (1407 CPU s in
+14:02), so one more than the CPUs run at once, and another (at most two more) whenever the machine
+has left over 0.7 of a core idle for a second since the last one started.  Each sequence of tests
+runs in a process of its own.  Every test has its own scratch directory.  A module says what else it needs:
   RUN_IN_SEQUENCE = True  its tests share files outside their scratch (the decks in build/slides that
                           the sanitizer pass reuses): over all build directories they run one after
                           another in one worker, in the order given;
@@ -36,6 +39,7 @@ import importlib.util
 import json
 import multiprocessing
 import os
+import queue
 import re
 import shutil
 import subprocess
@@ -180,48 +184,81 @@ def run_sequence(sequence):
     return results
 
 
-def worker(work, results):
-    while True:
-        index = work.get()
-        if index is None:
-            return
-        try:
-            results.put(run_sequence(SEQUENCES[index]))
-        except BaseException:  # never leave the runner waiting for a sequence that died
-            results.put([(f"sequence {index}", False, traceback.format_exc())])
+def run_in_child(index, results):
+    try:
+        results.put((index, run_sequence(SEQUENCES[index])))
+    except BaseException:  # never leave the runner waiting for a sequence that died
+        results.put((index, [(f"sequence {index}", False, traceback.format_exc())]))
 
 
 SEQUENCES = []
 
 
-def run_all(sequences, jobs, report):
+class IdleCores:
+    """How many cores the whole machine left idle since the last look (/proc/stat: idle and iowait
+    jiffies over all jiffies, times the cores), or None before two looks or where there is no /proc/stat."""
+
+    def __init__(self):
+        self.last = self.read()
+
+    @staticmethod
+    def read():
+        try:
+            with open("/proc/stat") as f:
+                words = f.readline().split()
+            values = [int(w) for w in words[1:]]
+            return sum(values), values[3] + values[4]
+        except (OSError, ValueError, IndexError):
+            return None
+
+    def since_last(self):
+        now, last = self.read(), self.last
+        self.last = now
+        if now is None or last is None or now[0] <= last[0]:
+            return None
+        return (now[1] - last[1]) / (now[0] - last[0]) * os.cpu_count()
+
+
+def run_all(sequences, jobs, report, most=None):
+    """Run the sequences, each in a process of its own, `jobs` at a time (longest first: the order
+    given), and more, up to `most`, while the machine leaves a core idle: most tests wait part of the
+    time (a compiler, a sandbox starting, a Python check), which leaves a core of a 2-core machine idle
+    on and off at 3 at a time.  An extra test starts only after a second with over 0.7 cores idle,
+    one at a time; a machine busy with other work never gets more than `jobs`."""
     SEQUENCES[:] = sequences
     if jobs == 1:
         for sequence in sequences:
             for result in run_sequence(sequence):
                 report(*result)
         return
-    fork = multiprocessing.get_context("fork")  # the workers inherit the loaded test modules
-    work, results = fork.Queue(), fork.Queue()
-    workers = [fork.Process(target=worker, args=(work, results), daemon=True) for _ in range(jobs)]
-    for p in workers:
-        p.start()
-    for index in range(len(sequences)):
-        work.put(index)
-    for _ in workers:
-        work.put(None)
-    for _ in range(len(sequences)):
-        for result in results.get():
+    fork = multiprocessing.get_context("fork")  # the children inherit the loaded test modules
+    results, pending, running = fork.Queue(), list(range(len(sequences))), {}
+    idle, spare, looked = IdleCores(), None, time.monotonic()  # spare: idle cores over the last look's second
+    while pending or running:
+        if time.monotonic() - looked >= 1.0:
+            spare, looked = idle.since_last(), time.monotonic()
+        extra = len(running) < (most or jobs) and spare is not None and spare > 0.7
+        if pending and (len(running) < jobs or extra):
+            index = pending.pop(0)
+            running[index] = fork.Process(target=run_in_child, args=(index, results), daemon=True)
+            running[index].start()
+            idle.since_last()  # the next look covers only the time since this start
+            spare, looked = None, time.monotonic()
+            continue
+        try:
+            index, finished = results.get(timeout=1.0)
+        except queue.Empty:
+            continue
+        for result in finished:
             report(*result)
-    for p in workers:
-        p.join()
+        running.pop(index).join()
 
 
 def parse_arguments(args):
     if "-h" in args or "--help" in args:
         print(__doc__.strip())
         sys.exit(0)
-    options = {"-k": None, "-j": str(min(4, len(os.sched_getaffinity(0)) + 1))}
+    options = {"-k": None, "-j": None}
     rest, flags = [], set()
     while args:
         word = args.pop(0)
@@ -235,9 +272,9 @@ def parse_arguments(args):
             bad(word)
         else:
             rest.append(word)
-    if not options["-j"].isdigit() or not 1 <= int(options["-j"]) <= 64:
+    if options["-j"] is not None and (not options["-j"].isdigit() or not 1 <= int(options["-j"]) <= 64):
         bad(f"-j {options['-j']} (a number of tests at a time, 1 to 64)")
-    return options["-k"], int(options["-j"]), flags, rest or ["build"]
+    return options["-k"], options["-j"] and int(options["-j"]), flags, rest or ["build"]
 
 
 def bad(what):
@@ -247,6 +284,10 @@ def bad(what):
 
 def main():
     only, jobs, flags, builds = parse_arguments(sys.argv[1:])
+    most = None  # -j N: N at a time; by default one more than the CPUs, and up to two more on idle cores
+    if jobs is None:
+        jobs = min(4, len(os.sched_getaffinity(0)) + 1)
+        most = jobs + 2
     cluster = "--cluster" in flags
     counts = {"passed": 0, "failed": 0}
     measured = {}
@@ -265,7 +306,7 @@ def main():
     # on a loaded 2-core machine (chapter 5: 1.3 s of CPU at 64 passes spinning, 0.05 s passive).
     os.environ.setdefault("OMP_WAIT_POLICY", "passive")
     side_by_side, by_itself = plan(builds, only, cluster)
-    run_all(side_by_side, jobs, report)
+    run_all(side_by_side, jobs, report, most)
     run_all(by_itself, 1, report)
     if "--save-durations" in flags:
         save_durations(measured)
