@@ -14,6 +14,8 @@ from lib import (CHANNELS, CRITERION_ALPHA, ROOT, check_bad_input, check_probes_
                  lambert_polygon_irradiance, probe)
 from lib import BATCH_DF, t_bound
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 CHAPTER = "01_local"
 
 # A floor (normal +y) seen from straight above, for pixel-exact checks.

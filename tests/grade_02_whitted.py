@@ -17,6 +17,8 @@ import os
 from lib import (CHANNELS, check_bad_input, check_thread_independence, expect, expect_at_least, expect_at_most,
                  expect_between, expect_close, expect_image, finite_image)
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 CHAPTER = "02_whitted"
 FLOAT = 2e-6  # relative rounding of float32 pixels after a few double operations
 

@@ -21,6 +21,8 @@ from lib import (CHANNELS, check_thread_independence, expect, expect_at_least, e
                  expect_close, expect_each, expect_image, finite_image, lambert_polygon_irradiance, probe, read_json,
                  record_command)
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 CHAPTER = "03_radiosity"
 
 HOWELL_PARALLEL = 0.19982       # unit squares, facing, distance 1 (Howell C-11)

@@ -18,6 +18,8 @@ from lib import CHANNELS, check_thread_independence, expect, expect_between, exp
 from grade_03_radiosity import (check_meshed_ball, check_smooth_t_vertices, furnace, read_ply,
                                 row_sum_bounds, surfaces)
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 CHAPTER = "03c_hierarchical"
 UNIFORM = "03_radiosity"  # chapter 3: the uniform solve it approximates
 

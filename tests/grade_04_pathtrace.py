@@ -37,6 +37,8 @@ from lib import expect_estimate, expect_surfaces_match_radiosity  # the report's
 from lib import CHANNELS, expect, expect_close, lambert_polygon_irradiance  # several lights, MIS
 from lib import expect_at_least, expect_image  # the report's sentences
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 CHAPTER = "04_pathtrace"
 ESTIMATORS = ("hemisphere", "cosine", "light", "mis")
 

@@ -37,6 +37,8 @@ from lib import expect_estimate, expect_surfaces_match_radiosity  # the report's
 from lib import CHANNELS, expect, expect_between  # several lights, probes and the radius
 from lib import expect_at_least, expect_at_most, expect_close, expect_image  # the report's sentences
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 CHAPTER = "05_photonmap"
 # Renders (seeds) behind an image mean: their spread gives its standard error with RENDERS - 1
 # degrees of freedom.  With 5 (six renders) Student's t at 5e-5 (CRITERION_ALPHA over four

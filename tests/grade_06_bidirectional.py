@@ -28,6 +28,8 @@ from lib import furnace_scene  # the furnace of scenes/furnace-pt.scene with Le 
 from lib import BATCH_DF, ROOT, check_bad_input, check_thread_independence, finite_image, probe, t_bound
 from lib import CHANNELS, expect, expect_at_most, expect_estimate
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 CHAPTER = "06_bidirectional"
 RENDERS = 32  # seeds behind every image mean: 31 degrees of freedom
 

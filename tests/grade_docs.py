@@ -8,6 +8,8 @@ import re
 
 from lib import ROOT
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 
 def built_chapters(ctx):
     return sorted(os.path.basename(p) for p in glob.glob(os.path.join(ROOT, ctx.build, "0*_*"))

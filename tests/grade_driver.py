@@ -9,6 +9,8 @@ import time
 
 from lib import ROOT, finite_image, read_json, read_pfm
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 CHAPTER = "01_local"
 
 

@@ -20,6 +20,8 @@ import subprocess
 
 from lib import ROOT, finite_image, lambert_polygon_irradiance, probe
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 CHAPTERS = ("01_local", "02_whitted", "03_radiosity", "03c_hierarchical", "04_pathtrace", "05_photonmap",
             "07_metropolis")  # 06: grade_06
 MARKOV_CHAIN = "07_metropolis"  # its pixels are not comparable one by one (module docstring)

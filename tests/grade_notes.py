@@ -19,6 +19,8 @@ import re
 
 from lib import ROOT
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 NOTES = os.path.join(ROOT, "docs", "lecture-notes.md")
 SCENE_FORMAT = os.path.join(ROOT, "docs", "scene-format.md")
 

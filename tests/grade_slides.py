@@ -32,6 +32,8 @@ import sys
 import lib
 from lib import ROOT
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 PYTHON = sys.executable or "/usr/bin/python3"
 WORK = os.path.join(ROOT, "build", "slides")
 OUT = os.path.join(WORK, "draft")  # not out/slides: `make slides` builds those at full quality

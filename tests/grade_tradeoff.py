@@ -51,6 +51,8 @@ import subprocess
 
 import lib
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 PYTHON = "/usr/bin/python3"
 SCRIPT = os.path.join(lib.ROOT, "tradeoff", "tradeoff.py")
 # The quick run's scenes: tradeoff.py's SCENES less NOT_QUICK (smallpt runs only in a full run or when SCENES names it).

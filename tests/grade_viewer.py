@@ -41,6 +41,8 @@ import time
 import lib
 import png  # kit/png.py (tests/lib.py puts kit/ on the path)
 
+GRADES_NOTHING = True  # no grading, no handout: may run beside the RUN_ALONE tests (tests/run.py)
+
 # The documented layout (build/viewer --help) at the default font size 14:
 FONT_PX = 14
 LINE = FONT_PX + 4

@@ -31,8 +31,9 @@ runs in a process of its own.  Every test has its own scratch directory.  A modu
                           another in one worker, in the order given;
   RUN_ALONE = {names}     (or True: every test of the module) these tests check what the whole
                           machine holds afterwards (no temporary directory, cgroup or process left
-                          by a grading, the instructor's tree unchanged): they run last, one at a
-                          time, with nothing beside them; the module's other tests run side by side.
+                          by a grading, the instructor's tree unchanged): they run first, one at a
+                          time, beside only C unit tests and tests of modules that say
+                          GRADES_NOTHING = True; the module's other tests run side by side.
 """
 import glob
 import importlib.util
@@ -219,27 +220,41 @@ class IdleCores:
         return (now[1] - last[1]) / (now[0] - last[0]) * os.cpu_count()
 
 
-def run_all(sequences, jobs, report, most=None):
-    """Run the sequences, each in a process of its own, `jobs` at a time (longest first: the order
-    given), and more, up to `most`, while the machine leaves a core idle: most tests wait part of the
-    time (a compiler, a sandbox starting, a Python check), which leaves a core of a 2-core machine idle
-    on and off at 3 at a time.  An extra test starts only after a second with over 0.7 cores idle,
-    one at a time; a machine busy with other work never gets more than `jobs`."""
-    SEQUENCES[:] = sequences
+def beside_alone(sequence):
+    """Whether the sequence may run beside the RUN_ALONE tests: C unit tests, and tests of modules
+    that say GRADES_NOTHING (no grading, no handout: none of the files, cgroups or processes the
+    RUN_ALONE tests look for, nothing written in the instructor's tree)."""
+    return all(function is run_unit_test or getattr(arguments[0], "GRADES_NOTHING", False)
+               for function, build, *arguments in sequence)
+
+
+def run_all(sequences, alone, jobs, report, most=None):
+    """Run the RUN_ALONE tests (alone: one sequence) first, one after another, beside only sequences
+    that may run beside them (beside_alone), and the other sequences, each in a process of its own,
+    `jobs` at a time (longest first: the order given), and more, up to `most`, while the machine leaves
+    a core idle: most tests wait part of the time (a compiler, a sandbox starting, a Python check),
+    which leaves a core of a 2-core machine idle on and off at 3 at a time.  An extra test starts only
+    after a second with over 0.7 cores idle, one at a time; a machine busy with other work never gets
+    more than `jobs`."""
+    SEQUENCES[:] = ([alone] if alone else []) + sequences
     if jobs == 1:
-        for sequence in sequences:
+        for sequence in SEQUENCES:
             for result in run_sequence(sequence):
                 report(*result)
         return
     fork = multiprocessing.get_context("fork")  # the children inherit the loaded test modules
-    results, pending, running = fork.Queue(), list(range(len(sequences))), {}
+    results, pending, running = fork.Queue(), list(range(len(SEQUENCES))), {}
+    alone_index = 0 if alone else None
     idle, spare, looked = IdleCores(), None, time.monotonic()  # spare: idle cores over the last look's second
     while pending or running:
         if time.monotonic() - looked >= 1.0:
             spare, looked = idle.since_last(), time.monotonic()
         extra = len(running) < (most or jobs) and spare is not None and spare > 0.7
-        if pending and (len(running) < jobs or extra):
-            index = pending.pop(0)
+        allowed = [i for i in pending if alone_index not in running and alone_index not in pending
+                   or i == alone_index or beside_alone(SEQUENCES[i])]
+        if allowed and (len(running) < jobs or extra):
+            index = allowed[0]
+            pending.remove(index)
             running[index] = fork.Process(target=run_in_child, args=(index, results), daemon=True)
             running[index].start()
             idle.since_last()  # the next look covers only the time since this start
@@ -306,8 +321,7 @@ def main():
     # on a loaded 2-core machine (chapter 5: 1.3 s of CPU at 64 passes spinning, 0.05 s passive).
     os.environ.setdefault("OMP_WAIT_POLICY", "passive")
     side_by_side, by_itself = plan(builds, only, cluster)
-    run_all(side_by_side, jobs, report, most)
-    run_all(by_itself, 1, report)
+    run_all(side_by_side, [task for sequence in by_itself for task in sequence], jobs, report, most)
     if "--save-durations" in flags:
         save_durations(measured)
     print(f"{counts['passed']} passed, {counts['failed']} failed")
