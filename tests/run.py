@@ -20,12 +20,13 @@ and ends with the line "N passed, N failed".  Exit status 1 if anything failed. 
 make test's budget, which its wall time, stretched by whatever ran beside it, does not say.
 
 Tests run longest first (tests/durations.json: the seconds each took when last saved, 5 for a
-test not there), so that no worker is left with a long one at the end.  Tests run side by side (-j): most of them wait on one-threaded work (a Python check, a compiler, a
-sandbox, a short render) part of the time: two at a time kept a 2-core machine 1.6 cores busy on
-average (a fresh clone's `make test`: 26.6 CPU minutes in 16.5), and so did three (1407 CPU s in
-14:02), so one more than the CPUs run at once, and another (at most two more) whenever the machine
-has left over 0.7 of a core idle for a second since the last one started.  Each sequence of tests
-runs in a process of its own.  Every test has its own scratch directory.  A module says what else it needs:
+test not there), so that no worker is left with a long one at the end.  Tests run side by side (-j):
+most of them wait on one-threaded work (a Python check, a compiler, a sandbox, a short render) part
+of the time: two at a time kept a 2-core machine 1.6 cores busy on average (a fresh clone's `make
+test`: 26.6 CPU minutes in 16.5), and so did three (1407 CPU s in 14:02), so one more than the CPUs
+run at once, and another (at most two more) whenever the machine has left over half a core idle for
+a second since the last one started (IDLE_FOR_ANOTHER).  Each sequence of tests runs in a process of
+its own.  Every test has its own scratch directory.  A module says what else it needs:
   RUN_IN_SEQUENCE = True  its tests share files outside their scratch (the decks in build/slides that
                           the sanitizer pass reuses): over all build directories they run one after
                           another in one worker, in the order given;
@@ -193,6 +194,9 @@ def run_in_child(index, results):
 
 
 SEQUENCES = []
+# Another test starts beside the usual number when the machine left this much of a core idle over a second
+# (0.7 in a fresh clone's make test: rarely reached with three running, 1.76 of 2 cores busy on average).
+IDLE_FOR_ANOTHER = 0.5
 
 
 class IdleCores:
@@ -234,7 +238,7 @@ def run_all(sequences, alone, jobs, report, most=None):
     `jobs` at a time (longest first: the order given), and more, up to `most`, while the machine leaves
     a core idle: most tests wait part of the time (a compiler, a sandbox starting, a Python check),
     which leaves a core of a 2-core machine idle on and off at 3 at a time.  An extra test starts only
-    after a second with over 0.7 cores idle, one at a time; a machine busy with other work never gets
+    after a second with over IDLE_FOR_ANOTHER cores idle, one at a time; a machine busy with other work never gets
     more than `jobs`."""
     SEQUENCES[:] = ([alone] if alone else []) + sequences
     if jobs == 1:
@@ -249,7 +253,7 @@ def run_all(sequences, alone, jobs, report, most=None):
     while pending or running:
         if time.monotonic() - looked >= 1.0:
             spare, looked = idle.since_last(), time.monotonic()
-        extra = len(running) < (most or jobs) and spare is not None and spare > 0.7
+        extra = len(running) < (most or jobs) and spare is not None and spare > IDLE_FOR_ANOTHER
         allowed = [i for i in pending if alone_index not in running and alone_index not in pending
                    or i == alone_index or beside_alone(SEQUENCES[i])]
         if allowed and (len(running) < jobs or extra):
