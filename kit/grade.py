@@ -268,7 +268,8 @@ def prepare(submission, work, chapters, stubbed_chapters=()):
         else:
             missing.append(rel)
     for top, dirs, files in os.walk(work):
-        os.chmod(top, 0o755)
+        if top != work:  # work itself stays mkdtemp's 0700 until private_scratch opens it to the sandbox's uid
+            os.chmod(top, 0o755)
         for f in files:
             os.chmod(os.path.join(top, f), 0o644)
     os.makedirs(os.path.join(src, "build"))
