@@ -770,7 +770,8 @@ def die_with(grader):
     """In the child about to exec the sandbox: SIGKILL when the grader dies.  bwrap's --die-with-parent
     starts only once bwrap runs; a grader killed between the fork and that moment would leave the
     sandbox running on (an orphan, its build or render to the end), so the child asks for the signal
-    itself (after setuid, which clears it; exec keeps it) and gives up if the grader is already gone."""
+    itself (after setuid, which clears it; exec keeps it) and gives up if the grader is already gone.
+    The signal follows the thread that forked: every caller waits for its child in that thread."""
     libc = ctypes.CDLL(None, use_errno=True)
     if libc.prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0) != 0 or os.getppid() != grader:
         os._exit(1)

@@ -8,7 +8,7 @@ usage: tests/run.py [-k TEXT] [-j N] [--cluster] [--save-durations] BUILD_DIR [B
   --cluster   run the class-scale tests instead (the instructor's tests named "cluster_" here: hosts over
               ssh, Slurm, the Gradescope container; `make test-cluster`; long, so not part of `make test`)
   -j N        run N tests at a time (default: one more than the CPUs this process may use, at most 4,
-              and up to two more while the machine leaves a core idle)
+              and up to two more while the machine leaves half a core idle)
   --save-durations  write each grading test's time into tests/durations.json (the order of the next runs)
   -h, --help  this text
 
@@ -194,8 +194,9 @@ def run_in_child(index, results):
 
 
 SEQUENCES = []
-# Another test starts beside the usual number when the machine left this much of a core idle over a second
-# (0.7 in a fresh clone's make test: rarely reached with three running, 1.76 of 2 cores busy on average).
+# Another test starts beside the usual number when the machine left this much of a core idle over a second.
+# Fresh clones' make test, idle 2-core machine: 11:15 at 0.7 (three running almost throughout, 1.76 cores
+# busy), 10:33 and 11:12 at 0.5 (1.75): no difference the runs can show.
 IDLE_FOR_ANOTHER = 0.5
 
 
@@ -236,10 +237,9 @@ def run_all(sequences, alone, jobs, report, most=None):
     """Run the RUN_ALONE tests (alone: one sequence) first, one after another, beside only sequences
     that may run beside them (beside_alone), and the other sequences, each in a process of its own,
     `jobs` at a time (longest first: the order given), and more, up to `most`, while the machine leaves
-    a core idle: most tests wait part of the time (a compiler, a sandbox starting, a Python check),
-    which leaves a core of a 2-core machine idle on and off at 3 at a time.  An extra test starts only
-    after a second with over IDLE_FOR_ANOTHER cores idle, one at a time; a machine busy with other work never gets
-    more than `jobs`."""
+    cores idle: most tests wait part of the time (a compiler, a sandbox starting, a Python check).  An
+    extra test starts only after a second with over IDLE_FOR_ANOTHER cores idle, one at a time; a
+    machine busy with other work never gets more than `jobs`."""
     SEQUENCES[:] = ([alone] if alone else []) + sequences
     if jobs == 1:
         for sequence in SEQUENCES:
@@ -254,8 +254,8 @@ def run_all(sequences, alone, jobs, report, most=None):
         if time.monotonic() - looked >= 1.0:
             spare, looked = idle.since_last(), time.monotonic()
         extra = len(running) < (most or jobs) and spare is not None and spare > IDLE_FOR_ANOTHER
-        allowed = [i for i in pending if alone_index not in running and alone_index not in pending
-                   or i == alone_index or beside_alone(SEQUENCES[i])]
+        alone_busy = alone_index in running or alone_index in pending
+        allowed = [i for i in pending if not alone_busy or i == alone_index or beside_alone(SEQUENCES[i])]
         if allowed and (len(running) < jobs or extra):
             index = allowed[0]
             pending.remove(index)
