@@ -1134,25 +1134,34 @@ int scene_intersect_brute_force(const scene *s, ray r, double t_max, hit *out)
 }
 
 /* Is testing every primitive cheaper than the tree, for rays that start
- * where rays start: on the primitives?  Measured by the tree itself on 256
- * such rays (from primitives spread over the list, directions uniform from
- * a fixed seed): the nodes, leaves and primitives they test on average, plus
- * one for the ray's set-up (setup_wide_ray), against one test per
- * primitive.  A node test, a leaf's visit (pop, sort) and a primitive test
- * cost about alike (measured).  smallpt's scene (nine spheres, six of them
- * walls whose boxes hold the whole room): 9.8 with the tree against 9, and
- * 1.6-1.7x the rays per second without it (bench_embree).  The Cornell box
- * (32 triangles): 8.6 against 32, and 2.2x faster with the tree; 6 quads
+ * where rays start: on the primitives?  Measured by the tree itself on up
+ * to 64 such rays (from primitives spread over the list, directions uniform
+ * from a fixed seed): the nodes, leaves and primitives they test on
+ * average, plus one for the ray's set-up (setup_wide_ray), against one test
+ * per primitive.  A node test, a leaf's visit (pop, sort) and a primitive
+ * test cost about alike (measured).  smallpt's scene (nine spheres, six of
+ * them walls whose boxes hold the whole room): 9.8 with the tree against 9,
+ * and 1.6-1.7x the rays per second without it (bench_embree).  The Cornell
+ * box (32 triangles): 8.6 against 32, and 2.2x faster with the tree; 6 quads
  * (scenes/crease.scene): 5.1 against 6, alike.  The choice changes no
- * result: both test every primitive they test with primitive_hit. */
+ * result: both test every primitive they test with primitive_hit.
+ *
+ * The rays cost: 256 of them took 40 us, 3.5x what the Cornell box's whole
+ * build takes Embree (bench_embree --builds-only).  So they stop after 16
+ * once the mean is under half or over twice the primitives (the Cornell
+ * box: 8.6 against 32), and only a near tie (smallpt) takes all 64.  The
+ * k-th ray starts on primitive frac(k phi) n (phi the golden ratio), so
+ * that the first 16 already spread over the whole list. */
+enum { LINEAR_RAYS = 64, LINEAR_RAYS_CLEAR = 16 };
 static int linear_is_cheaper(const scene *s)
 {
-    const int rays = 256, n = s->bvh.primitive_count;
-    int tests = rays; /* the set-ups */
-    for (int i = 0; i < rays; i++) {
-        rng g = rng_for(0x6c696e656172ull, (uint64_t)i, 0);
+    const int n = s->bvh.primitive_count;
+    int tests = 0, rays = 0;
+    while (rays < LINEAR_RAYS) {
+        rng g = rng_for(0x6c696e656172ull, (uint64_t)rays, 0);
         vec3 d = uniform_sample_sphere(rng_uniform(&g), rng_uniform(&g)), point, normal;
-        int primitive = (int)((uint64_t)i * (uint64_t)n / (uint64_t)rays);
+        uint64_t spread = ((uint64_t)rays * 0x9e3779b97f4a7c15ull) >> 32; /* frac(rays phi) in 32 bits */
+        int primitive = (int)((spread * (uint64_t)n) >> 32);
         if (primitive < s->triangle_count) {
             const triangle *t = &s->triangles[primitive];
             point = v3_madd(t->p0, v3_add(t->e1, t->e2), 1.0 / 3.0);
@@ -1164,7 +1173,11 @@ static int linear_is_cheaper(const scene *s)
         }
         double t;
         int found;
+        tests++; /* the set-up */
         traverse(s, scene_offset_origin(s, point, normal, d), d, INFINITY, 0, &t, &found, &tests);
+        rays++;
+        if (rays >= LINEAR_RAYS_CLEAR && (tests > 2 * n * rays || 2 * tests < n * rays))
+            break;
     }
     return n * rays <= tests;
 }
