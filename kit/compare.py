@@ -25,6 +25,7 @@ import math
 import os
 import random
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -120,9 +121,12 @@ def batch_renders(root, build, c, seeds, jobs):
     """[(w, h, pixels)] for each seed, rendered jobs at a time."""
     scratch = tempfile.mkdtemp(prefix="gi-kit-")
     lib.record_command(c["chapter"], render_command("", c, seeds[0], "")[1:])  # the first batch's, for the report
-    with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
-        futures = [pool.submit(render, root, build, c, s, os.path.join(scratch, f"b{s}.pfm")) for s in seeds]
-        images = [f.result() for f in futures]
+    try:
+        with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, jobs)) as pool:
+            futures = [pool.submit(render, root, build, c, s, os.path.join(scratch, f"b{s}.pfm")) for s in seeds]
+            images = [f.result() for f in futures]
+    finally:  # read into memory: the files are not needed (a calibration renders thousands)
+        shutil.rmtree(scratch, ignore_errors=True)
     sizes = {(w, h) for w, h, _ in images}
     if len(sizes) != 1:
         raise CriterionFailed(f"renders of different sizes {sorted(sizes)}")
@@ -190,8 +194,12 @@ def preview_command(c):
 def render_preview(root, build, c, threads):
     """(width, height, 8-bit colours) of one render of criterion c at PREVIEW_SIZE (preview_criterion),
     at most PREVIEW_TIMEOUT seconds; CriterionFailed when it fails."""
-    out = os.path.join(tempfile.mkdtemp(prefix="gi-kit-"), "preview.pfm")
-    w, h, pixels = render(root, build, preview_criterion(c), PREVIEW_SEED, out, threads, PREVIEW_TIMEOUT)
+    scratch = tempfile.mkdtemp(prefix="gi-kit-")
+    try:
+        w, h, pixels = render(root, build, preview_criterion(c), PREVIEW_SEED, os.path.join(scratch, "preview.pfm"),
+                              threads, PREVIEW_TIMEOUT)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
     return w, h, png.tone_mapped(pixels)
 
 
@@ -439,13 +447,15 @@ def surfaces_of(root, build, c):
            "--stats", os.path.join(out, "s.json"),
            *c.get("args", [])]
     lib.record_command(c["chapter"], cmd[1:], out)
-    run_chapter(root, c, cmd)
     try:
+        run_chapter(root, c, cmd)
         data = lib.read_json(os.path.join(out, "s.json"))
         surfaces = {s["name"]: s["radiance"] for s in data["surfaces"]}
         converged, residual = data.get("converged"), data.get("residual")
     except (OSError, ValueError, KeyError, TypeError) as e:
         raise CriterionFailed(f"no readable 'surfaces' in the stats: {e}")
+    finally:
+        shutil.rmtree(out, ignore_errors=True)
     if converged is False:
         raise CriterionFailed(f"the solver did not converge in {c.get('iterations', 500)} iterations "
                               f"(residual {residual}, --tol {c.get('tol', 1e-6)})")

@@ -796,6 +796,9 @@ def main(argv):
     if not opts.get("unsafe", False):
         sandbox.remove_stale_groups()  # a killed grading's (SIGKILL), empty
     work = tempfile.mkdtemp(prefix=f"{SCRATCH_PREFIX}{os.getpid()}-")
+    # The grader's own temporaries (a run's captured output, the judge's session) inside work too: a
+    # grading killed by SIGKILL leaves them where the next grading's remove_stale_scratch looks.
+    tempfile.tempdir = work
     stops = os.path.join(work, "stops.jsonl")  # the runs a cap stopped (kit/sandbox.py record_stop)
     os.environ[sandbox.STOPS_VARIABLE] = stops
     try:

@@ -9,7 +9,6 @@ about 3 s each; they do not depend on the build under test, so under the sanitiz
 pass without running.
 """
 import ast
-import atexit
 import html
 import importlib.util
 import json
@@ -36,7 +35,13 @@ def scratch_dir():
     return d
 
 
-atexit.register(lambda: [shutil.rmtree(d, ignore_errors=True) for d in _SCRATCH])
+def tear_down():
+    """The handouts made (tests/run.py calls it after the tests that made them)."""
+    for d in _SCRATCH:
+        shutil.rmtree(d, ignore_errors=True)
+    _SCRATCH.clear()
+    _HANDOUTS.clear()
+
 
 _HANDOUTS = {}
 

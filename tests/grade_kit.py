@@ -129,6 +129,7 @@ def test_grading_seed_shifts_every_chapter_seed(ctx):
                               32, *extra, name="seeded")
         images.append(img.pixels)
         assert stats["seed"] == lib.shifted_seed(extra[1] if extra else 1, 7)
+    c.close()
     assert images[0] == images[1] != images[2]
     # kit/criterion.py with SEED 5: the grade test (this kit's own, never the submission's) sees
     # Context(build, seed=5): its run without --seed gets --seed shifted_seed(1, 5).
@@ -373,3 +374,25 @@ def test_class_summary_plots_limits_and_retries(ctx):
     with open(ctx.path("failing/summary.csv")) as f:
         row = next(csv.DictReader(f))
     assert row["status"] == "not graded (exit status 2; see h.log)" and len(row["attempts"].split("+")) == 2, row
+
+
+def test_the_kit_leaves_no_temporary_files(ctx):
+    """A compare criterion's renders, its preview and a surfaces criterion's run are read into memory and
+    their temporary directories removed: a calibration of 60 seeds once left 1,000 directories of
+    PFMs in /tmp.  (A grading's own temporaries are inside its scratch: grade_sandbox's leftovers.)"""
+    import tempfile
+    import compare
+    rub = rubric.load(ROOT)
+    pick = {c["name"]: c for c in rub["criteria"]}
+    before, tempfile.tempdir = tempfile.tempdir, ctx.path("tmp")
+    os.makedirs(tempfile.tempdir)
+    try:
+        images = compare.batch_renders(ROOT, ctx.build, pick["classic blinn vs reference"], [1, 2], 2)
+        assert len(images) == 2 and images[0][:2] == (16, 16)
+        w, h, _ = compare.render_preview(ROOT, ctx.build, pick["classic blinn vs reference"], 1)
+        surfaces = compare.surfaces_of(ROOT, ctx.build, pick["jacobi surfaces vs reference"])
+        assert w * h > 0 and surfaces
+        left = os.listdir(tempfile.tempdir)
+    finally:
+        tempfile.tempdir = before
+    assert not left, f"the kit left {left} in the temporary directory"

@@ -19,7 +19,6 @@ import os
 import re
 import subprocess
 import sys
-import tempfile
 
 import lib
 from lib import ROOT
@@ -67,7 +66,7 @@ def write_back(tree, written, mistake=None):
 def test_report_names_stubs_and_says_which_way_each_criterion_is_off(ctx):
     if lib.sanitizer_build(ctx):
         return  # kit/grade.py builds the handout itself, whatever the build: the same run in both passes
-    tree = handout(os.path.join(tempfile.mkdtemp(prefix="gi-report-"), "student"))
+    tree = handout(ctx.path("student"))
     with open(os.path.join(tree, "kit", "handout.json")) as f:
         stubbed = {s.split(":")[-1] for s in json.load(f)["stubbed"]}
     found = {name for _, _, name in grade.stubs_in_source(tree, grade.submitted_files([CHAPTER]))}

@@ -8,6 +8,7 @@ import math
 import os
 import re
 import subprocess
+import shutil
 import tempfile
 
 import sys
@@ -350,7 +351,21 @@ class Context:
     def __init__(self, build, seed=None):
         self.build = build
         self.seed = seed
-        self.scratch = tempfile.mkdtemp(prefix="gi-test-")
+        self._scratch = None
+
+    @property
+    def scratch(self):
+        """The test's scratch directory, made when first asked for (a Context that only seeds
+        arguments leaves no empty directory behind); whoever made the Context removes it (close)."""
+        if self._scratch is None:
+            self._scratch = tempfile.mkdtemp(prefix="gi-test-")
+        return self._scratch
+
+    def close(self):
+        """Remove the scratch directory, if one was made."""
+        if self._scratch is not None:
+            shutil.rmtree(self._scratch, ignore_errors=True)
+            self._scratch = None
 
     def seeded(self, args):
         """The argument list `args` (strings) with the context's seed applied (see the class)."""

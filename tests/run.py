@@ -34,7 +34,10 @@ its own.  Every test has its own scratch directory.  A module says what else it 
                           machine holds afterwards (no temporary directory, cgroup or process left
                           by a grading, the instructor's tree unchanged): they run first, one at a
                           time, beside only C unit tests and tests of modules that say
-                          GRADES_NOTHING = True; the module's other tests run side by side.
+                          GRADES_NOTHING = True; the module's other tests run side by side;
+  tear_down()             called after the sequence that ran the module's tests, in the process that
+                          ran them (a module's cache of handouts: a sequence's process ends with
+                          os._exit, which runs no atexit handler).
 """
 import glob
 import importlib.util
@@ -96,7 +99,7 @@ def run_grading_test(build, module, name):
     start, cpu = time.time(), cpu_seconds()
     try:
         getattr(module, name)(ctx)
-        shutil.rmtree(ctx.scratch, ignore_errors=True)  # a failed test's files are kept to look at
+        ctx.close()  # a failed test's files are kept to look at
         return [(full, True, f"{time.time() - start:.1f} s, {cpu_seconds() - cpu:.1f} CPU s")]
     except Exception as e:  # an AssertionError is a failed grade; anything else too
         detail = str(e) if isinstance(e, AssertionError) else traceback.format_exc()
@@ -180,9 +183,15 @@ def save_durations(measured):
 
 def run_sequence(sequence):
     results = []
-    for function, build, *arguments in sequence:
-        use_environment_of(build)
-        results += function(build, *arguments)
+    try:
+        for function, build, *arguments in sequence:
+            use_environment_of(build)
+            results += function(build, *arguments)
+    finally:
+        modules = {id(a[0]): a[0] for f, b, *a in sequence if f is run_grading_test}
+        for module in modules.values():
+            if hasattr(module, "tear_down"):
+                module.tear_down()
     return results
 
 
