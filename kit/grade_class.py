@@ -26,7 +26,7 @@ usage: kit/grade_class.py [--report DIR] [--jobs N] [--sshloginfile FILE [--ssh 
   --retries N  a grading that fails (its machine lost, ssh failing, a grader that crashed) is tried again,
                on another machine where there is one, up to N times in all (default 3 with
                --sshloginfile, else 1); then a last pass (GNU parallel's --resume-failed) regrades what
-               still failed once more
+               still failed once more, on the machines that answer over ssh then (DIR/last-pass-logins)
   --chapters, --seed, --rubric, --timeout, --memory, --sandbox, --unsafe, --public   as kit/grade.py's
   --slurm      grade on a Slurm cluster instead: one job array, a task per submission (several arrays where the
                class is larger than the cluster's MaxArraySize), a task that ends without a report (node lost,
@@ -70,8 +70,12 @@ DEFAULT_SSH = "ssh -o BatchMode=yes -o ConnectTimeout=30 -o ServerAliveInterval=
 
 
 def fail(message):
-    print(f"kit/grade_class.py: {message}", file=sys.stderr)
+    say(message)
     sys.exit(2)
+
+
+def say(message):
+    print(f"kit/grade_class.py: {message}", file=sys.stderr, flush=True)
 
 
 # ---- options and the students ---------------------------------------------------------------------
@@ -213,10 +217,57 @@ def run_parallel(table, opts):
     subprocess.run(cmd + words + ["::::", table], stdin=subprocess.DEVNULL)
     status = read_joblog(joblog)
     if any(s["exit"] != "0" for s in status.values()) or len(status) < sum(1 for _ in open(table)):
-        # what failed (a machine lost with all its retries, a grader that crashed) or never ran, once more
+        # what failed (a machine lost with all its retries, a grader that crashed) or never ran, once more,
+        # on the machines that still answer
+        if opts["sshloginfile"]:
+            logins = reachable_logins(opts["sshloginfile"], opts["ssh"] or DEFAULT_SSH,
+                                      os.path.join(opts["report"], "last-pass-logins"))
+            if logins is None:
+                say("no machine of the login file answers over ssh: no last pass")
+                return status
+            cmd[cmd.index("--sshloginfile") + 1] = logins
         subprocess.run(cmd + ["--resume-failed"] + words + ["::::", table], stdin=subprocess.DEVNULL)
         status = read_joblog(joblog)
     return status
+
+
+PROBE_SECONDS = 90  # an ssh that has not logged in and run `true` by then: the machine is lost
+
+
+def reachable_logins(path, ssh, out):
+    """A copy of the login file `path` at `out` without the machines that do not answer `ssh MACHINE true`
+    now (asked all at once, at most PROBE_SECONDS): GNU parallel sends work to every machine of its
+    file, a lost one too, and with --retries 1 a last pass's grading sent there would fail again.
+    None if no machine answers.  Lines GNU parallel reads but this does not (a login that is an ssh
+    command of its own) are kept."""
+    import concurrent.futures
+    lines = []
+    try:
+        with open(path) as f:
+            lines = [ln.strip() for ln in f if ln.strip() and not ln.lstrip().startswith("#")]
+    except OSError:
+        return path  # GNU parallel's own names (.., -): left to it
+    logins = [ln.split("/", 1)[1] if re.match(r"\d+/", ln) else ln for ln in lines]
+
+    def answers(login):
+        if login == ":" or not re.fullmatch(r"[\w.@:%+-]+", login):
+            return True
+        try:
+            return subprocess.run(shlex.split(ssh) + [login, "true"], stdin=subprocess.DEVNULL,
+                                  capture_output=True, timeout=PROBE_SECONDS).returncode == 0
+        except subprocess.TimeoutExpired:
+            return False
+    with concurrent.futures.ThreadPoolExecutor(max_workers=min(32, len(logins) or 1)) as pool:
+        alive = list(pool.map(answers, logins))
+    for login, ok in zip(logins, alive):
+        if not ok:
+            say(f"{login} does not answer over ssh: left out of the last pass")
+    kept = [ln for ln, ok in zip(lines, alive) if ok]
+    if not kept:
+        return None
+    with open(out, "w") as f:
+        f.write("\n".join(kept) + "\n")
+    return out
 
 
 # ---- the engine: Slurm (kit/slurm_engine.py) -------------------------------------------------------
