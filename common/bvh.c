@@ -128,6 +128,21 @@ static inline double power_of_two_below(double x)
     return power >= DBL_MIN && power < INFINITY ? power : 1.0;
 }
 
+/* 1 / p for a power of two p from power_of_two_below, without a division
+ * (exact either way): the exponent negated, unless 1 / p would be subnormal. */
+static inline double reciprocal_power_of_two(double p)
+{
+    uint64_t bits;
+    memcpy(&bits, &p, sizeof bits);
+    uint64_t exponent = bits >> 52;
+    if (exponent >= 2046)
+        return 1.0 / p;
+    bits = (2046 - exponent) << 52;
+    double inverse;
+    memcpy(&inverse, &bits, sizeof inverse);
+    return inverse;
+}
+
 /* A primitive's box for the BVH in the tree's units (coordinates / unit,
  * exact), rounded outward to float.  Triangles intersect with a margin
  * around their edges (see triangle_transform), far below a float's
@@ -914,7 +929,7 @@ static ALWAYS_INLINE wide_ray setup_wide_ray(const scene *s, vec3 origin, vec3 d
      * about 1, so t (then also scaled: t_scale) stays in a float's range. */
     double dx = fabs(direction.x), dy = fabs(direction.y), dz = fabs(direction.z);
     double direction_unit = power_of_two_below(dx > dy ? (dx > dz ? dx : dz) : (dy > dz ? dy : dz));
-    double inv_unit = 1.0 / s->bvh.unit, inv_direction_unit = 1.0 / direction_unit;
+    double inv_unit = reciprocal_power_of_two(s->bvh.unit), inv_direction_unit = reciprocal_power_of_two(direction_unit);
     double o[3] = {origin.x * inv_unit, origin.y * inv_unit, origin.z * inv_unit};
     double d[3] = {direction.x * inv_direction_unit, direction.y * inv_direction_unit,
                    direction.z * inv_direction_unit};
