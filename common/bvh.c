@@ -929,7 +929,8 @@ static ALWAYS_INLINE wide_ray setup_wide_ray(const scene *s, vec3 origin, vec3 d
      * about 1, so t (then also scaled: t_scale) stays in a float's range. */
     double dx = fabs(direction.x), dy = fabs(direction.y), dz = fabs(direction.z);
     double direction_unit = power_of_two_below(dx > dy ? (dx > dz ? dx : dz) : (dy > dz ? dy : dz));
-    double inv_unit = reciprocal_power_of_two(s->bvh.unit), inv_direction_unit = reciprocal_power_of_two(direction_unit);
+    double inv_unit = reciprocal_power_of_two(s->bvh.unit),
+           inv_direction_unit = reciprocal_power_of_two(direction_unit);
     double o[3] = {origin.x * inv_unit, origin.y * inv_unit, origin.z * inv_unit};
     double d[3] = {direction.x * inv_direction_unit, direction.y * inv_direction_unit,
                    direction.z * inv_direction_unit};

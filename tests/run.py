@@ -35,9 +35,9 @@ its own.  Every test has its own scratch directory.  A module says what else it 
                           by a grading, the instructor's tree unchanged): they run first, one at a
                           time, beside only C unit tests and tests of modules that say
                           GRADES_NOTHING = True; the module's other tests run side by side;
-  tear_down()             called after the sequence that ran the module's tests, in the process that
-                          ran them (a module's cache of handouts: a sequence's process ends with
-                          os._exit, which runs no atexit handler).
+  a function tear_down    called with no arguments after the sequence that ran the module's tests, in
+                          the process that ran them (a module's cache of handouts: a sequence's
+                          process ends with os._exit, which runs no atexit handler).
 """
 import glob
 import importlib.util
