@@ -396,3 +396,22 @@ def test_the_kit_leaves_no_temporary_files(ctx):
     finally:
         tempfile.tempdir = before
     assert not left, f"the kit left {left} in the temporary directory"
+
+
+def test_the_last_pass_leaves_out_machines_that_do_not_answer(ctx):
+    """kit/grade_class.py reachable_logins: the login file of the last pass keeps this machine (":"),
+    the machines whose `SSH MACHINE true` succeeds and the lines it cannot read as one machine, and
+    drops those whose ssh fails; None when no machine answers.  (Over real sshd hosts, one of them
+    lost: tests/cluster_ssh.py, make test-cluster.)"""
+    sys.path.insert(0, os.path.join(ROOT, "kit"))
+    import grade_class
+    fake_ssh = ctx.write("ssh", "#!/bin/sh\ncase \"$1\" in up*) exit 0;; *) exit 255;; esac\n")
+    os.chmod(fake_ssh, 0o755)
+    logins = ctx.write("logins", "# the class's machines\n2/:\n1/up-host\n1/lost-host\n\n"
+                                 "4/ssh -p 2222 someone@elsewhere\nroot@up2\n")
+    kept = grade_class.reachable_logins(logins, fake_ssh, ctx.path("kept"))
+    with open(kept) as f:
+        assert f.read() == "2/:\n1/up-host\n4/ssh -p 2222 someone@elsewhere\n", open(kept).read()
+    only_lost = ctx.write("lost", "1/lost-host\nlost-too\n")
+    assert grade_class.reachable_logins(only_lost, fake_ssh, ctx.path("none")) is None
+    assert not os.path.exists(ctx.path("none"))
