@@ -1181,7 +1181,7 @@ int scene_intersect_brute_force(const scene *s, ray r, double t_max, hit *out)
 enum { LINEAR_RAYS = 64, LINEAR_RAYS_CLEAR = 16 };
 static int linear_is_cheaper(const scene *s)
 {
-    const int n = s->bvh.primitive_count;
+    const int64_t n = s->bvh.primitive_count; /* 2 n rays would overflow an int from 2^24 primitives */
     int tests = 0, rays = 0;
     while (rays < LINEAR_RAYS) {
         rng g = rng_for(0x6c696e656172ull, (uint64_t)rays, 0);

@@ -449,11 +449,12 @@ def surfaces_of(root, build, c):
     lib.record_command(c["chapter"], cmd[1:], out)
     try:
         run_chapter(root, c, cmd)
-        data = lib.read_json(os.path.join(out, "s.json"))
-        surfaces = {s["name"]: s["radiance"] for s in data["surfaces"]}
-        converged, residual = data.get("converged"), data.get("residual")
-    except (OSError, ValueError, KeyError, TypeError) as e:
-        raise CriterionFailed(f"no readable 'surfaces' in the stats: {e}")
+        try:
+            data = lib.read_json(os.path.join(out, "s.json"))
+            surfaces = {s["name"]: s["radiance"] for s in data["surfaces"]}
+            converged, residual = data.get("converged"), data.get("residual")
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise CriterionFailed(f"no readable 'surfaces' in the stats: {e}")
     finally:
         shutil.rmtree(out, ignore_errors=True)
     if converged is False:

@@ -47,6 +47,7 @@ its measured value (the report's sentence) and p-value.  summary.html: the table
 histogram, each criterion's pass rate, the slowest gradings, the submissions that hit a limit (a
 time-out, the memory, CPU time or process cap, the file size cap) and the retried ones.
 """
+import concurrent.futures
 import csv
 import html
 import json
@@ -240,7 +241,6 @@ def reachable_logins(path, ssh, out):
     file, a lost one too, and with --retries 1 a last pass's grading sent there would fail again.
     None if no machine answers.  Lines GNU parallel reads but this does not (a login that is an ssh
     command of its own) are kept."""
-    import concurrent.futures
     lines = []
     try:
         with open(path) as f:

@@ -384,8 +384,8 @@ def test_the_kit_leaves_no_temporary_files(ctx):
     import compare
     rub = rubric.load(ROOT)
     pick = {c["name"]: c for c in rub["criteria"]}
+    os.makedirs(ctx.path("tmp"))
     before, tempfile.tempdir = tempfile.tempdir, ctx.path("tmp")
-    os.makedirs(tempfile.tempdir)
     try:
         images = compare.batch_renders(ROOT, ctx.build, pick["classic blinn vs reference"], [1, 2], 2)
         assert len(images) == 2 and images[0][:2] == (16, 16)
@@ -411,7 +411,8 @@ def test_the_last_pass_leaves_out_machines_that_do_not_answer(ctx):
                                  "4/ssh -p 2222 someone@elsewhere\nroot@up2\n")
     kept = grade_class.reachable_logins(logins, fake_ssh, ctx.path("kept"))
     with open(kept) as f:
-        assert f.read() == "2/:\n1/up-host\n4/ssh -p 2222 someone@elsewhere\n", open(kept).read()
+        text = f.read()
+    assert text == "2/:\n1/up-host\n4/ssh -p 2222 someone@elsewhere\n", text
     only_lost = ctx.write("lost", "1/lost-host\nlost-too\n")
     assert grade_class.reachable_logins(only_lost, fake_ssh, ctx.path("none")) is None
     assert not os.path.exists(ctx.path("none"))

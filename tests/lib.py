@@ -361,6 +361,11 @@ class Context:
             self._scratch = tempfile.mkdtemp(prefix="gi-test-")
         return self._scratch
 
+    @property
+    def made_scratch(self):
+        """The scratch directory if one was made, else None."""
+        return self._scratch
+
     def close(self):
         """Remove the scratch directory, if one was made."""
         if self._scratch is not None:

@@ -103,7 +103,8 @@ def run_grading_test(build, module, name):
         return [(full, True, f"{time.time() - start:.1f} s, {cpu_seconds() - cpu:.1f} CPU s")]
     except Exception as e:  # an AssertionError is a failed grade; anything else too
         detail = str(e) if isinstance(e, AssertionError) else traceback.format_exc()
-        return [(full, False, f"{detail}\n     (its files: {ctx.scratch})")]
+        where = f"\n     (its files: {ctx.made_scratch})" if ctx.made_scratch else ""
+        return [(full, False, detail + where)]
 
 
 def cpu_seconds():
@@ -188,8 +189,8 @@ def run_sequence(sequence):
             use_environment_of(build)
             results += function(build, *arguments)
     finally:
-        modules = {id(a[0]): a[0] for f, b, *a in sequence if f is run_grading_test}
-        for module in modules.values():
+        for module in dict.fromkeys(arguments[0] for function, _, *arguments in sequence
+                                    if function is run_grading_test):
             if hasattr(module, "tear_down"):
                 module.tear_down()
     return results
