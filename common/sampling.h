@@ -9,6 +9,7 @@
 #ifndef COMMON_SAMPLING_H
 #define COMMON_SAMPLING_H
 
+#include "fast_math.h"
 #include "vec.h"
 
 /* sqrt(1 - z^2) for |z| <= 1, as sqrt((1 - z)(1 + z)): never the root of a
@@ -20,8 +21,8 @@ static inline double sqrt_one_minus_square(double z) { return sqrt((1.0 - z) * (
 static inline vec3 uniform_sample_hemisphere(double u1, double u2)
 {
     double z = u1, r = sqrt_one_minus_square(z);
-    double phi = 2.0 * M_PI * u2;
-    return v3(r * cos(phi), r * sin(phi), z);
+    circle_point phi = unit_circle(u2); /* phi.cos = cos(phi), phi.sin = sin(phi) for phi = 2 pi u2 */
+    return v3(r * phi.cos, r * phi.sin, z);
 }
 static inline double uniform_hemisphere_pdf(void) { return 1.0 / (2.0 * M_PI); }
 
@@ -33,8 +34,8 @@ static inline double uniform_hemisphere_pdf(void) { return 1.0 / (2.0 * M_PI); }
 static inline vec3 cosine_sample_hemisphere(double u1, double u2)
 {
     double r = sqrt(u1);
-    double phi = 2.0 * M_PI * u2;
-    return v3(r * cos(phi), r * sin(phi), sqrt(1.0 - u1));
+    circle_point phi = unit_circle(u2); /* phi.cos = cos(phi), phi.sin = sin(phi) for phi = 2 pi u2 */
+    return v3(r * phi.cos, r * phi.sin, sqrt(1.0 - u1));
 }
 static inline double cosine_hemisphere_pdf(double cos_theta) { return cos_theta > 0.0 ? cos_theta / M_PI : 0.0; }
 
@@ -42,8 +43,8 @@ static inline double cosine_hemisphere_pdf(double cos_theta) { return cos_theta 
 static inline vec3 uniform_sample_sphere(double u1, double u2)
 {
     double z = 1.0 - 2.0 * u1, r = sqrt_one_minus_square(z);
-    double phi = 2.0 * M_PI * u2;
-    return v3(r * cos(phi), r * sin(phi), z);
+    circle_point phi = unit_circle(u2); /* phi.cos = cos(phi), phi.sin = sin(phi) for phi = 2 pi u2 */
+    return v3(r * phi.cos, r * phi.sin, z);
 }
 static inline double uniform_sphere_pdf(void) { return 1.0 / (4.0 * M_PI); }
 
@@ -53,8 +54,8 @@ static inline double uniform_sphere_pdf(void) { return 1.0 / (4.0 * M_PI); }
 static inline vec3 uniform_sample_cone(double u1, double u2, double cos_theta_max)
 {
     double z = 1.0 - u1 * (1.0 - cos_theta_max), r = sqrt_one_minus_square(z);
-    double phi = 2.0 * M_PI * u2;
-    return v3(r * cos(phi), r * sin(phi), z);
+    circle_point phi = unit_circle(u2); /* phi.cos = cos(phi), phi.sin = sin(phi) for phi = 2 pi u2 */
+    return v3(r * phi.cos, r * phi.sin, z);
 }
 static inline double uniform_cone_pdf(double cos_theta_max) { return 1.0 / (2.0 * M_PI * (1.0 - cos_theta_max)); }
 

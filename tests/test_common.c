@@ -2,6 +2,7 @@
 #include <stdlib.h>
 #include <unistd.h>
 
+#include "../common/fast_math.h"
 #include "../common/image.h"
 #include "../common/options.h"
 #include "../common/render.h"
@@ -129,6 +130,25 @@ static void test_cone_sampler_stays_in_cone(void)
         sum += 1.0 / uniform_cone_pdf(cos_max);
     }
     CHECK_NEAR(sum / n, 2 * M_PI * (1 - cos_max), 1e-9, "solid angle of the cone");
+}
+
+/* fast_math.h's unit_circle against cos and sin in long double (64-bit
+ * mantissa: 2 pi u rounds 2^11 times finer than in double), so the
+ * difference is unit_circle's own error: within 3e-16, about an ulp of 1. */
+static void test_unit_circle_matches_the_library(void)
+{
+    const long double two_pi = 6.283185307179586476925286766559L;
+    const double special[] = {0.0, 1e-300, 0.125, 0.25, 0.375, 0.5, 0.625, 0.75, 0.875, 0x1.fffffffffffffp-1};
+    rng g = rng_for(17, 0, 0);
+    double worst = 0;
+    for (int i = 0; i < 1000000; i++) {
+        double u = i < 10 ? special[i] : rng_uniform(&g);
+        circle_point p = unit_circle(u);
+        double error_cos = fabs(p.cos - (double)cosl(two_pi * u)), error_sin = fabs(p.sin - (double)sinl(two_pi * u));
+        worst = fmax(worst, fmax(error_cos, error_sin));
+    }
+    CHECK(worst <= 3e-16, "unit_circle differs from cos and sin by %g", worst);
+    CHECK(unit_circle(0.25).cos == 0.0 && unit_circle(0.25).sin == 1.0, "a quarter turn is (0, 1) exactly");
 }
 
 static image test_pattern(int w, int h)
@@ -291,6 +311,7 @@ int main(void)
     RUN_TEST(test_hemisphere_samplers_integrate_cosine);
     RUN_TEST(test_triangle_sampler_is_uniform);
     RUN_TEST(test_cone_sampler_stays_in_cone);
+    RUN_TEST(test_unit_circle_matches_the_library);
     RUN_TEST(test_pfm_round_trip_and_orientation);
     RUN_TEST(test_png_and_tone_mapping);
     RUN_TEST(test_failed_write_leaves_nothing);
