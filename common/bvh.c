@@ -23,7 +23,7 @@
 #include <sys/mman.h>
 
 #ifdef __SSE__
-#include <xmmintrin.h> /* four-wide float SIMD for the box tests */
+#include <emmintrin.h> /* four-wide float SIMD for the box tests, two-wide double for sphere pairs */
 #endif
 
 /* SAH bins per axis (Wald 2007 uses 16 to 32), and the depth past which the
@@ -746,6 +746,36 @@ static int build_wide_tree(scene *s, const builder *b, int n)
 
 static int linear_is_cheaper(const scene *s);
 
+/* The spheres in pairs, in leaf order, for linear search (bvh.h: sphere_pair). */
+static int make_sphere_pairs(scene *s)
+{
+    scene_bvh *bvh = &s->bvh;
+    bvh->sphere_pair_count = (s->sphere_count + 1) / 2;
+    if (bvh->sphere_pair_count == 0)
+        return 0;
+    bvh->sphere_pairs = malloc((size_t)bvh->sphere_pair_count * sizeof *bvh->sphere_pairs);
+    if (bvh->sphere_pairs == NULL)
+        return -1;
+    int lane = 0;
+    for (int i = 0; i < bvh->primitive_count; i++) {
+        const leaf_primitive *p = &bvh->leaf_primitives[i];
+        if (!p->is_sphere)
+            continue;
+        sphere_pair *pair = &bvh->sphere_pairs[lane / 2];
+        pair->x[lane % 2] = p->row[0].x, pair->y[lane % 2] = p->row[0].y, pair->z[lane % 2] = p->row[0].z;
+        pair->radius[lane % 2] = p->offset[0];
+        pair->primitive[lane % 2] = p->primitive;
+        lane++;
+    }
+    if (lane % 2) { /* the empty lane: radius NaN fails sphere_hit's disc >= 0 */
+        sphere_pair *pair = &bvh->sphere_pairs[lane / 2];
+        pair->x[1] = pair->y[1] = pair->z[1] = 0.0;
+        pair->radius[1] = NAN;
+        pair->primitive[1] = -1;
+    }
+    return 0;
+}
+
 int bvh_build(scene *s)
 {
     scene_bvh *bvh = &s->bvh;
@@ -779,6 +809,10 @@ int bvh_build(scene *s)
         bvh->node_count = 0;
     else
         bvh->linear = linear_is_cheaper(s);
+    if (status == 0 && make_sphere_pairs(s) != 0) { /* made for every scene, so that bvh.linear may be switched */
+        bvh_free(bvh);
+        return -1;
+    }
     return status;
 }
 
@@ -787,13 +821,15 @@ void bvh_free(scene_bvh *bvh)
     free(bvh->primitive_order);
     free(bvh->nodes);
     free(bvh->leaf_primitives);
+    free(bvh->sphere_pairs);
     memset(bvh, 0, sizeof *bvh);
 }
 
 size_t bvh_memory_bytes(const scene_bvh *bvh)
 {
     return (size_t)bvh->node_count * sizeof(wide_node) +
-           (size_t)bvh->primitive_count * (sizeof(leaf_primitive) + sizeof *bvh->primitive_order);
+           (size_t)bvh->primitive_count * (sizeof(leaf_primitive) + sizeof *bvh->primitive_order) +
+           (size_t)bvh->sphere_pair_count * sizeof(sphere_pair);
 }
 
 /* ------------------------------------------------------------------------ */
@@ -859,6 +895,52 @@ double intersect_sphere(vec3 center, double radius, ray r)
     double a = v3_dot(r.direction, r.direction);
     return sphere_hit(center, radius, r.origin, r.direction, a, 1.0 / a);
 }
+
+/* sphere_hit on both spheres of a pair, below t_max, into t[0] and t[1]
+ * (INFINITY where it misses).  With SSE2 each lane does sphere_hit's
+ * operations in the same order, so each t is the scalar one to the bit;
+ * the branches become masks. */
+#ifdef __SSE2__
+static inline __m128d select_pd(__m128d mask, __m128d yes, __m128d no)
+{
+    return _mm_or_pd(_mm_and_pd(mask, yes), _mm_andnot_pd(mask, no));
+}
+
+static inline void sphere_pair_hits(const sphere_pair *p, vec3 origin, vec3 direction, double a, double inv_a,
+                                    double t_max, double t[2])
+{
+    const __m128d sign = _mm_set1_pd(-0.0), zero = _mm_setzero_pd(), infinity = _mm_set1_pd(INFINITY);
+    __m128d dx = _mm_set1_pd(direction.x), dy = _mm_set1_pd(direction.y), dz = _mm_set1_pd(direction.z);
+    __m128d fx = _mm_sub_pd(_mm_set1_pd(origin.x), _mm_loadu_pd(p->x));
+    __m128d fy = _mm_sub_pd(_mm_set1_pd(origin.y), _mm_loadu_pd(p->y));
+    __m128d fz = _mm_sub_pd(_mm_set1_pd(origin.z), _mm_loadu_pd(p->z));
+    __m128d radius = _mm_loadu_pd(p->radius), radius2 = _mm_mul_pd(radius, radius);
+    __m128d b = _mm_add_pd(_mm_add_pd(_mm_mul_pd(fx, dx), _mm_mul_pd(fy, dy)), _mm_mul_pd(fz, dz));
+    __m128d c = _mm_sub_pd(_mm_add_pd(_mm_add_pd(_mm_mul_pd(fx, fx), _mm_mul_pd(fy, fy)), _mm_mul_pd(fz, fz)), radius2);
+    __m128d along = _mm_mul_pd(_mm_xor_pd(b, sign), _mm_set1_pd(inv_a)); /* -b / a */
+    __m128d lx = _mm_add_pd(fx, _mm_mul_pd(dx, along)), ly = _mm_add_pd(fy, _mm_mul_pd(dy, along)),
+            lz = _mm_add_pd(fz, _mm_mul_pd(dz, along));
+    __m128d l2 = _mm_add_pd(_mm_add_pd(_mm_mul_pd(lx, lx), _mm_mul_pd(ly, ly)), _mm_mul_pd(lz, lz));
+    __m128d disc = _mm_mul_pd(_mm_set1_pd(a), _mm_sub_pd(radius2, l2));
+    __m128d root = _mm_sqrt_pd(_mm_max_pd(disc, zero)); /* lanes with disc < 0 are masked out below */
+    __m128d q = _mm_xor_pd(_mm_add_pd(b, _mm_or_pd(root, _mm_and_pd(b, sign))), sign);
+    __m128d t0 = _mm_div_pd(c, q), t1 = _mm_mul_pd(q, _mm_set1_pd(inv_a));
+    __m128d near = _mm_min_pd(t0, t1), far = _mm_max_pd(t1, t0); /* t0 < t1 ? t0 : t1, and the other */
+    __m128d hit = select_pd(_mm_cmpgt_pd(near, zero), near, select_pd(_mm_cmpgt_pd(far, zero), far, infinity));
+    __m128d valid = _mm_and_pd(_mm_cmpge_pd(disc, zero), _mm_cmpneq_pd(q, zero));
+    valid = _mm_and_pd(valid, _mm_cmplt_pd(hit, _mm_set1_pd(t_max)));
+    _mm_storeu_pd(t, select_pd(valid, hit, infinity));
+}
+#else
+static inline void sphere_pair_hits(const sphere_pair *p, vec3 origin, vec3 direction, double a, double inv_a,
+                                    double t_max, double t[2])
+{
+    for (int k = 0; k < 2; k++) {
+        double hit = sphere_hit(v3(p->x[k], p->y[k], p->z[k]), p->radius[k], origin, direction, a, inv_a);
+        t[k] = hit < t_max ? hit : INFINITY;
+    }
+}
+#endif
 
 /* Hit distance of a leaf primitive if it is below t_max, else INFINITY.
  * a = direction . direction and its inverse, once per ray for the spheres. */
@@ -1123,10 +1205,12 @@ done:
     return 1;
 }
 
+static int linear_intersect(const scene *s, ray r, double t_max, hit *out);
+
 int scene_intersect(const scene *s, ray r, double t_max, hit *out)
 {
     if (s->bvh.linear)
-        return scene_intersect_brute_force(s, r, t_max, out);
+        return linear_intersect(s, r, t_max, out);
     double t;
     int primitive;
     if (!traverse(s, r.origin, r.direction, t_max, 0, 0.0, &t, &primitive, NULL))
@@ -1208,14 +1292,50 @@ static int linear_is_cheaper(const scene *s)
     return n * rays <= tests;
 }
 
+/* A linear scene (bvh.linear): every triangle tested, then the spheres two
+ * by two; the same hit as scene_intersect_brute_force, to the bit. */
+static int linear_intersect(const scene *s, ray r, double t_max, hit *out)
+{
+    const scene_bvh *bvh = &s->bvh;
+    double a = v3_dot(r.direction, r.direction), inv_a = 1.0 / a;
+    double nearest = t_max;
+    int found = -1;
+    for (int i = 0; i < bvh->primitive_count; i++) {
+        const leaf_primitive *p = &bvh->leaf_primitives[i];
+        double t = p->is_sphere ? INFINITY : triangle_hit(p, r.origin, r.direction, t_max);
+        if (t < nearest || (t == nearest && found >= 0 && p->primitive < found))
+            nearest = t, found = p->primitive;
+    }
+    for (int i = 0; i < bvh->sphere_pair_count; i++) {
+        double t[2];
+        sphere_pair_hits(&bvh->sphere_pairs[i], r.origin, r.direction, a, inv_a, t_max, t);
+        for (int k = 0; k < 2; k++) {
+            int primitive = bvh->sphere_pairs[i].primitive[k];
+            if (t[k] < nearest || (t[k] == nearest && found >= 0 && primitive < found))
+                nearest = t[k], found = primitive;
+        }
+    }
+    if (found < 0)
+        return 0;
+    fill_hit(s, r, nearest, found, out);
+    return 1;
+}
+
 /* Does the ray hit any primitive before t_max?  Every one tested (bvh.linear). */
 static int any_primitive_hit(const scene *s, vec3 origin, vec3 direction, double t_max)
 {
-    const leaf_primitive *prims = s->bvh.leaf_primitives;
-    double a = v3_dot(direction, direction), inv_a = 1.0 / a;
-    for (int i = 0; i < s->bvh.primitive_count; i++)
-        if (primitive_hit(&prims[i], origin, direction, a, inv_a, t_max) < t_max)
+    const scene_bvh *bvh = &s->bvh;
+    for (int i = 0; i < bvh->primitive_count; i++)
+        if (!bvh->leaf_primitives[i].is_sphere &&
+            triangle_hit(&bvh->leaf_primitives[i], origin, direction, t_max) < t_max)
             return 1;
+    double a = v3_dot(direction, direction), inv_a = 1.0 / a;
+    for (int i = 0; i < bvh->sphere_pair_count; i++) {
+        double t[2];
+        sphere_pair_hits(&bvh->sphere_pairs[i], origin, direction, a, inv_a, t_max, t);
+        if (t[0] < t_max || t[1] < t_max)
+            return 1;
+    }
     return 0;
 }
 

@@ -63,6 +63,16 @@ struct leaf_primitive {
     int is_sphere;
 };
 
+/* The spheres, for linear search (scene_bvh.linear), two side by side: the
+ * lanes of one SSE2 register each, so that two spheres take one pass of
+ * sphere_hit's arithmetic, its square root and division included (on
+ * smallpt's nine spheres they were a fifth of chapter 4's time).  An odd
+ * count leaves a lane with radius NaN, which no ray hits. */
+struct sphere_pair {
+    double x[2], y[2], z[2], radius[2];
+    int primitive[2];
+};
+
 /* Both are allocated on cache-line boundaries, so a record spans whole lines. */
 enum { BVH_ALIGNMENT = 64 };
 _Static_assert(sizeof(wide_node) == 256, "wide_node is 256 bytes");

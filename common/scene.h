@@ -98,6 +98,7 @@ typedef struct {
 /* What traversal reads (defined in bvh.h, private to the BVH code). */
 typedef struct wide_node wide_node;
 typedef struct leaf_primitive leaf_primitive;
+typedef struct sphere_pair sphere_pair;
 
 /* The BVH over the primitives (common/bvh.c): an 8-wide tree whose leaves
  * hold at most 4 primitives, copied in leaf order.  Each array is its own
@@ -111,6 +112,8 @@ typedef struct {
     double unit;                     /* a power of two: the boxes hold coordinates / unit (any scene fits a float) */
     double largest_coordinate;       /* largest |coordinate| of the root box, in units: sets the box tests' margin */
     int linear;                      /* 1: every primitive tested, the tree unused: cheaper in some small scenes */
+    sphere_pair *sphere_pairs;       /* the spheres two by two, for linear search's two-wide SIMD tests */
+    int sphere_pair_count;
 } scene_bvh;
 
 typedef struct scene {

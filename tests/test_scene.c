@@ -552,8 +552,14 @@ static void test_bvh_matches_brute_force(void)
         hit a, b;
         int found_a = scene_intersect(&s, r, t_max, &a);
         int found_b = scene_intersect_brute_force(&s, r, t_max, &b);
+        hit c; /* linear search: triangles one by one, spheres two by two (SIMD) */
+        s.bvh.linear = 1;
+        int found_c = scene_intersect(&s, r, t_max, &c);
+        s.bvh.linear = 0;
         hits += found_b;
-        int same = found_a == found_b;
+        int same = found_a == found_b && found_c == found_b;
+        if (same && found_c)
+            same = c.primitive == b.primitive && c.t == b.t;
         if (same && found_a)
             same = a.primitive == b.primitive && a.t == b.t && a.surface == b.surface && a.normal.x == b.normal.x;
         if (same && found_a)
@@ -581,8 +587,14 @@ static void test_bvh_matches_brute_force(void)
         blocked += found;
         if (scene_occluded(&s, a, b) != found)
             disagreements++;
+        s.bvh.linear = 1;
+        if (scene_occluded(&s, a, b) != found)
+            disagreements++;
+        s.bvh.linear = 0;
     }
-    CHECK(disagreements == 0, "occluded disagrees with intersect on %d of %d segments", disagreements, checked);
+    CHECK(disagreements == 0,
+          "occluded (by the tree or linear search) disagrees with intersect %d times on %d segments", disagreements,
+          checked);
     CHECK(blocked > checked / 10 && blocked < checked, "%d of %d segments blocked", blocked, checked);
     scene_free(&s);
 }
