@@ -896,18 +896,19 @@ double intersect_sphere(vec3 center, double radius, ray r)
     return sphere_hit(center, radius, r.origin, r.direction, a, 1.0 / a);
 }
 
-/* sphere_hit on both spheres of a pair, below t_max, into t[0] and t[1]
- * (INFINITY where it misses).  With SSE2 each lane does sphere_hit's
- * operations in the same order, so each t is the scalar one to the bit;
- * the branches become masks. */
+/* Linear search's spheres, two by two (bvh.h: sphere_pair).  With SSE2
+ * each lane does sphere_hit's operations in the same order, so each t is
+ * the scalar one to the bit.  No branch: whether a sphere is hit, and
+ * whether nearer than the nearest so far, are coin flips (with branches
+ * the pairs took twice as long on smallpt's scene). */
 #ifdef __SSE2__
 static inline __m128d select_pd(__m128d mask, __m128d yes, __m128d no)
 {
     return _mm_or_pd(_mm_and_pd(mask, yes), _mm_andnot_pd(mask, no));
 }
 
-static inline void sphere_pair_hits(const sphere_pair *p, vec3 origin, vec3 direction, double a, double inv_a,
-                                    double t_max, double t[2])
+/* sphere_hit on both spheres of a pair: t, or INFINITY where it misses. */
+static inline __m128d sphere_pair_hits(const sphere_pair *p, vec3 origin, vec3 direction, double a, double inv_a)
 {
     const __m128d sign = _mm_set1_pd(-0.0), zero = _mm_setzero_pd(), infinity = _mm_set1_pd(INFINITY);
     __m128d dx = _mm_set1_pd(direction.x), dy = _mm_set1_pd(direction.y), dz = _mm_set1_pd(direction.z);
@@ -926,19 +927,69 @@ static inline void sphere_pair_hits(const sphere_pair *p, vec3 origin, vec3 dire
     __m128d q = _mm_xor_pd(_mm_add_pd(b, _mm_or_pd(root, _mm_and_pd(b, sign))), sign);
     __m128d t0 = _mm_div_pd(c, q), t1 = _mm_mul_pd(q, _mm_set1_pd(inv_a));
     __m128d near = _mm_min_pd(t0, t1), far = _mm_max_pd(t1, t0); /* t0 < t1 ? t0 : t1, and the other */
-    __m128d hit = select_pd(_mm_cmpgt_pd(near, zero), near, select_pd(_mm_cmpgt_pd(far, zero), far, infinity));
-    __m128d valid = _mm_and_pd(_mm_cmpge_pd(disc, zero), _mm_cmpneq_pd(q, zero));
-    valid = _mm_and_pd(valid, _mm_cmplt_pd(hit, _mm_set1_pd(t_max)));
-    _mm_storeu_pd(t, select_pd(valid, hit, infinity));
+    __m128d t = select_pd(_mm_cmpgt_pd(near, zero), near, select_pd(_mm_cmpgt_pd(far, zero), far, infinity));
+    return select_pd(_mm_and_pd(_mm_cmpge_pd(disc, zero), _mm_cmpneq_pd(q, zero)), t, infinity);
+}
+
+/* The nearest sphere hit below *nearest (the triangles' nearest, or t_max),
+ * of equally near ones the lowest index: the rule of
+ * scene_intersect_brute_force, kept lane by lane, then across the lanes. */
+static void nearest_sphere(const scene_bvh *bvh, vec3 origin, vec3 direction, double *nearest, int *found)
+{
+    double a = v3_dot(direction, direction), inv_a = 1.0 / a;
+    __m128d best = _mm_set1_pd(*nearest), best_primitive = _mm_set1_pd(*found), zero = _mm_setzero_pd();
+    for (int i = 0; i < bvh->sphere_pair_count; i++) {
+        __m128d t = sphere_pair_hits(&bvh->sphere_pairs[i], origin, direction, a, inv_a);
+        __m128d primitive = _mm_loadu_pd(bvh->sphere_pairs[i].primitive);
+        __m128d tie = _mm_and_pd(_mm_cmpeq_pd(t, best), _mm_and_pd(_mm_cmpge_pd(best_primitive, zero),
+                                                                   _mm_cmplt_pd(primitive, best_primitive)));
+        __m128d better = _mm_or_pd(_mm_cmplt_pd(t, best), tie);
+        best = select_pd(better, t, best);
+        best_primitive = select_pd(better, primitive, best_primitive);
+    }
+    double t[2], primitive[2];
+    _mm_storeu_pd(t, best);
+    _mm_storeu_pd(primitive, best_primitive);
+    for (int k = 0; k < 2; k++)
+        if (t[k] < *nearest || (t[k] == *nearest && *found >= 0 && primitive[k] >= 0 && primitive[k] < *found))
+            *nearest = t[k], *found = (int)primitive[k];
+}
+
+/* Does a sphere block the ray before t_max? */
+static int any_sphere_hit(const scene_bvh *bvh, vec3 origin, vec3 direction, double t_max)
+{
+    double a = v3_dot(direction, direction), inv_a = 1.0 / a;
+    __m128d blocked = _mm_setzero_pd(), end = _mm_set1_pd(t_max);
+    for (int i = 0; i < bvh->sphere_pair_count; i++)
+        blocked =
+            _mm_or_pd(blocked, _mm_cmplt_pd(sphere_pair_hits(&bvh->sphere_pairs[i], origin, direction, a, inv_a), end));
+    return _mm_movemask_pd(blocked) != 0;
 }
 #else
-static inline void sphere_pair_hits(const sphere_pair *p, vec3 origin, vec3 direction, double a, double inv_a,
-                                    double t_max, double t[2])
+static double pair_lane_hit(const sphere_pair *p, int k, vec3 origin, vec3 direction, double a, double inv_a)
 {
-    for (int k = 0; k < 2; k++) {
-        double hit = sphere_hit(v3(p->x[k], p->y[k], p->z[k]), p->radius[k], origin, direction, a, inv_a);
-        t[k] = hit < t_max ? hit : INFINITY;
+    return sphere_hit(v3(p->x[k], p->y[k], p->z[k]), p->radius[k], origin, direction, a, inv_a);
+}
+
+static void nearest_sphere(const scene_bvh *bvh, vec3 origin, vec3 direction, double *nearest, int *found)
+{
+    double a = v3_dot(direction, direction), inv_a = 1.0 / a;
+    for (int i = 0; i < 2 * bvh->sphere_pair_count; i++) {
+        const sphere_pair *p = &bvh->sphere_pairs[i / 2];
+        double t = pair_lane_hit(p, i % 2, origin, direction, a, inv_a);
+        int primitive = (int)p->primitive[i % 2];
+        if (t < *nearest || (t == *nearest && *found >= 0 && primitive < *found))
+            *nearest = t, *found = primitive;
     }
+}
+
+static int any_sphere_hit(const scene_bvh *bvh, vec3 origin, vec3 direction, double t_max)
+{
+    double a = v3_dot(direction, direction), inv_a = 1.0 / a;
+    for (int i = 0; i < 2 * bvh->sphere_pair_count; i++)
+        if (pair_lane_hit(&bvh->sphere_pairs[i / 2], i % 2, origin, direction, a, inv_a) < t_max)
+            return 1;
+    return 0;
 }
 #endif
 
@@ -1247,25 +1298,29 @@ int scene_intersect_brute_force(const scene *s, ray r, double t_max, hit *out)
  * where rays start: on the primitives?  Measured by the tree itself on up
  * to 64 such rays (from primitives spread over the list, directions uniform
  * from a fixed seed): the nodes, leaves and primitives they test on
- * average, plus one for the ray's set-up (setup_wide_ray), against one test
- * per primitive.  A node test, a leaf's visit (pop, sort) and a primitive
- * test cost about alike (measured).  smallpt's scene (nine spheres, six of
- * them walls whose boxes hold the whole room): 9.8 with the tree against 9,
- * and 1.6-1.7x the rays per second without it (bench_embree).  The Cornell
- * box (32 triangles): 8.6 against 32, and 2.2x faster with the tree; 6 quads
- * (scenes/crease.scene): 5.1 against 6, alike.  The choice changes no
- * result: both test every primitive they test with primitive_hit.
+ * average, plus one for the ray's set-up (setup_wide_ray), against linear
+ * search's tests: one per triangle and one per pair of spheres (they are
+ * tested two at a time).  A node test, a leaf's visit (pop, sort), a
+ * triangle test and a sphere pair's test cost about alike (measured: on
+ * smallpt's scene the tree's 9.8 tests took 220 ns a ray, the five pairs
+ * 98 ns).  smallpt's scene (nine spheres, six of them walls whose boxes
+ * hold the whole room): 9.8 with the tree against 5, and 2.2x the rays per
+ * second without it.  The Cornell box (32 triangles): 8.6 against 32, and
+ * 2.2x faster with the tree; 6 quads (scenes/crease.scene): 5.1 against 6,
+ * alike.  The choice changes no result: both give
+ * scene_intersect_brute_force's hit to the bit.
  *
  * The rays cost: 256 of them took 40 us, 3.5x what the Cornell box's whole
  * build takes Embree (bench_embree --builds-only).  So they stop after 16
- * once the mean is under half or over twice the primitives (the Cornell
- * box: 8.6 against 32), and only a near tie (smallpt) takes all 64.  The
- * k-th ray starts on primitive frac(k phi) n (phi the golden ratio), so
- * that the first 16 already spread over the whole list. */
+ * once the mean is under 2/3 or over 3/2 of linear search's (the Cornell
+ * box: 8.6 against 32; smallpt's: 9.8 against 5), and only a near tie
+ * takes all 64.  The k-th ray starts on primitive frac(k phi) n (phi the
+ * golden ratio), so that the first 16 already spread over the whole list. */
 enum { LINEAR_RAYS = 64, LINEAR_RAYS_CLEAR = 16 };
 static int linear_is_cheaper(const scene *s)
 {
-    const int64_t n = s->bvh.primitive_count; /* 2 n rays would overflow an int from 2^24 primitives */
+    const int64_t n = s->bvh.primitive_count; /* 64-bit: the products below would overflow an int */
+    const int64_t linear_tests = s->triangle_count + (s->sphere_count + 1) / 2;
     int tests = 0, rays = 0;
     while (rays < LINEAR_RAYS) {
         rng g = rng_for(0x6c696e656172ull, (uint64_t)rays, 0);
@@ -1286,10 +1341,10 @@ static int linear_is_cheaper(const scene *s)
         tests++; /* the set-up */
         traverse(s, scene_offset_origin(s, point, normal, d), d, INFINITY, 0, 0.0, &t, &found, &tests);
         rays++;
-        if (rays >= LINEAR_RAYS_CLEAR && (tests > 2 * n * rays || 2 * tests < n * rays))
+        if (rays >= LINEAR_RAYS_CLEAR && (2 * tests > 3 * linear_tests * rays || 3 * tests < 2 * linear_tests * rays))
             break;
     }
-    return n * rays <= tests;
+    return linear_tests * rays <= tests;
 }
 
 /* A linear scene (bvh.linear): every triangle tested, then the spheres two
@@ -1297,7 +1352,6 @@ static int linear_is_cheaper(const scene *s)
 static int linear_intersect(const scene *s, ray r, double t_max, hit *out)
 {
     const scene_bvh *bvh = &s->bvh;
-    double a = v3_dot(r.direction, r.direction), inv_a = 1.0 / a;
     double nearest = t_max;
     int found = -1;
     for (int i = 0; i < bvh->primitive_count; i++) {
@@ -1306,15 +1360,7 @@ static int linear_intersect(const scene *s, ray r, double t_max, hit *out)
         if (t < nearest || (t == nearest && found >= 0 && p->primitive < found))
             nearest = t, found = p->primitive;
     }
-    for (int i = 0; i < bvh->sphere_pair_count; i++) {
-        double t[2];
-        sphere_pair_hits(&bvh->sphere_pairs[i], r.origin, r.direction, a, inv_a, t_max, t);
-        for (int k = 0; k < 2; k++) {
-            int primitive = bvh->sphere_pairs[i].primitive[k];
-            if (t[k] < nearest || (t[k] == nearest && found >= 0 && primitive < found))
-                nearest = t[k], found = primitive;
-        }
-    }
+    nearest_sphere(bvh, r.origin, r.direction, &nearest, &found);
     if (found < 0)
         return 0;
     fill_hit(s, r, nearest, found, out);
@@ -1325,18 +1371,12 @@ static int linear_intersect(const scene *s, ray r, double t_max, hit *out)
 static int any_primitive_hit(const scene *s, vec3 origin, vec3 direction, double t_max)
 {
     const scene_bvh *bvh = &s->bvh;
-    for (int i = 0; i < bvh->primitive_count; i++)
-        if (!bvh->leaf_primitives[i].is_sphere &&
-            triangle_hit(&bvh->leaf_primitives[i], origin, direction, t_max) < t_max)
-            return 1;
-    double a = v3_dot(direction, direction), inv_a = 1.0 / a;
-    for (int i = 0; i < bvh->sphere_pair_count; i++) {
-        double t[2];
-        sphere_pair_hits(&bvh->sphere_pairs[i], origin, direction, a, inv_a, t_max, t);
-        if (t[0] < t_max || t[1] < t_max)
+    for (int i = 0; i < bvh->primitive_count; i++) {
+        const leaf_primitive *p = &bvh->leaf_primitives[i];
+        if (!p->is_sphere && triangle_hit(p, origin, direction, t_max) < t_max)
             return 1;
     }
-    return 0;
+    return any_sphere_hit(bvh, origin, direction, t_max);
 }
 
 int scene_occluded(const scene *s, vec3 a, vec3 b)

@@ -70,7 +70,7 @@ struct leaf_primitive {
  * count leaves a lane with radius NaN, which no ray hits. */
 struct sphere_pair {
     double x[2], y[2], z[2], radius[2];
-    int primitive[2];
+    double primitive[2]; /* the primitive indices, as doubles for SSE2's comparisons (exact below 2^53) */
 };
 
 /* Both are allocated on cache-line boundaries, so a record spans whole lines. */
