@@ -31,7 +31,12 @@
  *     primitives are then tested in double precision, exactly as before, so
  *     every hit (t, primitive) is the one the double-precision test gives.
  *   - Leaves: the primitives copied in leaf order (leaf_primitive), each a
- *     precomputed double-precision triangle transform or a sphere. */
+ *     precomputed double-precision triangle transform or a sphere.
+ *   - Linear search: where the tree costs more tests than testing every
+ *     primitive (measured on rays of the scene itself at build time, bvh.c:
+ *     linear_is_cheaper; smallpt's nine spheres), scene_intersect and
+ *     scene_occluded test them all, the spheres two at a time (sphere_pair),
+ *     and give the same hit as the tree, to the bit. */
 #ifndef COMMON_BVH_H
 #define COMMON_BVH_H
 
