@@ -28,7 +28,7 @@ import meshes
 from common import BUILD, ROOT, run
 
 OUT = os.path.join(ROOT, "out", "bench")
-SETS = ("camera", "bounce", "shadow")
+SETS = ("camera", "bounce", "shadow", "miss")  # miss: rays leaving the scene's box (the fixed cost of a ray)
 SMALLPT = "scenes/smallpt.scene"
 
 

@@ -3,12 +3,16 @@
  * usage: build/bench/bench_embree SCENE [--size WxH] [--repeats N] [--seed N]
  *                                 [--fast] [--builds-only] [--json FILE]
  * Measures, on one scene:
- *   - three ray sets made once from a fixed seed: camera rays (one jittered
+ *   - four ray sets made once from a fixed seed: camera rays (one jittered
  *     ray per pixel), diffuse-bounce rays (from each camera hit, cosine
  *     distributed about the normal facing the ray, origin moved off the
- *     surface by scene_offset_origin as chapter 4 does) and shadow rays (from
+ *     surface by scene_offset_origin as chapter 4 does), shadow rays (from
  *     each camera hit to a point drawn uniformly on the emitters by area,
- *     kept when each end faces the other, as next-event estimation casts them);
+ *     kept when each end faces the other, as next-event estimation casts them)
+ *     and miss rays (one per pixel, from outside the scene's box and leaving
+ *     it, uniform in direction: no chapter casts them, they time what every
+ *     ray costs before and after its first box test: the set-up, the root
+ *     node, the exit);
  *   - whether both implementations agree on every ray (both miss, or both hit
  *     the same primitive or at the same distance within a relative 1e-5; for
  *     shadow rays the same blocked / unblocked answer), and each set's hit or
@@ -65,8 +69,8 @@ static const double EMBREE_MARGIN = 1.0 / 1048576.0;
 /* Two closest hits agree at the same primitive or within this relative distance. */
 static const double SAME_DISTANCE = 1e-5;
 
-enum { SET_CAMERA, SET_BOUNCE, SET_SHADOW, SET_COUNT };
-static const char *const SET_NAME[SET_COUNT] = {"camera", "bounce", "shadow"};
+enum { SET_CAMERA, SET_BOUNCE, SET_SHADOW, SET_MISS, SET_COUNT };
+static const char *const SET_NAME[SET_COUNT] = {"camera", "bounce", "shadow", "miss"};
 enum { OURS, EMBREE };
 enum { MAX_REPEATS = 64 };
 
@@ -415,6 +419,16 @@ static void make_sets(bench *b, int width, int height, uint64_t seed)
     }
     free(hits);
     free(found);
+    /* Miss rays: from twice the box's diagonal out of its centre, away from it. */
+    query *miss = checked_malloc((size_t)n * sizeof *miss);
+    vec3 centre = v3_scale(v3_add(s->bounds.lo, s->bounds.hi), 0.5);
+    double diagonal = v3_length(v3_sub(s->bounds.hi, s->bounds.lo));
+    for (long i = 0; i < n; i++) {
+        rng g = rng_for(seed, (uint64_t)i, 2);
+        vec3 d = uniform_sample_sphere(rng_uniform(&g), rng_uniform(&g));
+        miss[i] = (query){v3_madd(centre, d, 2.0 * diagonal), d};
+    }
+    b->sets[SET_MISS] = miss, b->count[SET_MISS] = n;
     b->sets[SET_CAMERA] = camera, b->count[SET_CAMERA] = n;
     b->sets[SET_BOUNCE] = bounce, b->count[SET_BOUNCE] = bounces;
     b->sets[SET_SHADOW] = shadow, b->count[SET_SHADOW] = shadows;
