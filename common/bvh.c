@@ -92,18 +92,29 @@ static double box3f_half_area(const box3f *b)
     double dx = b->hi[0] - b->lo[0], dy = b->hi[1] - b->lo[1], dz = b->hi[2] - b->lo[2];
     return dx * dy + dy * dz + dz * dx;
 }
+/* step if condition, else 0, by a bit mask: no branch, and an infinite step
+ * times 0 is not NaN. */
+static inline float step_if(int condition, float step)
+{
+    uint32_t bits;
+    memcpy(&bits, &step, sizeof bits);
+    bits &= -(uint32_t)condition;
+    memcpy(&step, &bits, sizeof step);
+    return step;
+}
 /* x rounded to a float not above (below) it: when the nearest float is on
  * the wrong side, step at least one ulp (|f| 2^-23, plus FLT_MIN for the
- * floats near zero) further. */
+ * floats near zero) further.  No branch: the comparison is a coin flip
+ * (written as a select, GCC compiled it to a branch). */
 static float round_down(double x)
 {
     float f = (float)x, step = fabsf(f) * 0x1p-23f + FLT_MIN;
-    return f - ((double)f > x ? step : 0.0f); /* no branch: the comparison is a coin flip */
+    return f - step_if((double)f > x, step);
 }
 static float round_up(double x)
 {
     float f = (float)x, step = fabsf(f) * 0x1p-23f + FLT_MIN;
-    return f + ((double)f < x ? step : 0.0f);
+    return f + step_if((double)f < x, step);
 }
 
 /* What the build moves around: 32 bytes a primitive, so partitioning a
