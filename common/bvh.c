@@ -942,28 +942,34 @@ static inline __m128d sphere_pair_hits(const sphere_pair *p, vec3 origin, vec3 d
     return select_pd(_mm_and_pd(_mm_cmpge_pd(disc, zero), _mm_cmpneq_pd(q, zero)), t, infinity);
 }
 
+/* Lanes where hit (t, primitive) beats (best, best_primitive) by
+ * scene_intersect_brute_force's rule: nearer, or as near with a lower index
+ * (a best_primitive of -1 is no hit yet). */
+static inline __m128d better_hit(__m128d t, __m128d primitive, __m128d best, __m128d best_primitive)
+{
+    __m128d tie = _mm_and_pd(_mm_cmpeq_pd(t, best), _mm_and_pd(_mm_cmpge_pd(best_primitive, _mm_setzero_pd()),
+                                                               _mm_cmplt_pd(primitive, best_primitive)));
+    return _mm_or_pd(_mm_cmplt_pd(t, best), tie);
+}
+
 /* The nearest sphere hit below *nearest (the triangles' nearest, or t_max),
- * of equally near ones the lowest index: the rule of
- * scene_intersect_brute_force, kept lane by lane, then across the lanes. */
+ * kept lane by lane, then the better of the two lanes: no branch, as which
+ * lane wins is a coin flip. */
 static void nearest_sphere(const scene_bvh *bvh, vec3 origin, vec3 direction, double *nearest, int *found)
 {
     double a = v3_dot(direction, direction), inv_a = 1.0 / a;
-    __m128d best = _mm_set1_pd(*nearest), best_primitive = _mm_set1_pd(*found), zero = _mm_setzero_pd();
+    __m128d best = _mm_set1_pd(*nearest), best_primitive = _mm_set1_pd(*found);
     for (int i = 0; i < bvh->sphere_pair_count; i++) {
         __m128d t = sphere_pair_hits(&bvh->sphere_pairs[i], origin, direction, a, inv_a);
         __m128d primitive = _mm_loadu_pd(bvh->sphere_pairs[i].primitive);
-        __m128d tie = _mm_and_pd(_mm_cmpeq_pd(t, best), _mm_and_pd(_mm_cmpge_pd(best_primitive, zero),
-                                                                   _mm_cmplt_pd(primitive, best_primitive)));
-        __m128d better = _mm_or_pd(_mm_cmplt_pd(t, best), tie);
+        __m128d better = better_hit(t, primitive, best, best_primitive);
         best = select_pd(better, t, best);
         best_primitive = select_pd(better, primitive, best_primitive);
     }
-    double t[2], primitive[2];
-    _mm_storeu_pd(t, best);
-    _mm_storeu_pd(primitive, best_primitive);
-    for (int k = 0; k < 2; k++)
-        if (t[k] < *nearest || (t[k] == *nearest && *found >= 0 && primitive[k] >= 0 && primitive[k] < *found))
-            *nearest = t[k], *found = (int)primitive[k];
+    __m128d other = _mm_unpackhi_pd(best, best), other_primitive = _mm_unpackhi_pd(best_primitive, best_primitive);
+    __m128d better = better_hit(other, other_primitive, best, best_primitive);
+    *nearest = _mm_cvtsd_f64(select_pd(better, other, best));
+    *found = (int)_mm_cvtsd_f64(select_pd(better, other_primitive, best_primitive));
 }
 
 /* Does a sphere block the ray before t_max? */
@@ -1369,7 +1375,7 @@ static int linear_intersect(const scene *s, ray r, double t_max, hit *out)
     const scene_bvh *bvh = &s->bvh;
     double nearest = t_max;
     int found = -1;
-    for (int i = 0; i < bvh->primitive_count; i++) {
+    for (int i = 0; i < (s->triangle_count > 0 ? bvh->primitive_count : 0); i++) { /* smallpt's: spheres only */
         const leaf_primitive *p = &bvh->leaf_primitives[i];
         double t = p->is_sphere ? INFINITY : triangle_hit(p, r.origin, r.direction, t_max);
         if (t < nearest || (t == nearest && found >= 0 && p->primitive < found))
@@ -1386,7 +1392,7 @@ static int linear_intersect(const scene *s, ray r, double t_max, hit *out)
 static int any_primitive_hit(const scene *s, vec3 origin, vec3 direction, double t_max)
 {
     const scene_bvh *bvh = &s->bvh;
-    for (int i = 0; i < bvh->primitive_count; i++) {
+    for (int i = 0; i < (s->triangle_count > 0 ? bvh->primitive_count : 0); i++) {
         const leaf_primitive *p = &bvh->leaf_primitives[i];
         if (!p->is_sphere && triangle_hit(p, origin, direction, t_max) < t_max)
             return 1;
