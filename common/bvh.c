@@ -1368,6 +1368,11 @@ static int linear_is_cheaper(const scene *s)
     return linear_tests * rays <= tests;
 }
 
+/* How far linear search reads leaf_primitives for its triangles (the spheres
+ * it skips there are in sphere_pairs): none when there are no triangles
+ * (smallpt's scene), all of them otherwise. */
+static int triangle_pass_length(const scene *s) { return s->triangle_count > 0 ? s->bvh.primitive_count : 0; }
+
 /* A linear scene (bvh.linear): every triangle tested, then the spheres two
  * by two; the same hit as scene_intersect_brute_force, to the bit. */
 static int linear_intersect(const scene *s, ray r, double t_max, hit *out)
@@ -1375,7 +1380,7 @@ static int linear_intersect(const scene *s, ray r, double t_max, hit *out)
     const scene_bvh *bvh = &s->bvh;
     double nearest = t_max;
     int found = -1;
-    for (int i = 0; i < (s->triangle_count > 0 ? bvh->primitive_count : 0); i++) { /* smallpt's: spheres only */
+    for (int i = 0, n = triangle_pass_length(s); i < n; i++) {
         const leaf_primitive *p = &bvh->leaf_primitives[i];
         double t = p->is_sphere ? INFINITY : triangle_hit(p, r.origin, r.direction, t_max);
         if (t < nearest || (t == nearest && found >= 0 && p->primitive < found))
@@ -1392,7 +1397,7 @@ static int linear_intersect(const scene *s, ray r, double t_max, hit *out)
 static int any_primitive_hit(const scene *s, vec3 origin, vec3 direction, double t_max)
 {
     const scene_bvh *bvh = &s->bvh;
-    for (int i = 0; i < (s->triangle_count > 0 ? bvh->primitive_count : 0); i++) {
+    for (int i = 0, n = triangle_pass_length(s); i < n; i++) {
         const leaf_primitive *p = &bvh->leaf_primitives[i];
         if (!p->is_sphere && triangle_hit(p, origin, direction, t_max) < t_max)
             return 1;
