@@ -30,8 +30,14 @@
  *     traversal"): a box can be entered by mistake, never missed.  The
  *     primitives are then tested in double precision, exactly as before, so
  *     every hit (t, primitive) is the one the double-precision test gives.
- *   - Leaves: the primitives copied in leaf order (leaf_primitive), each a
- *     precomputed double-precision triangle transform or a sphere.
+ *   - Leaves: the primitives copied in leaf order, two side by side
+ *     (leaf_pair): a precomputed double-precision triangle transform or a
+ *     sphere in each lane of SSE2 registers, so that one pass of the
+ *     triangle test's arithmetic tests two triangles and gives both t to the
+ *     bit as the one-at-a-time test would, and the traversal asks once per
+ *     pair, not once per triangle, whether a nearer hit was found (Embree's
+ *     leaves hold four float triangles for the same reasons: Wald et al.
+ *     2014, "Embree: a kernel framework for efficient CPU ray tracing").
  *   - Linear search: where the tree costs more tests than testing every
  *     primitive (measured on rays of the scene itself at build time, bvh.c:
  *     linear_is_cheaper; smallpt's nine spheres), scene_intersect and
@@ -42,14 +48,14 @@
 
 #include "scene.h"
 
-/* At most this many primitives in a leaf (two bits of wide_node.child). */
+/* At most this many primitives in a leaf (two pairs; two bits of wide_node.child count pairs). */
 enum { BVH_LEAF_SIZE = 4, BVH_WIDTH = 8 };
 
 /* An inner node of the 8-wide tree.  bounds[f][k] is face f (lo x, y, z =
  * 0, 1, 2; hi x, y, z = 3, 4, 5) of child k: eight floats per face, two SSE
  * registers.  child[k] >= 0 is a wide_node index; child[k] < 0 is a leaf,
- * ~child[k] = first << 2 | (count - 1), its primitives leaf_primitives[first
- * .. first + count - 1].  An unused slot has an empty box (lo = +inf, hi =
+ * ~child[k] = first << 2 | (count - 1), its primitives those of
+ * leaf_pairs[first .. first + count - 1].  An unused slot has an empty box (lo = +inf, hi =
  * -inf), which no ray enters. */
 struct wide_node {
     float bounds[6][BVH_WIDTH];
@@ -57,15 +63,20 @@ struct wide_node {
     int unused[8]; /* pads the node to 256 bytes, four cache lines */
 };
 
-struct leaf_primitive {
-    /* Triangle: the rows of the map to its own coordinates and the limits
-     * of u, v and u + v (see triangle_transform).  Sphere: row[0] = center,
-     * offset[0] = radius. */
-    vec3 row[3];
-    double offset[3];
-    double u_min, v_min, uv_max;
-    int primitive; /* index into the primitives (see scene.h) */
-    int is_sphere;
+/* Two primitives of a leaf, lane 0 and lane 1 of SSE2 registers.  A
+ * triangle lane holds the rows of the map to the triangle's own coordinates
+ * and the limits of u, v and u + v (bvh.c: triangle_transform): row[i][a][k]
+ * is component a of row i in lane k.  A sphere lane (bit k of sphere_lanes)
+ * holds its centre in row[0][0..2][k] and its radius in offset[0][k].  A
+ * sphere lane and an empty one (primitive -1: the second lane of a leaf of
+ * odd count) have u_min NaN, which fails the triangle test. */
+struct leaf_pair {
+    double row[3][3][2];
+    double offset[3][2];
+    double u_min[2], v_min[2], uv_max[2];
+    int primitive[2]; /* index into the primitives (see scene.h), -1 in an empty lane */
+    int sphere_lanes;
+    int unused; /* pads the pair to 256 bytes, four cache lines */
 };
 
 /* The spheres, for linear search (scene_bvh.linear), two side by side: the
@@ -81,9 +92,9 @@ struct sphere_pair {
 /* Both are allocated on cache-line boundaries, so a record spans whole lines. */
 enum { BVH_ALIGNMENT = 64 };
 _Static_assert(sizeof(wide_node) == 256, "wide_node is 256 bytes");
-_Static_assert(sizeof(leaf_primitive) == 128, "leaf_primitive is 128 bytes");
+_Static_assert(sizeof(leaf_pair) == 256, "leaf_pair is 256 bytes");
 
-/* The leaf a negative wide_node.child names. */
+/* The leaf a negative wide_node.child names: its first pair and how many. */
 static inline int bvh_leaf_first(int child) { return ~child >> 2; }
 static inline int bvh_leaf_count(int child) { return (~child & 3) + 1; }
 

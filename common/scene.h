@@ -97,7 +97,7 @@ typedef struct {
 
 /* What traversal reads (defined in bvh.h, private to the BVH code). */
 typedef struct wide_node wide_node;
-typedef struct leaf_primitive leaf_primitive;
+typedef struct leaf_pair leaf_pair;
 typedef struct sphere_pair sphere_pair;
 
 /* The BVH over the primitives (common/bvh.c): an 8-wide tree whose leaves
@@ -107,7 +107,8 @@ typedef struct {
     int *primitive_order;            /* leaf order: primitive indices (the tests look at it) */
     wide_node *nodes;                /* node_count of them, depth-first, 64-byte aligned; root 0 */
     int node_count;                  /* 0 when the scene has no primitives */
-    leaf_primitive *leaf_primitives; /* the primitives in leaf order, 64-byte aligned */
+    leaf_pair *leaf_pairs;           /* the primitives in leaf order, two by two, 64-byte aligned */
+    int leaf_pair_count;             /* each leaf's primitives in pairs of their own: a leaf of 3 has 2 */
     int primitive_count;             /* triangles + spheres */
     double unit;                     /* a power of two: the boxes hold coordinates / unit (any scene fits a float) */
     double largest_coordinate;       /* largest |coordinate| of the root box, in units: sets the box tests' margin */

@@ -218,11 +218,14 @@ static void test_parse_cornell(void)
     CHECK_NEAR(s.bounds.hi.z, 559.2, 0, "bounds");
     CHECK_NEAR(s.epsilon, 1e-9 * 559.2, 1e-20, "epsilon");
 
-    /* Structure of the BVH: every primitive once, leaves of at most 4 that
-     * together cover the leaf order once, every inner node reached once. */
+    /* Structure of the BVH: leaves of at most 2 pairs that together cover
+     * the pairs once, every primitive in one lane of them (the second lane of
+     * a leaf's last pair empty for an odd count, no other lane), the leaf
+     * order the lanes' order, every inner node reached once. */
     int seen[64] = {0}, covered[64] = {0}, node_seen[64] = {0};
     int leaf_total = 0;
-    CHECK(s.bvh.primitive_count == s.triangle_count && s.bvh.node_count <= 64, "%d nodes", s.bvh.node_count);
+    CHECK(s.bvh.primitive_count == s.triangle_count && s.bvh.node_count <= 64 && s.bvh.leaf_pair_count <= 64,
+          "%d nodes, %d pairs", s.bvh.node_count, s.bvh.leaf_pair_count);
     for (int i = 0; i < s.bvh.node_count; i++)
         for (int k = 0; k < BVH_WIDTH; k++) {
             const wide_node *n = &s.bvh.nodes[i];
@@ -235,17 +238,28 @@ static void test_parse_cornell(void)
                 continue;
             }
             int first = bvh_leaf_first(n->child[k]), count = bvh_leaf_count(n->child[k]);
-            CHECK(count >= 1 && count <= 4 && first >= 0 && first + count <= s.triangle_count, "leaf %d + %d", first,
-                  count);
-            for (int j = first; j < first + count; j++)
+            CHECK(count >= 1 && count <= 2 && first >= 0 && first + count <= s.bvh.leaf_pair_count, "leaf %d + %d",
+                  first, count);
+            for (int j = first; j < first + count; j++) {
+                const leaf_pair *p = &s.bvh.leaf_pairs[j];
                 covered[j]++;
-            leaf_total += count;
+                CHECK(p->primitive[0] >= 0 && (p->primitive[1] >= 0 || j == first + count - 1) && p->sphere_lanes == 0,
+                      "pair %d: lanes %d %d", j, p->primitive[0], p->primitive[1]);
+                leaf_total += (p->primitive[0] >= 0) + (p->primitive[1] >= 0);
+            }
         }
     for (int i = 1; i < s.bvh.node_count; i++)
         CHECK(node_seen[i] == 1, "node %d is reached %d times", i, node_seen[i]);
-    for (int i = 0; i < s.triangle_count; i++) {
-        seen[s.bvh.primitive_order[i]]++;
-        CHECK(covered[i] == 1, "leaf slot %d covered %d times", i, covered[i]);
+    for (int i = 0; i < s.bvh.leaf_pair_count; i++)
+        CHECK(covered[i] == 1, "pair %d covered %d times", i, covered[i]);
+    int order = 0;
+    for (int i = 0; i < 2 * s.bvh.leaf_pair_count; i++) {
+        int primitive = s.bvh.leaf_pairs[i / 2].primitive[i % 2];
+        if (primitive < 0)
+            continue;
+        seen[primitive]++;
+        CHECK(order < s.triangle_count && s.bvh.primitive_order[order++] == primitive, "lane %d is out of leaf order",
+              i);
     }
     for (int i = 0; i < s.triangle_count; i++)
         CHECK(seen[i] == 1, "primitive %d appears %d times", i, seen[i]);
