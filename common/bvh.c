@@ -615,7 +615,8 @@ static int collapse(const build_node *nodes, const int *pair_first, int index, w
     }
     for (int k = 0; k < n; k++) {
         const build_node *kid = &nodes[kids[k]];
-        int child = kid->left < 0 ? leaf_child(kid, pair_first) : collapse(nodes, pair_first, kids[k], wide, wide_count);
+        int child =
+            kid->left < 0 ? leaf_child(kid, pair_first) : collapse(nodes, pair_first, kids[k], wide, wide_count);
         wide[out].child[k] = child;
     }
     return out;
@@ -919,8 +920,8 @@ void bvh_free(scene_bvh *bvh)
 
 size_t bvh_memory_bytes(const scene_bvh *bvh)
 {
-    return (size_t)bvh->node_count * sizeof(wide_node) +
-           (size_t)bvh->leaf_pair_count * sizeof(leaf_pair) + (size_t)bvh->primitive_count * sizeof *bvh->primitive_order +
+    return (size_t)bvh->node_count * sizeof(wide_node) + (size_t)bvh->leaf_pair_count * sizeof(leaf_pair) +
+           (size_t)bvh->primitive_count * sizeof *bvh->primitive_order +
            (size_t)bvh->sphere_pair_count * sizeof(sphere_pair);
 }
 
@@ -1475,7 +1476,8 @@ int scene_intersect_brute_force(const scene *s, ray r, double t_max, hit *out)
         double t[2];
         leaf_pair_hits(p, &pr, a, inv_a, t_max, t);
         for (int k = 0; k < 2; k++)
-            if (p->primitive[k] >= 0 && (t[k] < nearest || (t[k] == nearest && found >= 0 && p->primitive[k] < found))) {
+            if (p->primitive[k] >= 0 &&
+                (t[k] < nearest || (t[k] == nearest && found >= 0 && p->primitive[k] < found))) {
                 nearest = t[k];
                 found = p->primitive[k];
             }

@@ -104,16 +104,16 @@ typedef struct sphere_pair sphere_pair;
  * hold at most 4 primitives, copied in leaf order.  Each array is its own
  * allocation. */
 typedef struct {
-    int *primitive_order;            /* leaf order: primitive indices (the tests look at it) */
-    wide_node *nodes;                /* node_count of them, depth-first, 64-byte aligned; root 0 */
-    int node_count;                  /* 0 when the scene has no primitives */
-    leaf_pair *leaf_pairs;           /* the primitives in leaf order, two by two, 64-byte aligned */
-    int leaf_pair_count;             /* each leaf's primitives in pairs of their own: a leaf of 3 has 2 */
-    int primitive_count;             /* triangles + spheres */
-    double unit;                     /* a power of two: the boxes hold coordinates / unit (any scene fits a float) */
-    double largest_coordinate;       /* largest |coordinate| of the root box, in units: sets the box tests' margin */
-    int linear;                      /* 1: every primitive tested, the tree unused: cheaper in some small scenes */
-    sphere_pair *sphere_pairs;       /* the spheres two by two, for linear search's two-wide SIMD tests */
+    int *primitive_order;      /* leaf order: primitive indices (the tests look at it) */
+    wide_node *nodes;          /* node_count of them, depth-first, 64-byte aligned; root 0 */
+    int node_count;            /* 0 when the scene has no primitives */
+    leaf_pair *leaf_pairs;     /* the primitives in leaf order, two by two, 64-byte aligned */
+    int leaf_pair_count;       /* each leaf's primitives in pairs of their own: a leaf of 3 has 2 */
+    int primitive_count;       /* triangles + spheres */
+    double unit;               /* a power of two: the boxes hold coordinates / unit (any scene fits a float) */
+    double largest_coordinate; /* largest |coordinate| of the root box, in units: sets the box tests' margin */
+    int linear;                /* 1: every primitive tested, the tree unused: cheaper in some small scenes */
+    sphere_pair *sphere_pairs; /* the spheres two by two, for linear search's two-wide SIMD tests */
     int sphere_pair_count;
 } scene_bvh;
 
