@@ -1393,7 +1393,6 @@ static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, d
         t_max -= 2.0 * step;
     }
     double a = v3_dot(direction, direction), inv_a = 1.0 / a;
-    pair_ray pr = make_pair_ray(origin, direction);
     wide_stack stack;
     stack.top = 0;
     int found = -1, child = 0;
@@ -1411,6 +1410,7 @@ static ALWAYS_INLINE int traverse(const scene *s, vec3 origin, vec3 direction, d
         } else {
             if (tests) /* a leaf's visit, as much as a test: popped, sorted before */
                 ++*tests;
+            pair_ray pr = make_pair_ray(origin, direction); /* here, not per ray: a miss ray would pay for it */
             for (const leaf_pair *p = pairs + bvh_leaf_first(child), *end = p + bvh_leaf_count(child); p < end; p++) {
                 if (tests)
                     ++*tests;
