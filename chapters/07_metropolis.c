@@ -188,7 +188,8 @@ static double small_step(double u, rng *g)
 {
     const double s1 = 1.0 / 1024.0, s2 = 1.0 / 32.0;      /* s2: measured best on door-ajar (1/128..1/8) */
     double du = s2 * exp(-log(s2 / s1) * rng_uniform(g)); /* (R19) */
-    u += copysign(du, rng_uniform(g) - 0.5); /* up or down, each with probability 1/2 (no branch: a coin flip) */
+    /* Up or down, each with probability 1/2: copysign, not a branch (a coin flip, which the processor mispredicts). */
+    u += copysign(du, rng_uniform(g) - 0.5);
     u -= floor(u); /* (R19) wraparound mod 1 */
     return u < 1.0 ? u : 0.0;
 }
