@@ -54,9 +54,9 @@ enum { BVH_LEAF_SIZE = 4, BVH_WIDTH = 8 };
 /* An inner node of the 8-wide tree.  bounds[f][k] is face f (lo x, y, z =
  * 0, 1, 2; hi x, y, z = 3, 4, 5) of child k: eight floats per face, two SSE
  * registers.  child[k] >= 0 is a wide_node index; child[k] < 0 is a leaf,
- * ~child[k] = first << 2 | (count - 1), its primitives those of
- * leaf_pairs[first .. first + count - 1].  An unused slot has an empty box (lo = +inf, hi =
- * -inf), which no ray enters. */
+ * ~child[k] = first << 2 | (count - 1), its primitives those of the pairs
+ * leaf_pairs[first .. first + count - 1].  An unused slot has an empty box
+ * (lo = +inf, hi = -inf), which no ray enters. */
 struct wide_node {
     float bounds[6][BVH_WIDTH];
     int child[BVH_WIDTH];
