@@ -15,7 +15,8 @@ seeds and pixels (and its spread: min/median/max and the RMSE of each seed), the
 image mean against the reference's, mutations or passes per pixel; then the target: MMLT's RMSE at
 most half of BDPT's.  A benchmark, not a test: it prints what it measures, met or not.
 
-    /usr/bin/python3 bench/bench_07_metropolis.py        (BENCH7_SECONDS=30 BENCH7_SEEDS=16 ... to vary)
+    /usr/bin/python3 bench/bench_07_metropolis.py        (BENCH7_SECONDS=30 BENCH7_SEEDS=16 ... to vary;
+                                                          BENCH7_MLT_ARGS="--chains 16" adds chapter 7's options)
 """
 import json
 import math
@@ -35,8 +36,9 @@ REFERENCE_SECONDS = float(os.environ.get("BENCH7_REFERENCE_SECONDS", "120"))
 METHODS = os.environ.get("BENCH7_METHODS", "mmlt,pssmlt,bdpt").split(",")
 SCENE = "scenes/door-ajar.scene"
 OUT = os.path.join(ROOT, "out", "bench", "07")
-RUNS = {"mmlt": ("07_metropolis", ["--method", "mmlt"]), "pssmlt": ("07_metropolis", ["--method", "pssmlt"]),
-        "bdpt": ("06_bidirectional", ["--method", "bdpt"])}
+MLT_ARGS = os.environ.get("BENCH7_MLT_ARGS", "").split()  # more options for chapter 7's runs, to try other settings
+RUNS = {"mmlt": ("07_metropolis", ["--method", "mmlt", *MLT_ARGS]),
+        "pssmlt": ("07_metropolis", ["--method", "pssmlt", *MLT_ARGS]), "bdpt": ("06_bidirectional", ["--method", "bdpt"])}
 
 
 def render(chapter, args, name):
