@@ -794,7 +794,7 @@ static void collapse_tree(const builder *b, scene_bvh *bvh)
 }
 
 /* Numbers each leaf's pairs in leaf order (b->pair_first); returns how many. */
-static int number_leaf_pairs(builder *b, int n)
+static int number_leaf_pairs(const builder *b, int n)
 {
     int pairs = 0;
     for (int i = 0; i < n; i++) {
@@ -805,15 +805,14 @@ static int number_leaf_pairs(builder *b, int n)
 }
 
 /* The arrays traversal reads, from the binary tree. */
-static int build_wide_tree(scene *s, builder *b, int n)
+static int build_wide_tree(scene *s, const builder *b, int n)
 {
     scene_bvh *bvh = &s->bvh;
     /* A binary tree with n leaves has n - 1 inner nodes; a wide node takes
      * at least one of them. */
     bvh->nodes = aligned_array((size_t)(n > 1 ? n - 1 : 1), sizeof *bvh->nodes);
     bvh->primitive_order = malloc((size_t)n * sizeof *bvh->primitive_order);
-    b->pair_first = malloc((size_t)n * sizeof *b->pair_first);
-    if (bvh->nodes == NULL || bvh->primitive_order == NULL || b->pair_first == NULL)
+    if (bvh->nodes == NULL || bvh->primitive_order == NULL)
         return -1;
     bvh->leaf_pair_count = number_leaf_pairs(b, n);
     bvh->leaf_pairs = aligned_array((size_t)bvh->leaf_pair_count, sizeof *bvh->leaf_pairs);
@@ -886,9 +885,10 @@ int bvh_build(scene *s)
     builder b = {.refs = ref_bytes < HUGE_ARRAY ? malloc(ref_bytes) : aligned_array((size_t)n, sizeof(prim_ref)),
                  .nodes = node_bytes < HUGE_ARRAY ? malloc(node_bytes)
                                                   : aligned_array((size_t)(2 * n - 1), sizeof(build_node)),
-                 .leaf_count = calloc((size_t)n, sizeof(int))};
+                 .leaf_count = calloc((size_t)n, sizeof(int)),
+                 .pair_first = malloc((size_t)n * sizeof(int))};
     int status = -1;
-    if (b.refs && b.nodes && b.leaf_count) {
+    if (b.refs && b.nodes && b.leaf_count && b.pair_first) {
         status = build_binary_tree(s, &b, n);
         if (status == 0)
             status = build_wide_tree(s, &b, n);
@@ -989,6 +989,16 @@ double intersect_sphere(vec3 center, double radius, ray r)
     return sphere_hit(center, radius, r.origin, r.direction, a, 1.0 / a);
 }
 
+/* Does hit (t, primitive) beat the nearest so far (nearest, found)?  Nearer,
+ * or as near with a lower index (found -1: no hit yet), so that the brute
+ * force and linear search give one hit whatever the order they test in.
+ * An empty lane (t INFINITY) never beats: nearest is only infinite while
+ * found is -1.  better_hit is this rule in SSE2 lanes. */
+static inline int is_better_hit(double t, int primitive, double nearest, int found)
+{
+    return t < nearest || (t == nearest && found >= 0 && primitive < found);
+}
+
 /* Linear search's spheres, two by two (bvh.h: sphere_pair).  With SSE2
  * each lane does sphere_hit's operations in the same order, so each t is
  * the scalar one to the bit.  No branch: whether a sphere is hit, and
@@ -1077,7 +1087,7 @@ static void nearest_sphere(const scene_bvh *bvh, vec3 origin, vec3 direction, do
         const sphere_pair *p = &bvh->sphere_pairs[i / 2];
         double t = pair_lane_hit(p, i % 2, origin, direction, a, inv_a);
         int primitive = (int)p->primitive[i % 2];
-        if (t < *nearest || (t == *nearest && *found >= 0 && primitive < *found))
+        if (is_better_hit(t, primitive, *nearest, *found))
             *nearest = t, *found = primitive;
     }
 }
@@ -1488,8 +1498,7 @@ int scene_intersect_brute_force(const scene *s, ray r, double t_max, hit *out)
         double t[2];
         leaf_pair_hits(p, &pr, a, inv_a, t_max, t);
         for (int k = 0; k < 2; k++)
-            if (p->primitive[k] >= 0 &&
-                (t[k] < nearest || (t[k] == nearest && found >= 0 && p->primitive[k] < found))) {
+            if (is_better_hit(t[k], p->primitive[k], nearest, found)) {
                 nearest = t[k];
                 found = p->primitive[k];
             }
@@ -1571,7 +1580,7 @@ static int linear_intersect(const scene *s, ray r, double t_max, hit *out)
         double t[2];
         triangle_pair_hits(p, &pr, t_max, t);
         for (int k = 0; k < 2; k++)
-            if (t[k] < nearest || (t[k] == nearest && found >= 0 && p->primitive[k] < found))
+            if (is_better_hit(t[k], p->primitive[k], nearest, found))
                 nearest = t[k], found = p->primitive[k];
     }
     nearest_sphere(bvh, r.origin, r.direction, &nearest, &found);
