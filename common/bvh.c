@@ -834,7 +834,10 @@ static int build_wide_tree(scene *s, const builder *b, int n)
 
 static int linear_is_cheaper(const scene *s);
 
-/* The spheres in pairs, in leaf order, for linear search (bvh.h: sphere_pair). */
+/* The spheres in pairs, in the order of their indices, for linear search
+ * (bvh.h: sphere_pair): lane 0 holds spheres 0, 2, 4 ..., lane 1 spheres
+ * 1, 3, 5 ..., so that along a lane a later sphere never has the lower
+ * index, which nearest_sphere's tie rule relies on. */
 static int make_sphere_pairs(scene *s)
 {
     scene_bvh *bvh = &s->bvh;
@@ -844,23 +847,19 @@ static int make_sphere_pairs(scene *s)
     bvh->sphere_pairs = malloc((size_t)bvh->sphere_pair_count * sizeof *bvh->sphere_pairs);
     if (bvh->sphere_pairs == NULL)
         return -1;
-    int lane = 0;
-    for (int i = 0; i < 2 * bvh->leaf_pair_count; i++) {
-        const leaf_pair *p = &bvh->leaf_pairs[i / 2];
+    for (int i = 0; i < 2 * bvh->sphere_pair_count; i++) {
+        sphere_pair *pair = &bvh->sphere_pairs[i / 2];
         int k = i % 2;
-        if (!(p->sphere_lanes >> k & 1))
+        if (i == s->sphere_count) { /* the empty lane: radius NaN fails sphere_hit's disc >= 0 */
+            pair->x[k] = pair->y[k] = pair->z[k] = 0.0;
+            pair->radius[k] = NAN;
+            pair->primitive[k] = -1;
             continue;
-        sphere_pair *pair = &bvh->sphere_pairs[lane / 2];
-        pair->x[lane % 2] = p->row[0][0][k], pair->y[lane % 2] = p->row[0][1][k], pair->z[lane % 2] = p->row[0][2][k];
-        pair->radius[lane % 2] = p->offset[0][k];
-        pair->primitive[lane % 2] = p->primitive[k];
-        lane++;
-    }
-    if (lane % 2) { /* the empty lane: radius NaN fails sphere_hit's disc >= 0 */
-        sphere_pair *pair = &bvh->sphere_pairs[lane / 2];
-        pair->x[1] = pair->y[1] = pair->z[1] = 0.0;
-        pair->radius[1] = NAN;
-        pair->primitive[1] = -1;
+        }
+        const surface *sphere = &s->surfaces[s->sphere_surfaces[i]];
+        pair->x[k] = sphere->center.x, pair->y[k] = sphere->center.y, pair->z[k] = sphere->center.z;
+        pair->radius[k] = sphere->radius;
+        pair->primitive[k] = s->triangle_count + i;
     }
     return 0;
 }
@@ -1030,8 +1029,9 @@ static inline __m128d sphere_pair_hits(const sphere_pair *p, vec3 origin, vec3 d
     __m128d q = _mm_xor_pd(_mm_add_pd(b, _mm_or_pd(root, _mm_and_pd(b, sign))), sign);
     __m128d t0 = _mm_div_pd(c, q), t1 = _mm_mul_pd(q, _mm_set1_pd(inv_a));
     __m128d near = _mm_min_pd(t0, t1), far = _mm_max_pd(t1, t0); /* t0 < t1 ? t0 : t1, and the other */
-    __m128d t = select_pd(_mm_cmpgt_pd(near, zero), near, select_pd(_mm_cmpgt_pd(far, zero), far, infinity));
-    return select_pd(_mm_and_pd(_mm_cmpge_pd(disc, zero), _mm_cmpneq_pd(q, zero)), t, infinity);
+    __m128d t = select_pd(_mm_cmpgt_pd(near, zero), near, far);  /* far, if ahead: the test below */
+    __m128d hit = _mm_and_pd(_mm_and_pd(_mm_cmpge_pd(disc, zero), _mm_cmpneq_pd(q, zero)), _mm_cmpgt_pd(t, zero));
+    return select_pd(hit, t, infinity);
 }
 
 /* Lanes where hit (t, primitive) beats (best, best_primitive) by
@@ -1046,7 +1046,10 @@ static inline __m128d better_hit(__m128d t, __m128d primitive, __m128d best, __m
 
 /* The nearest sphere hit below *nearest (the triangles' nearest, or t_max),
  * kept lane by lane, then the better of the two lanes: no branch, as which
- * lane wins is a coin flip. */
+ * lane wins is a coin flip.  Within a lane a hit only replaces a strictly
+ * farther one: the one it ties with has the lower index (a triangle's, or
+ * an earlier sphere's of the lane: make_sphere_pairs), so the tie rule
+ * holds with one comparison, and min is the nearer t. */
 static void nearest_sphere(const scene_bvh *bvh, vec3 origin, vec3 direction, double *nearest, int *found)
 {
     double a = v3_dot(direction, direction), inv_a = 1.0 / a;
@@ -1054,9 +1057,8 @@ static void nearest_sphere(const scene_bvh *bvh, vec3 origin, vec3 direction, do
     for (int i = 0; i < bvh->sphere_pair_count; i++) {
         __m128d t = sphere_pair_hits(&bvh->sphere_pairs[i], origin, direction, a, inv_a);
         __m128d primitive = _mm_loadu_pd(bvh->sphere_pairs[i].primitive);
-        __m128d better = better_hit(t, primitive, best, best_primitive);
-        best = select_pd(better, t, best);
-        best_primitive = select_pd(better, primitive, best_primitive);
+        best_primitive = select_pd(_mm_cmplt_pd(t, best), primitive, best_primitive);
+        best = _mm_min_pd(t, best); /* t < best ? t : best */
     }
     __m128d other = _mm_unpackhi_pd(best, best), other_primitive = _mm_unpackhi_pd(best_primitive, best_primitive);
     __m128d better = better_hit(other, other_primitive, best, best_primitive);

@@ -82,8 +82,10 @@ struct leaf_pair {
 /* The spheres, for linear search (scene_bvh.linear), two side by side: the
  * lanes of one SSE2 register each, so that two spheres take one pass of
  * sphere_hit's arithmetic, its square root and division included (on
- * smallpt's nine spheres they were a fifth of chapter 4's time).  An odd
- * count leaves a lane with radius NaN, which no ray hits. */
+ * smallpt's nine spheres they were a fifth of chapter 4's time).  In the
+ * order of their indices (lane 0 the even ones), so that the nearest hit's
+ * tie rule is one comparison a pair.  An odd count leaves a lane with
+ * radius NaN, which no ray hits. */
 struct sphere_pair {
     double x[2], y[2], z[2], radius[2];
     double primitive[2]; /* the primitive indices, as doubles for SSE2's comparisons (exact below 2^53) */
