@@ -541,6 +541,42 @@ static void test_linear_search_of_small_scenes(void)
     }
 }
 
+/* Equally near hits: the lowest primitive index wins, whichever way the
+ * scene is searched.  Five spheres in one place give every ray five equal
+ * t (the same arithmetic on the same numbers); linear search keeps them in
+ * two lanes (0, 2, 4 and 1, 3), where a tie rule that let a later sphere win
+ * within its lane would answer 3 or 4. */
+static void test_equal_hits_go_to_the_lowest_index(void)
+{
+    const char *text = "camera eye 0 0 -5 look 0 0 0 up 0 1 0 fov 40\n"
+                       "material white diffuse 0.5 0.5 0.5\n"
+                       "sphere a white 0 0 0 1\nsphere b white 0 0 0 1\nsphere c white 0 0 0 1\n"
+                       "sphere d white 0 0 0 1\nsphere e white 0 0 0 1\n";
+    scene s;
+    char err[512] = "";
+    int status = load_text("ties.scene", text, &s, err, sizeof err);
+    CHECK(status == 0, "ties.scene: %.300s", err);
+    if (status)
+        return;
+    rng g = rng_for(23, 0, 0);
+    int wrong = 0, misses = 0;
+    for (int i = 0; i < 200; i++) {
+        vec3 d = v3_normalize(v3_sub(v3(rng_uniform(&g) - 0.5, rng_uniform(&g) - 0.5, 0.0), v3(0, 0, -5)));
+        ray r = {v3(0, 0, -5), d};
+        for (int way = 0; way < 3; way++) {
+            hit h;
+            s.bvh.linear = way == 1;
+            int found =
+                way == 2 ? scene_intersect_brute_force(&s, r, INFINITY, &h) : scene_intersect(&s, r, INFINITY, &h);
+            misses += !found;
+            wrong += found && h.primitive != s.triangle_count;
+        }
+    }
+    CHECK(misses == 0, "%d of 600 rays missed five spheres in their path", misses);
+    CHECK(wrong == 0, "%d of 600 equally near hits did not go to the first sphere", wrong);
+    scene_free(&s);
+}
+
 static void test_bvh_matches_brute_force(void)
 {
     char *text = random_scene_text();
@@ -853,6 +889,7 @@ int main(void)
     RUN_TEST(test_error_messages);
     RUN_TEST(test_bvh_matches_brute_force);
     RUN_TEST(test_linear_search_of_small_scenes);
+    RUN_TEST(test_equal_hits_go_to_the_lowest_index);
     RUN_TEST(test_occlusion_between_surfaces);
     RUN_TEST(test_surface_sampling);
     RUN_TEST(test_mesh_sampling_by_area);
