@@ -7,9 +7,11 @@ BENCH7_SEEDS times (default 8; four were too few: one seed can move the ratio by
 different seeds: MLT's error is correlated (one b per image, chains that linger), so its per-pixel
 error is measured over independent runs, never within one.
 Methods: MMLT (chapter 7's default), PSSMLT, and BDPT (chapter 6 --method bdpt); BENCH7_METHODS
-picks (mmlt,pssmlt,bdpt).  The reference is the mean of two independent BDPT renders a and b of
-BENCH7_REFERENCE_SECONDS each (default 120, two threads; kept in out/bench/07/ by size and
-reused); its own noise, mean((a - b)^2) / 4 per pixel, is subtracted from each method's MSE.
+picks (mmlt,pssmlt,bdpt).  BENCH7_SCENE renders another scene; BENCH7_DOOR_DEGREES=D the door ajar
+opened D degrees instead of 4 (a copy of the scene in out/bench/07/: how the ratio depends on the
+crack).  The reference is the mean of two independent BDPT renders a and b of
+BENCH7_REFERENCE_SECONDS each (default 120, two threads; kept in out/bench/07/ by scene and
+size, and reused); its own noise, mean((a - b)^2) / 4 per pixel, is subtracted from each method's MSE.
 Seeds are interleaved across methods (load changes hit all alike).  Prints, per method, the RMSE over
 seeds and pixels (and its spread: min/median/max and the RMSE of each seed), the
 image mean against the reference's, mutations or passes per pixel; then the target: MMLT's RMSE at
@@ -21,6 +23,7 @@ most half of BDPT's.  A benchmark, not a test: it prints what it measures, met o
 import json
 import math
 import os
+import re
 import subprocess
 import sys
 
@@ -34,11 +37,34 @@ SECONDS = float(os.environ.get("BENCH7_SECONDS", "10"))
 SEEDS = int(os.environ.get("BENCH7_SEEDS", "8"))
 REFERENCE_SECONDS = float(os.environ.get("BENCH7_REFERENCE_SECONDS", "120"))
 METHODS = os.environ.get("BENCH7_METHODS", "mmlt,pssmlt,bdpt").split(",")
-SCENE = "scenes/door-ajar.scene"
+SCENE = os.environ.get("BENCH7_SCENE", "scenes/door-ajar.scene")
+DOOR_DEGREES = os.environ.get("BENCH7_DOOR_DEGREES")
 OUT = os.path.join(ROOT, "out", "bench", "07")
 MLT_ARGS = os.environ.get("BENCH7_MLT_ARGS", "").split()  # more options for chapter 7's runs, to try other settings
 RUNS = {"mmlt": ("07_metropolis", ["--method", "mmlt", *MLT_ARGS]),
         "pssmlt": ("07_metropolis", ["--method", "pssmlt", *MLT_ARGS]), "bdpt": ("06_bidirectional", ["--method", "bdpt"])}
+
+
+def door_opened(degrees):
+    """A copy of door-ajar.scene (in OUT) with its door, 1 m wide and hinged at x = 1.5, z = 4, turned `degrees`."""
+    with open(os.path.join(ROOT, "scenes", "door-ajar.scene")) as f:
+        text = f.read()
+    angle = math.radians(float(degrees))
+    x, z = 1.5 + math.cos(angle), 4.0 + math.sin(angle)
+    door, count = re.subn(r"^quad door .*$", f"quad door white  1.5 0 4.0  {x:.4f} 0 {z:.4f}  {x:.4f} 2.05 {z:.4f}  "
+                          "1.5 2.05 4.0", text, flags=re.M)
+    if count != 1:
+        sys.exit("bench: scenes/door-ajar.scene has no line 'quad door ...' to turn")
+    os.makedirs(OUT, exist_ok=True)
+    path = os.path.join(OUT, f"door-ajar-{degrees}deg.scene")
+    with open(path, "w") as f:
+        f.write(door)
+    return path
+
+
+if DOOR_DEGREES:
+    SCENE = door_opened(DOOR_DEGREES)
+STEM = os.path.splitext(os.path.basename(SCENE))[0]
 
 
 def render(chapter, args, name):
@@ -60,7 +86,7 @@ def reference():
     """Two independent long BDPT renders (reused when present): their mean and its noise per pixel."""
     halves = []
     for seed in (9001, 9002):
-        name = f"reference-{SIZE}-{seed}"
+        name = f"reference-{STEM}-{SIZE}-{seed}"
         pfm = os.path.join(OUT, name + ".pfm")
         if os.path.exists(pfm):
             halves.append(list(read_pfm(pfm)[2]))
@@ -86,7 +112,7 @@ def main():
         for method in METHODS:
             chapter, args = RUNS[method]
             img, stats = render(chapter, [*args, "--time", SECONDS, "--threads", 1, "--seed", 100 + i],
-                                f"{method}-{SIZE}-{i}")
+                                f"{method}-{STEM}-{SIZE}-{i}")
             per_seed, means, counts = results[method]
             per_seed.append(sum((x - r) ** 2 for x, r in zip(img, ref)) / len(ref))
             means.append(sum(img) / len(img))
