@@ -2,16 +2,18 @@
 
 scenes/door-ajar.scene: the lamp is in the far room, its light reaches the camera's room only
 through the crack of a door open 4 degrees.  Each method renders BENCH7_SIZE x BENCH7_SIZE (default
-64) for --time BENCH7_SECONDS (default 10; the budget counts MLT's bootstrap) on one thread,
-BENCH7_SEEDS times (default 8; four were too few: one seed can move the ratio by a tenth) with
-different seeds: MLT's error is correlated (one b per image, chains that linger), so its per-pixel
-error is measured over independent runs, never within one.
+128, the scene's own image; at 64 x 64 MLT gains less: its error is mostly correlated over whole
+regions, which smaller pixels do not make worse, while BDPT's noise per pixel grows) for --time
+BENCH7_SECONDS (default 10; the budget counts MLT's bootstrap) on one thread, BENCH7_SEEDS times
+(default 8; four were too few: one seed can move the ratio by a tenth) with different seeds: MLT's
+error is correlated (one b per image, chains that linger), so its per-pixel error is measured over
+independent runs, never within one.
 Methods: MMLT (chapter 7's default), PSSMLT, and BDPT (chapter 6 --method bdpt); BENCH7_METHODS
-picks (mmlt,pssmlt,bdpt).  BENCH7_SCENE renders another scene; BENCH7_DOOR_DEGREES=D the door ajar
+picks (mmlt,pssmlt,bdpt). BENCH7_SCENE renders another scene; BENCH7_DOOR_DEGREES=D the door ajar
 opened D degrees instead of 4 (a copy of the scene in out/bench/07/: how the ratio depends on the
-crack).  The reference is the mean of two independent BDPT renders a and b of
-BENCH7_REFERENCE_SECONDS each (default 120, two threads; kept in out/bench/07/ by scene and
-size, and reused); its own noise, mean((a - b)^2) / 4 per pixel, is subtracted from each method's MSE.
+crack). The reference is the mean of two independent BDPT renders a and b of
+BENCH7_REFERENCE_SECONDS each (default 300, two threads; kept in out/bench/07/ by scene and size,
+and reused); its own noise, mean((a - b)^2) / 4 per pixel, is subtracted from each method's MSE.
 Seeds are interleaved across methods (load changes hit all alike).  Prints, per method, the RMSE over
 seeds and pixels (and its spread: min/median/max and the RMSE of each seed), the
 image mean against the reference's, mutations or passes per pixel; then the target: MMLT's RMSE at
@@ -32,10 +34,10 @@ from common import BUILD, ROOT
 sys.path.insert(0, os.path.join(ROOT, "tests"))
 from pfm import read_pfm  # noqa: E402
 
-SIZE = int(os.environ.get("BENCH7_SIZE", "64"))
+SIZE = int(os.environ.get("BENCH7_SIZE", "128"))
 SECONDS = float(os.environ.get("BENCH7_SECONDS", "10"))
 SEEDS = int(os.environ.get("BENCH7_SEEDS", "8"))
-REFERENCE_SECONDS = float(os.environ.get("BENCH7_REFERENCE_SECONDS", "120"))
+REFERENCE_SECONDS = float(os.environ.get("BENCH7_REFERENCE_SECONDS", "300"))
 METHODS = os.environ.get("BENCH7_METHODS", "mmlt,pssmlt,bdpt").split(",")
 SCENE = os.environ.get("BENCH7_SCENE", "scenes/door-ajar.scene")
 DOOR_DEGREES = os.environ.get("BENCH7_DOOR_DEGREES")
