@@ -1,13 +1,13 @@
 """Metropolis light transport (chapter 7) against BDPT (chapter 6) at equal time on Veach's door ajar.
 
 scenes/door-ajar.scene: the lamp is in the far room, its light reaches the camera's room only
-through the crack of a door open 4 degrees.  Each method renders BENCH7_SIZE x BENCH7_SIZE (default
+through the crack of a door open 4 degrees. Each method renders BENCH7_SIZE x BENCH7_SIZE (default
 128, the scene's own image; at 64 x 64 MLT gains less: its error is mostly correlated over whole
 regions, which smaller pixels do not make worse, while BDPT's noise per pixel grows) for --time
 BENCH7_SECONDS (default 10; the budget counts MLT's bootstrap) on one thread, BENCH7_SEEDS times
-(default 8; four were too few: one seed can move the ratio by a tenth) with different seeds: MLT's
-error is correlated (one b per image, chains that linger), so its per-pixel error is measured over
-independent runs, never within one.
+(default 8; four were too few: one seed can move the ratio by a tenth) with seeds BENCH7_FIRST_SEED
+(default 100), +1, ...: MLT's error is correlated (one b per image, chains that linger), so its
+per-pixel error is measured over independent runs, never within one.
 Methods: MMLT (chapter 7's default), PSSMLT, and BDPT (chapter 6 --method bdpt); BENCH7_METHODS
 picks (mmlt,pssmlt,bdpt). BENCH7_SCENE renders another scene; BENCH7_DOOR_DEGREES=D the door ajar
 opened D degrees instead of 4 (a copy of the scene in out/bench/07/: how the ratio depends on the
@@ -37,6 +37,7 @@ from pfm import read_pfm  # noqa: E402
 SIZE = int(os.environ.get("BENCH7_SIZE", "128"))
 SECONDS = float(os.environ.get("BENCH7_SECONDS", "10"))
 SEEDS = int(os.environ.get("BENCH7_SEEDS", "8"))
+FIRST_SEED = int(os.environ.get("BENCH7_FIRST_SEED", "100"))  # seeds FIRST_SEED, FIRST_SEED + 1, ...
 REFERENCE_SECONDS = float(os.environ.get("BENCH7_REFERENCE_SECONDS", "300"))
 METHODS = os.environ.get("BENCH7_METHODS", "mmlt,pssmlt,bdpt").split(",")
 SCENE = os.environ.get("BENCH7_SCENE", "scenes/door-ajar.scene")
@@ -113,7 +114,7 @@ def main():
     for i in range(SEEDS):  # interleaved: seed i of every method, then seed i + 1, so load changes hit all alike
         for method in METHODS:
             chapter, args = RUNS[method]
-            img, stats = render(chapter, [*args, "--time", SECONDS, "--threads", 1, "--seed", 100 + i],
+            img, stats = render(chapter, [*args, "--time", SECONDS, "--threads", 1, "--seed", FIRST_SEED + i],
                                 f"{method}-{STEM}-{SIZE}-{i}")
             per_seed, means, counts = results[method]
             per_seed.append(sum((x - r) ** 2 for x, r in zip(img, ref)) / len(ref))
