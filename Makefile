@@ -165,15 +165,18 @@ test-cluster: deps-cluster
 BENCH_PACKAGES := libembree-dev npm gnuplot-nox
 EMBREE_HEADER := /usr/include/embree3/rtcore.h
 $(BUILD)/bench/bench_embree: LDLIBS += -lembree3
+$(BUILD)/bench/bench_tree_counts: LDLIBS += -lembree3
 .PHONY: deps-bench
 deps-bench:
 	$(call install_packages,$(BUILD_PACKAGES) $(VIEWER_PACKAGES) $(BENCH_PACKAGES))
 
 bench: deps-demo
 	$(MAKE) --no-print-directory all
-	@if [ -f $(EMBREE_HEADER) ]; then $(MAKE) --no-print-directory $(BUILD)/bench/bench_embree; \
+	@if [ -f $(EMBREE_HEADER) ]; then \
+	  $(MAKE) --no-print-directory $(BUILD)/bench/bench_embree $(BUILD)/bench/bench_tree_counts; \
 	else echo "bench: Embree is missing ($(EMBREE_HEADER); make deps-bench installs libembree-dev):" \
-	  "the comparison with Embree is skipped, the rest is benched"; rm -f $(BUILD)/bench/bench_embree; fi
+	  "the comparison with Embree is skipped, the rest is benched"; \
+	  rm -f $(BUILD)/bench/bench_embree $(BUILD)/bench/bench_tree_counts; fi
 	$(PYTHON) bench/bench.py build
 
 # libFuzzer on the scene parser (clang), time-boxed; crashing inputs land in
