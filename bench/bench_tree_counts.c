@@ -75,8 +75,8 @@ static void *create_leaf(RTCThreadLocalAllocator allocator, const struct RTCBuil
     tree_node *n = rtcThreadLocalAlloc(allocator, sizeof *n, 16);
     memset(n, 0, sizeof *n);
     n->is_leaf = 1;
-    n->count = (int)count;
-    for (size_t i = 0; i < count && i < 4; i++)
+    n->count = count < 4 ? (int)count : 4; /* maxLeafSize 4: never more */
+    for (int i = 0; i < n->count; i++)
         n->primitives[i] = (int)primitives[i].primID;
     return n;
 }
@@ -230,7 +230,7 @@ int main(int argc, char **argv)
 {
     int width = 256, height = 256;
     if (argc < 2 || (argc == 4 && (strcmp(argv[2], "--size") || sscanf(argv[3], "%dx%d", &width, &height) != 2)) ||
-        (argc != 2 && argc != 4)) {
+        (argc != 2 && argc != 4) || width <= 0 || height <= 0) {
         fprintf(stderr, "usage: bench_tree_counts SCENE [--size WxH]\n");
         return 2;
     }
